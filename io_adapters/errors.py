@@ -1,0 +1,66 @@
+"""lanecast's own exception types.
+
+Every error a user can cause with bad input is one of these, and its message names the file, the
+row or byte offset, the column or topic, and what was expected, so that it can be fixed without a
+debugger. The CLI prints them as one line and exits with status 2; nothing else is caught.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class LanecastError(Exception):
+    """Base class of every error lanecast raises on purpose."""
+
+
+class InputError(LanecastError):
+    """Input that cannot be read as what it claims to be.
+
+    ``line`` is 1-based and counts the header line, as an editor shows it; ``offset`` is a byte
+    offset for binary files (logs). Either may be None where it does not apply.
+    """
+
+    def __init__(
+        self,
+        path: str | Path | None,
+        message: str,
+        *,
+        line: int | None = None,
+        offset: int | None = None,
+        column: str | None = None,
+        expected: str | None = None,
+    ) -> None:
+        self.path = None if path is None else str(path)
+        self.line = line
+        self.offset = offset
+        self.column = column
+        self.expected = expected
+        self.reason = message
+        where = [self.path or "<input>"]
+        if line is not None:
+            where.append(f"line {line}")
+        if offset is not None:
+            where.append(f"offset {offset}")
+        if column is not None:
+            where.append(f"column {column!r}")
+        text = ", ".join(where) + f": {message}"
+        if expected is not None:
+            text += f" (expected {expected})"
+        super().__init__(text)
+
+
+class FormatNotRecognisedError(InputError):
+    """No adapter recognises the file."""
+
+
+class TrackTableError(LanecastError):
+    """A track table that breaks the contract of DESIGN.md §1 (see io_adapters.track_table)."""
+
+
+class LogError(InputError):
+    """A drive log (MCAP or bag) that is damaged, empty, or has no supported topic."""
+
+
+class FrameError(LanecastError):
+    """Objects in a moving frame with no transform to a fixed frame in the log."""

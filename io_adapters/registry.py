@@ -1,0 +1,80 @@
+"""Which adapter reads or writes which format, and format detection.
+
+Every reader module exposes ``FORMAT`` (its name), ``sniff(path) -> bool`` (cheap look at the
+first bytes or the file name) and ``read(paths, **options) -> pa.Table`` returning a validated track
+table. Every writer module exposes ``write(table, out, fmt, **options) -> Path``. Modules are
+imported only when used, so that `lanecast --help` stays fast.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Sequence
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+import pyarrow as pa
+
+from io_adapters import track_table
+from io_adapters.errors import FormatNotRecognisedError, InputError
+
+READERS: dict[str, str] = {
+    "parquet": "io_adapters.parquet",
+    "highd": "io_adapters.highd",
+    "ngsim": "io_adapters.ngsim",
+    "mcap": "io_adapters.mcap_reader",
+    "rosbag": "io_adapters.rosbag_reader",
+}
+WRITERS: dict[str, str] = {
+    "parquet": "io_adapters.parquet",
+    "mcap": "io_adapters.mcap_writer",
+    "ros2": "io_adapters.rosbag_writer",
+    "ros1": "io_adapters.rosbag_writer",
+}
+
+
+def reader(fmt: str) -> ModuleType:
+    if fmt not in READERS:
+        raise FormatNotRecognisedError(
+            None, f"unknown input format {fmt!r}", expected=f"one of {sorted(READERS)}"
+        )
+    return importlib.import_module(READERS[fmt])
+
+
+def writer(fmt: str) -> ModuleType:
+    if fmt not in WRITERS:
+        raise FormatNotRecognisedError(
+            None, f"unknown output format {fmt!r}", expected=f"one of {sorted(WRITERS)}"
+        )
+    return importlib.import_module(WRITERS[fmt])
+
+
+def detect(path: str | Path) -> str:
+    """The name of the format of ``path`` (a file, or a directory such as a ROS 2 bag)."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError(path, "no such file or directory")
+    for fmt in READERS:
+        if reader(fmt).sniff(path):
+            return fmt
+    raise FormatNotRecognisedError(
+        path,
+        "format not recognised",
+        expected="a highD or NGSIM CSV, an NGSIM .txt, Parquet, MCAP or a ROS bag",
+    )
+
+
+def read_any(paths: Sequence[str | Path], fmt: str | None = None, **options: Any) -> pa.Table:
+    """Read inputs of any supported format (detected per path unless ``fmt``) into one track table."""
+    groups: dict[str, list[Path]] = {}
+    for p in map(Path, paths):
+        groups.setdefault(fmt or detect(p), []).append(p)
+    tables = [reader(name).read(group, **options) for name, group in groups.items()]
+    return tables[0] if len(tables) == 1 else track_table.concat(tables)
+
+
+def write_any(table: pa.Table, out: str | Path, fmt: str, **options: Any) -> Path:
+    """Write a track table in ``fmt`` (parquet, mcap, ros2, ros1)."""
+    path: Path = writer(fmt).write(table, Path(out), fmt, **options)
+    return path

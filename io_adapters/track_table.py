@@ -1,0 +1,355 @@
+"""The track table: lanecast's one common format (DESIGN.md §1), defined here and nowhere else.
+
+One row per object per frame, an Arrow table, Parquet (zstd) on disk. Units are part of the schema:
+every physical column carries its unit in its field metadata, and the table carries a JSON document
+under the schema metadata key ``lanecast`` with the source format, the source files and, per
+recording, the frame rate, the coordinate frame and whatever the source gives (lane markings, …).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable, Mapping
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
+
+from io_adapters.atomic import atomic_path
+from io_adapters.errors import TrackTableError
+
+SCHEMA_VERSION = 1
+META_KEY = b"lanecast"
+
+NEIGHBOUR_COLUMNS: tuple[str, ...] = (
+    "preceding_id",
+    "following_id",
+    "left_preceding_id",
+    "left_alongside_id",
+    "left_following_id",
+    "right_preceding_id",
+    "right_alongside_id",
+    "right_following_id",
+)
+
+
+def _field(name: str, type_: pa.DataType, unit: str | None = None, nullable: bool = False) -> pa.Field:
+    metadata = {b"unit": unit.encode()} if unit else None
+    return pa.field(name, type_, nullable=nullable, metadata=metadata)
+
+
+_DICT = pa.dictionary(pa.int32(), pa.string())
+
+REQUIRED_FIELDS: tuple[pa.Field, ...] = (
+    _field("recording", _DICT),
+    _field("track_id", pa.int64()),
+    _field("frame", pa.int64()),
+    _field("time_ns", pa.int64(), "ns"),
+    _field("x", pa.float64(), "m"),
+    _field("y", pa.float64(), "m"),
+    _field("heading", pa.float32(), "rad"),
+    _field("vx", pa.float32(), "m/s"),
+    _field("vy", pa.float32(), "m/s"),
+    _field("ax", pa.float32(), "m/s^2"),
+    _field("ay", pa.float32(), "m/s^2"),
+    _field("length", pa.float32(), "m"),
+    _field("width", pa.float32(), "m"),
+    _field("lane_id", pa.int32(), nullable=True),
+    _field("object_class", _DICT),
+)
+OPTIONAL_FIELDS: tuple[pa.Field, ...] = tuple(
+    _field(name, pa.int64(), nullable=True) for name in NEIGHBOUR_COLUMNS
+)
+REQUIRED_COLUMNS: tuple[str, ...] = tuple(f.name for f in REQUIRED_FIELDS)
+UNITS: dict[str, str] = {
+    f.name: f.metadata[b"unit"].decode() for f in REQUIRED_FIELDS if f.metadata and b"unit" in f.metadata
+}
+# Columns that must never hold NaN, inf or null.
+FINITE_COLUMNS: tuple[str, ...] = ("x", "y", "heading", "vx", "vy", "ax", "ay", "length", "width")
+_FIELDS_BY_NAME = {f.name: f for f in REQUIRED_FIELDS + OPTIONAL_FIELDS}
+
+
+@dataclass
+class RecordingMeta:
+    """What is known about one recording: its rate, its coordinate frame and the source's extras."""
+
+    frame_rate: float
+    coordinate_frame: str = "road"  # "road" (x along travel, y left), or a log's fixed frame id
+    source_files: list[str] = field(default_factory=list)
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class TableMeta:
+    """The table-level metadata document stored under the schema metadata key ``lanecast``."""
+
+    source_format: str
+    recordings: dict[str, RecordingMeta]
+    source_files: list[str] = field(default_factory=list)
+
+    @property
+    def frame_rate(self) -> float | None:
+        """The common frame rate of all recordings, or None where they differ."""
+        rates = {r.frame_rate for r in self.recordings.values()}
+        return rates.pop() if len(rates) == 1 else None
+
+    def to_json(self) -> str:
+        doc = {
+            "schema_version": SCHEMA_VERSION,
+            "frame_rate": self.frame_rate,
+            "source_format": self.source_format,
+            "source_files": self.source_files,
+            "units": UNITS,
+            "recordings": {name: asdict(rec) for name, rec in self.recordings.items()},
+        }
+        return json.dumps(doc, sort_keys=True)
+
+    @classmethod
+    def from_json(cls, text: str | bytes) -> TableMeta:
+        doc = json.loads(text)
+        recordings = {name: RecordingMeta(**rec) for name, rec in doc["recordings"].items()}
+        return cls(doc["source_format"], recordings, list(doc.get("source_files", [])))
+
+
+def schema(with_neighbours: bool) -> pa.Schema:
+    """The Arrow schema of a track table, with or without the eight neighbour id columns."""
+    fields = REQUIRED_FIELDS + (OPTIONAL_FIELDS if with_neighbours else ())
+    return pa.schema(list(fields))
+
+
+def build_table(columns: Mapping[str, Any], meta: TableMeta) -> pa.Table:
+    """Assemble a track table from column arrays (numpy, lists or Arrow), cast to the schema.
+
+    Columns are put in schema order; the neighbour columns are kept only where given (all or some:
+    the missing ones of a partial set are filled with nulls). Rows are sorted by
+    (recording, track_id, frame). The result is not validated: call :func:`validate`.
+    """
+    missing = [name for name in REQUIRED_COLUMNS if name not in columns]
+    if missing:
+        raise TrackTableError(f"cannot build a track table without columns {missing}")
+    has_neighbours = any(name in columns for name in NEIGHBOUR_COLUMNS)
+    target = schema(has_neighbours)
+    n_rows = len(columns["track_id"])
+    arrays = []
+    for f in target:
+        if f.name not in columns:
+            arrays.append(pa.nulls(n_rows, f.type))
+            continue
+        arrays.append(_to_arrow(columns[f.name], f))
+    table = pa.Table.from_arrays(arrays, schema=target)
+    table = table.replace_schema_metadata({META_KEY: meta.to_json().encode()})
+    return sort_rows(table)
+
+
+def _to_arrow(values: Any, f: pa.Field) -> pa.Array:
+    if isinstance(values, pa.ChunkedArray):
+        values = values.combine_chunks()
+    if pa.types.is_dictionary(f.type):
+        arr = values if isinstance(values, pa.Array) else pa.array(np.asarray(values).astype(str))
+        if not pa.types.is_dictionary(arr.type):
+            arr = pc.dictionary_encode(arr.cast(pa.string()))
+        return arr.cast(f.type)
+    if isinstance(values, pa.Array):
+        return values.cast(f.type)
+    array = np.asarray(values)
+    if f.nullable and array.dtype.kind == "f":
+        # Float carriers of nullable integer columns: NaN means null.
+        mask = np.isnan(array)
+        return pa.array(np.where(mask, 0, array).astype(f.type.to_pandas_dtype()), mask=mask, type=f.type)
+    return pa.array(array, type=f.type)
+
+
+def sort_rows(table: pa.Table) -> pa.Table:
+    """Sort rows by (recording, track_id, frame), keeping the schema and its metadata."""
+    order = pc.sort_indices(
+        table.select(["recording", "track_id", "frame"]).cast(
+            pa.schema([("recording", pa.string()), ("track_id", pa.int64()), ("frame", pa.int64())])
+        ),
+        sort_keys=[("recording", "ascending"), ("track_id", "ascending"), ("frame", "ascending")],
+    )
+    return table.take(order)
+
+
+def read_meta(table: pa.Table | pa.Schema) -> TableMeta:
+    """The ``lanecast`` metadata document of a track table."""
+    schema_ = table if isinstance(table, pa.Schema) else table.schema
+    raw = (schema_.metadata or {}).get(META_KEY)
+    if raw is None:
+        raise TrackTableError("the table carries no 'lanecast' schema metadata (not a lanecast track table)")
+    return TableMeta.from_json(raw)
+
+
+def validate(table: pa.Table, source: str | Path | None = None) -> None:
+    """Check a table against the contract; raise TrackTableError naming the first violation.
+
+    Checks: columns and types, units in the field metadata, recording metadata with a frame rate,
+    no NaN/inf/null in required columns, unique (recording, track_id, frame), rows sorted by
+    (recording, track_id, frame), and time strictly increasing along every track.
+    """
+    where = f"{source}: " if source is not None else ""
+    present = set(table.column_names)
+    for name in REQUIRED_COLUMNS:
+        if name not in present:
+            raise TrackTableError(f"{where}missing column {name!r}")
+    for name in table.column_names:
+        expected = _FIELDS_BY_NAME.get(name)
+        if expected is None:
+            raise TrackTableError(f"{where}unexpected column {name!r}; allowed: {sorted(_FIELDS_BY_NAME)}")
+        got = table.schema.field(name)
+        if got.type != expected.type:
+            raise TrackTableError(f"{where}column {name!r} has type {got.type}, expected {expected.type}")
+        if name in UNITS and (got.metadata or {}).get(b"unit", b"").decode() != UNITS[name]:
+            raise TrackTableError(f"{where}column {name!r} does not state its unit {UNITS[name]!r}")
+    meta = read_meta(table)
+    recordings = set(pc.unique(table.column("recording").cast(pa.string())).to_pylist())
+    unknown = recordings - set(meta.recordings)
+    if unknown:
+        raise TrackTableError(f"{where}recordings {sorted(unknown)} have no entry in the table metadata")
+    for name, rec in meta.recordings.items():
+        if not (np.isfinite(rec.frame_rate) and rec.frame_rate > 0):
+            raise TrackTableError(f"{where}recording {name!r} has frame rate {rec.frame_rate}, expected > 0")
+    if table.num_rows == 0:
+        return
+    for name in REQUIRED_COLUMNS:
+        column = table.column(name)
+        if name != "lane_id" and column.null_count:
+            row = _first(pc.is_null(column))
+            raise TrackTableError(f"{where}row {row}: column {name!r} is null")
+    for name in FINITE_COLUMNS:
+        values = table.column(name).to_numpy()
+        bad = ~np.isfinite(values)
+        if bad.any():
+            row = int(np.flatnonzero(bad)[0])
+            raise TrackTableError(
+                f"{where}row {row}: column {name!r} is {values[row]}, expected a finite number"
+            )
+    rec_codes = _recording_codes(table)
+    track = table.column("track_id").to_numpy()
+    frame = table.column("frame").to_numpy()
+    time = table.column("time_ns").to_numpy()
+    same_track = (rec_codes[1:] == rec_codes[:-1]) & (track[1:] == track[:-1])
+    order_ok = (rec_codes[1:] > rec_codes[:-1]) | (
+        (rec_codes[1:] == rec_codes[:-1])
+        & ((track[1:] > track[:-1]) | (same_track & (frame[1:] >= frame[:-1])))
+    )
+    if not order_ok.all():
+        row = int(np.flatnonzero(~order_ok)[0]) + 1
+        raise TrackTableError(f"{where}row {row}: rows are not sorted by (recording, track_id, frame)")
+    duplicate = same_track & (frame[1:] == frame[:-1])
+    if duplicate.any():
+        row = int(np.flatnonzero(duplicate)[0]) + 1
+        raise TrackTableError(
+            f"{where}row {row}: duplicate (recording, track_id, frame) = "
+            f"({table.column('recording')[row]}, {track[row]}, {frame[row]})"
+        )
+    backwards = same_track & (time[1:] <= time[:-1])
+    if backwards.any():
+        row = int(np.flatnonzero(backwards)[0]) + 1
+        raise TrackTableError(
+            f"{where}row {row}: time_ns does not increase along track {track[row]} "
+            f"({time[row - 1]} then {time[row]})"
+        )
+
+
+def _first(mask: pa.ChunkedArray | pa.Array) -> int:
+    return int(np.flatnonzero(np.asarray(mask))[0])
+
+
+def _recording_codes(table: pa.Table) -> np.ndarray:
+    """Recording names as integers ordered like the names (for vectorised sort checks)."""
+    names = table.column("recording").cast(pa.string()).to_numpy(zero_copy_only=False)
+    _, codes = np.unique(names, return_inverse=True)
+    return codes
+
+
+def track_boundaries(table: pa.Table) -> np.ndarray:
+    """Row indices where a new (recording, track_id) starts, plus the row count at the end.
+
+    Assumes rows sorted by (recording, track_id, frame); ``starts[i]:starts[i+1]`` is track i.
+    """
+    n = table.num_rows
+    if n == 0:
+        return np.zeros(1, dtype=np.int64)
+    codes = _recording_codes(table)
+    track = table.column("track_id").to_numpy()
+    change = np.flatnonzero((codes[1:] != codes[:-1]) | (track[1:] != track[:-1])) + 1
+    return np.concatenate([[0], change, [n]]).astype(np.int64)
+
+
+def concat(tables: Iterable[pa.Table]) -> pa.Table:
+    """Concatenate track tables from several sources into one, merging their metadata.
+
+    Recording names must be unique across the inputs.
+    """
+    tables = list(tables)
+    if not tables:
+        raise TrackTableError("nothing to concatenate")
+    metas = [read_meta(t) for t in tables]
+    recordings: dict[str, RecordingMeta] = {}
+    for m in metas:
+        clash = set(recordings) & set(m.recordings)
+        if clash:
+            raise TrackTableError(f"recording names {sorted(clash)} occur in more than one input")
+        recordings.update(m.recordings)
+    formats = sorted({m.source_format for m in metas})
+    files = [f for m in metas for f in m.source_files]
+    meta = TableMeta("+".join(formats), recordings, files)
+    with_neighbours = any(NEIGHBOUR_COLUMNS[0] in t.column_names for t in tables)
+    target = schema(with_neighbours)
+    aligned = []
+    for t in tables:
+        cols = {name: t.column(name) for name in t.column_names}
+        arrays = [
+            cols[f.name].combine_chunks().cast(f.type) if f.name in cols else pa.nulls(t.num_rows, f.type)
+            for f in target
+        ]
+        aligned.append(pa.Table.from_arrays(arrays, schema=target))
+    merged = pa.concat_tables(aligned, promote_options="permissive").unify_dictionaries()
+    merged = merged.replace_schema_metadata({META_KEY: meta.to_json().encode()})
+    return sort_rows(merged)
+
+
+def write_parquet(table: pa.Table, path: str | Path) -> Path:
+    """Write a validated track table as Parquet (zstd), atomically."""
+    validate(table)
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        pq.write_table(table, tmp, compression="zstd")
+    return path
+
+
+def read_parquet(path: str | Path) -> pa.Table:
+    """Read a track table written by :func:`write_parquet` and validate it."""
+    from io_adapters.errors import InputError
+
+    try:
+        table = pq.read_table(path)
+    except (OSError, pa.ArrowInvalid) as exc:
+        raise InputError(
+            path, f"not a readable Parquet file: {exc}", expected="a lanecast track table"
+        ) from exc
+    validate(table, source=path)
+    return table
+
+
+def lane_change_rows(table: pa.Table) -> np.ndarray:
+    """Rows whose ``lane_id`` differs from the previous row of the same track (both known).
+
+    This is DESIGN.md §2's definition of where a lane change happens; the row returned is the
+    first frame in the new lane.
+    """
+    if table.num_rows < 2:
+        return np.zeros(0, dtype=np.int64)
+    lane = table.column("lane_id")
+    known = ~np.asarray(pc.is_null(lane))
+    lane_values = np.asarray(lane.fill_null(0))
+    starts = track_boundaries(table)
+    same_track = np.ones(table.num_rows, dtype=bool)
+    same_track[starts[:-1]] = False
+    change = np.zeros(table.num_rows, dtype=bool)
+    change[1:] = same_track[1:] & known[1:] & known[:-1] & (lane_values[1:] != lane_values[:-1])
+    return np.flatnonzero(change)

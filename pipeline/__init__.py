@@ -1,0 +1,1 @@
+"""Stages that turn a track table into windows the network learns from (DESIGN.md §2)."""

@@ -1,0 +1,1 @@
+"""The `lanecast` command line: one module per command, composing adapters, stages and models."""
