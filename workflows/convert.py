@@ -6,7 +6,7 @@ import argparse
 import time
 from pathlib import Path
 
-from io_adapters import registry
+from io_adapters import registry, track_table
 from io_adapters.errors import InputError
 
 _SUFFIX_TO_FORMAT = {".parquet": "parquet", ".pq": "parquet", ".mcap": "mcap", ".bag": "ros1"}
@@ -61,9 +61,7 @@ def run(args: argparse.Namespace) -> int:
     if args.out.resolve() in {Path(p).resolve() for p in args.inputs}:
         raise InputError(args.out, "the output would overwrite an input", expected="a new output path")
     path = registry.write_any(table, args.out, fmt)
-    n_tracks = len(
-        set(zip(table.column("recording").to_pylist(), table.column("track_id").to_pylist(), strict=True))
-    )
+    n_tracks = len(track_table.track_boundaries(table)) - 1
     print(
         f"wrote {path} ({fmt}): {table.num_rows:,} rows, {n_tracks:,} tracks "
         f"in {time.perf_counter() - started:.1f} s"

@@ -1,0 +1,177 @@
+"""The track-table contract: schema, units, validation, metadata, concatenation, atomic Parquet."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+from io_adapters import track_table
+from io_adapters.atomic import atomic_path
+from io_adapters.errors import InputError, TrackTableError
+from io_adapters.track_table import RecordingMeta, TableMeta
+
+
+def _columns(n_tracks: int = 2, n_frames: int = 4, recording: str = "rec-a") -> dict[str, np.ndarray]:
+    track = np.repeat(np.arange(1, n_tracks + 1), n_frames)
+    frame = np.tile(np.arange(n_frames), n_tracks)
+    return {
+        "recording": np.full(track.size, recording),
+        "track_id": track,
+        "frame": frame,
+        "time_ns": frame * 40_000_000,
+        "x": frame * 1.2 + track * 10.0,
+        "y": np.full(track.size, 1.75),
+        "heading": np.zeros(track.size),
+        "vx": np.full(track.size, 30.0),
+        "vy": np.zeros(track.size),
+        "ax": np.zeros(track.size),
+        "ay": np.zeros(track.size),
+        "length": np.full(track.size, 4.5),
+        "width": np.full(track.size, 1.8),
+        "lane_id": np.where(frame < 2, 2, 3),
+        "object_class": np.where(track == 1, "car", "truck"),
+    }
+
+
+def _meta(*names: str, rate: float = 25.0) -> TableMeta:
+    return TableMeta("test", {n: RecordingMeta(frame_rate=rate) for n in names}, ["memory"])
+
+
+def test_build_table_has_schema_units_and_metadata() -> None:
+    table = track_table.build_table(_columns(), _meta("rec-a"))
+    track_table.validate(table)
+    assert table.column_names == list(track_table.REQUIRED_COLUMNS)
+    assert table.schema.field("x").metadata == {b"unit": b"m"}
+    assert table.schema.field("vx").metadata == {b"unit": b"m/s"}
+    assert table.schema.field("heading").metadata == {b"unit": b"rad"}
+    assert table.schema.field("x").type == pa.float64()
+    assert table.schema.field("vx").type == pa.float32()
+    meta = track_table.read_meta(table)
+    assert meta.frame_rate == 25.0
+    assert meta.recordings["rec-a"].coordinate_frame == "road"
+
+
+def test_neighbour_columns_are_nullable_and_partial_sets_filled() -> None:
+    cols = _columns()
+    cols["preceding_id"] = np.array([2, 2, np.nan, np.nan, np.nan, np.nan, np.nan, 1])
+    table = track_table.build_table(cols, _meta("rec-a"))
+    track_table.validate(table)
+    assert table.column("preceding_id").to_pylist() == [2, 2, None, None, None, None, None, 1]
+    assert table.column("right_following_id").null_count == table.num_rows
+
+
+def test_build_table_sorts_rows() -> None:
+    cols = {k: v[::-1].copy() for k, v in _columns().items()}
+    table = track_table.build_table(cols, _meta("rec-a"))
+    assert table.column("track_id").to_pylist() == [1, 1, 1, 1, 2, 2, 2, 2]
+    assert table.column("frame").to_pylist() == [0, 1, 2, 3, 0, 1, 2, 3]
+
+
+@pytest.mark.parametrize(
+    ("column", "row", "value", "message"),
+    [
+        ("x", 3, np.nan, "row 3: column 'x' is nan"),
+        ("vy", 5, np.inf, "row 5: column 'vy' is inf"),
+        ("frame", 2, 1, "duplicate (recording, track_id, frame) = (rec-a, 1, 1)"),
+        ("time_ns", 2, 40_000_000, "time_ns does not increase along track 1"),
+    ],
+)
+def test_validate_names_the_row_and_column(column: str, row: int, value: float, message: str) -> None:
+    cols = _columns()
+    cols[column] = cols[column].astype(float if column in {"x", "vy"} else np.int64)
+    cols[column][row] = value
+    table = track_table.build_table(cols, _meta("rec-a"))
+    with pytest.raises(TrackTableError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        track_table.validate(table, source="t.parquet")
+
+
+def test_validate_rejects_missing_column_wrong_type_and_unknown_recording() -> None:
+    table = track_table.build_table(_columns(), _meta("rec-a"))
+    with pytest.raises(TrackTableError, match="missing column 'width'"):
+        track_table.validate(table.drop_columns(["width"]))
+    wrong = table.set_column(table.schema.get_field_index("x"), "x", table.column("x").cast(pa.float32()))
+    with pytest.raises(TrackTableError, match="column 'x' has type float, expected double"):
+        track_table.validate(wrong)
+    other = track_table.build_table(_columns(), _meta("rec-b"))
+    with pytest.raises(TrackTableError, match=r"recordings \['rec-a'\] have no entry"):
+        track_table.validate(other)
+
+
+def test_lane_change_rows_are_first_frames_in_the_new_lane() -> None:
+    table = track_table.build_table(_columns(), _meta("rec-a"))
+    # lane 2 at frames 0-1, lane 3 at frames 2-3, for both tracks; rows 2 and 6.
+    assert track_table.lane_change_rows(table).tolist() == [2, 6]
+    assert track_table.track_boundaries(table).tolist() == [0, 4, 8]
+
+
+def test_concat_merges_metadata_and_rejects_name_clashes() -> None:
+    a = track_table.build_table(_columns(recording="rec-a"), _meta("rec-a"))
+    b_cols = _columns(recording="rec-b")
+    b_cols["preceding_id"] = np.full(8, 1)
+    b = track_table.build_table(b_cols, TableMeta("other", {"rec-b": RecordingMeta(10.0)}, ["b.csv"]))
+    merged = track_table.concat([a, b])
+    track_table.validate(merged)
+    meta = track_table.read_meta(merged)
+    assert sorted(meta.recordings) == ["rec-a", "rec-b"]
+    assert meta.frame_rate is None  # 25 Hz and 10 Hz mixed
+    assert meta.source_format == "other+test"
+    assert merged.column("preceding_id").null_count == 8
+    with pytest.raises(TrackTableError, match="occur in more than one input"):
+        track_table.concat([a, a])
+
+
+def test_parquet_round_trip_keeps_everything(tmp_path: Path) -> None:
+    table = track_table.build_table(_columns(), _meta("rec-a"))
+    path = track_table.write_parquet(table, tmp_path / "t.parquet")
+    back = track_table.read_parquet(path)
+    assert back.equals(table)
+    assert back.schema.metadata == table.schema.metadata
+    assert pq.read_metadata(path).row_group(0).column(0).compression == "ZSTD"
+    assert [p.name for p in tmp_path.iterdir()] == ["t.parquet"]
+
+
+def test_read_parquet_names_the_file_on_garbage(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.parquet"
+    bad.write_bytes(b"PAR1 not really")
+    with pytest.raises(InputError, match=r"bad\.parquet: not a readable Parquet file"):
+        track_table.read_parquet(bad)
+
+
+def test_atomic_path_leaves_nothing_on_failure(tmp_path: Path) -> None:
+    target = tmp_path / "out.bin"
+    target.write_bytes(b"old")
+    with pytest.raises(RuntimeError), atomic_path(target) as tmp:
+        tmp.write_bytes(b"half")
+        raise RuntimeError("boom")
+    assert target.read_bytes() == b"old"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.bin"]
+    with atomic_path(tmp_path / "dir", directory=True) as tmp_dir:
+        (tmp_dir / "a").write_text("x")
+    assert (tmp_path / "dir" / "a").read_text() == "x"
+
+
+def test_cli_reports_project_errors_as_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from workflows.cli import main
+
+    missing = tmp_path / "nope.csv"
+    assert main(["info", str(missing)]) == 2
+    err = capsys.readouterr().err
+    assert err.strip() == f"lanecast info: error: {missing}: no such file or directory"
+
+
+def test_convert_and_info_on_a_track_table(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from workflows.cli import main
+
+    table = track_table.build_table(_columns(), _meta("rec-a"))
+    src = track_table.write_parquet(table, tmp_path / "in.parquet")
+    assert main(["convert", str(src), "--out", str(tmp_path / "out.parquet")]) == 0
+    assert track_table.read_parquet(tmp_path / "out.parquet").equals(table)
+    assert main(["info", str(tmp_path / "out.parquet")]) == 0
+    out = capsys.readouterr().out
+    assert "rec-a" in out
+    assert "total: 1 recordings, 2 tracks, 8 rows, 2 lane changes" in out
+    assert main(["convert", str(src), "--out", str(src)]) == 2
