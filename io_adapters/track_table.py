@@ -260,10 +260,18 @@ def _first(mask: pa.ChunkedArray | pa.Array) -> int:
 
 
 def _recording_codes(table: pa.Table) -> np.ndarray:
-    """Recording names as integers ordered like the names (for vectorised sort checks)."""
-    names = table.column("recording").cast(pa.string()).to_numpy(zero_copy_only=False)
-    _, codes = np.unique(names, return_inverse=True)
-    return codes
+    """Recording names as integers ordered like the names (for vectorised sort checks).
+
+    Works on the dictionary's indices, so its cost does not depend on the number of rows' strings.
+    """
+    column = table.column("recording").combine_chunks()
+    if not pa.types.is_dictionary(column.type):
+        column = pc.dictionary_encode(column)
+    if len(column.dictionary) == 0:
+        return np.zeros(len(column), dtype=np.int64)
+    # np.unique sorts the names and gives equal names (a non-unified dictionary) equal codes.
+    _, rank = np.unique(np.asarray(column.dictionary.to_pylist(), dtype=object), return_inverse=True)
+    return np.asarray(rank).reshape(-1)[column.indices.to_numpy(zero_copy_only=False)]
 
 
 def track_boundaries(table: pa.Table) -> np.ndarray:

@@ -26,17 +26,19 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def summarise(table: pa.Table) -> list[dict[str, object]]:
-    """One dict per recording: tracks, rows, frames, duration (s), frame rate, lane changes, classes."""
+    """One dict per recording: tracks, rows, frames, duration (s), frame rate, lane changes, vehicles per class."""
     meta = track_table.read_meta(table)
     names = table.column("recording").cast(pa.string()).to_numpy(zero_copy_only=False)
     changes = np.zeros(table.num_rows, dtype=bool)
     changes[track_table.lane_change_rows(table)] = True
+    starts = track_table.track_boundaries(table)
     out = []
     for name in sorted(meta.recordings):
         rows = names == name
         rate = meta.recordings[name].frame_rate
         frames = table.column("frame").to_numpy()[rows]
-        classes = pc.value_counts(table.column("object_class").filter(pa.array(rows)).cast(pa.string()))
+        first_rows = starts[:-1][rows[starts[:-1]]]
+        classes = pc.value_counts(table.column("object_class").take(pa.array(first_rows)).cast(pa.string()))
         out.append(
             {
                 "recording": name,
@@ -59,9 +61,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"{', '.join(str(Path(p)) for p in args.paths)}")
     print(f"  format: {', '.join(formats)} (source: {meta.source_format}); units: m, m/s, m/s^2, rad, ns")
     rows = summarise(table)
-    header = (
-        f"  {'recording':<28}{'tracks':>8}{'frames':>9}{'duration':>11}{'rate':>8}{'lane chg':>10}  classes"
-    )
+    header = f"  {'recording':<28}{'tracks':>8}{'frames':>9}{'duration':>11}{'rate':>8}{'lane chg':>10}  vehicles by class"
     print(header)
     for r in rows:
         classes = ", ".join(f"{k} {v}" for k, v in sorted(r["classes"].items()))  # type: ignore[attr-defined]

@@ -1,0 +1,705 @@
+"""highD reader: ``NN_tracks.csv`` + ``NN_tracksMeta.csv`` + ``NN_recordingMeta.csv`` → track table.
+
+One highD recording is three CSV files sharing a prefix in one directory. Each recording is split
+by ``drivingDirection`` into two track-table recordings, ``highd-NN-upper`` (direction 1, drives
+towards −x in the image) and ``highd-NN-lower`` (direction 2, towards +x), each in its road frame
+(DESIGN.md §1: x along the direction of travel, y to the left):
+
+* highD ``x, y`` are the bounding box's top-left corner in image-like coordinates (y down),
+  ``width`` is the extent along x (vehicle length), ``height`` along y (vehicle width);
+  the centre is ``(x + width/2, y + height/2)``.
+* lower (+x travel): road = ``(x_img, −y_img)``; upper (−x travel): road = ``(−x_img, +y_img)``
+  (the y-up frame turned by 180°). Velocities and accelerations map the same way.
+
+Parsing is vectorised (pyarrow.csv with explicit column types). Only after the fast parse or a
+check fails does a second, equally vectorised pass locate the offending line, so that every error
+names the file, the 1-based line (header = line 1), the column and what was expected.
+"""
+
+from __future__ import annotations
+
+import difflib
+import re
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.csv as pacsv
+
+from io_adapters import track_table
+from io_adapters.errors import InputError
+from io_adapters.progress import progress
+
+FORMAT = "highd"
+
+KINDS = ("tracks", "tracksMeta", "recordingMeta")
+_NAME = re.compile(r"^(?P<prefix>.+)_(?P<kind>tracks|tracksMeta|recordingMeta)\.csv$")
+
+# Required columns and their parse types ("int", "float", "str"), per file kind.
+TRACKS_COLUMNS: dict[str, str] = {
+    "frame": "int",
+    "id": "int",
+    "x": "float",
+    "y": "float",
+    "width": "float",
+    "height": "float",
+    "xVelocity": "float",
+    "yVelocity": "float",
+    "xAcceleration": "float",
+    "yAcceleration": "float",
+    "precedingId": "int",
+    "followingId": "int",
+    "leftPrecedingId": "int",
+    "leftAlongsideId": "int",
+    "leftFollowingId": "int",
+    "rightPrecedingId": "int",
+    "rightAlongsideId": "int",
+    "rightFollowingId": "int",
+    "laneId": "int",
+}
+TRACKS_META_COLUMNS: dict[str, str] = {
+    "id": "int",
+    "initialFrame": "int",
+    "finalFrame": "int",
+    "numFrames": "int",
+    "class": "str",
+    "drivingDirection": "int",
+}
+RECORDING_META_COLUMNS: dict[str, str] = {
+    "id": "int",
+    "frameRate": "float",
+    "locationId": "int",
+    "speedLimit": "float",
+    "upperLaneMarkings": "str",
+    "lowerLaneMarkings": "str",
+}
+_COLUMNS_BY_KIND = {
+    "tracks": TRACKS_COLUMNS,
+    "tracksMeta": TRACKS_META_COLUMNS,
+    "recordingMeta": RECORDING_META_COLUMNS,
+}
+# highD neighbour columns → track-table neighbour columns (0 in highD means "none").
+NEIGHBOURS: dict[str, str] = dict(
+    zip(
+        (
+            "precedingId",
+            "followingId",
+            "leftPrecedingId",
+            "leftAlongsideId",
+            "leftFollowingId",
+            "rightPrecedingId",
+            "rightAlongsideId",
+            "rightFollowingId",
+        ),
+        track_table.NEIGHBOUR_COLUMNS,
+        strict=True,
+    )
+)
+UPPER, LOWER = 1, 2  # highD drivingDirection values
+DIRECTION_NAMES = {UPPER: "upper", LOWER: "lower"}
+HEADING_MIN_SPEED = 0.5  # m/s: below it the heading is 0 (direction of travel)
+
+_ARROW_TYPES = {"int": pa.int64(), "float": pa.float64(), "str": pa.string()}
+_EXPECTED = {"int": "an integer", "float": "a number", "str": "a non-empty value"}
+_NULL_TOKENS = tuple(pacsv.ConvertOptions().null_values)
+_INT_RE = r"^\s*[-+]?\d+\s*$"
+_FLOAT_RE = r"^\s*[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?\s*$|^\s*[-+]?(inf|Inf|INF|infinity|Infinity)\s*$"
+
+
+@dataclass(frozen=True)
+class Recording:
+    """The three files of one highD recording (``prefix`` is the ``NN`` of ``NN_tracks.csv``)."""
+
+    directory: Path
+    prefix: str
+
+    def path(self, kind: str) -> Path:
+        return self.directory / f"{self.prefix}_{kind}.csv"
+
+    @property
+    def paths(self) -> list[Path]:
+        return [self.path(kind) for kind in KINDS]
+
+
+# --------------------------------------------------------------------------------------------
+# sniff / locate
+
+
+def _header_names(path: Path, limit: int = 65536) -> list[str]:
+    """The column names of the first line of ``path`` (stripped of blanks, quotes and a BOM)."""
+    with path.open("rb") as fh:
+        first = fh.readline(limit)
+    text = first.decode("utf-8-sig", errors="replace").rstrip("\r\n")
+    if not text.strip():
+        return []
+    return [name.strip().strip('"') for name in text.split(",")]
+
+
+def _looks_like(path: Path, kind: str) -> bool:
+    """Header shares at least half of the required columns of ``kind`` (tolerates a misnamed one)."""
+    try:
+        names = set(_header_names(path))
+    except OSError:
+        return False
+    required = _COLUMNS_BY_KIND[kind]
+    return len(names & set(required)) * 2 >= len(required)
+
+
+def sniff(path: Path) -> bool:
+    """A highD file (by name ``NN_tracks.csv`` etc. and header) or a directory holding one."""
+    path = Path(path)
+    if path.is_dir():
+        return any(_looks_like(p, "tracks") for p in sorted(path.glob("*_tracks.csv")) if p.is_file())
+    match = _NAME.match(path.name)
+    return match is not None and path.is_file() and _looks_like(path, match.group("kind"))
+
+
+def recordings(paths: Sequence[str | Path]) -> list[Recording]:
+    """The distinct recordings named by ``paths`` (any of their three files, or directories)."""
+    found: dict[tuple[Path, str], Recording] = {}
+    for raw in paths:
+        path = Path(raw)
+        if path.is_dir():
+            tracks = sorted(p for p in path.glob("*_tracks.csv") if p.is_file())
+            if not tracks:
+                raise InputError(path, "no highD recording in this directory", expected="NN_tracks.csv files")
+            candidates = [Recording(path, p.name[: -len("_tracks.csv")]) for p in tracks]
+        else:
+            match = _NAME.match(path.name)
+            if match is None:
+                raise InputError(
+                    path,
+                    "not a highD file name",
+                    expected="NN_tracks.csv, NN_tracksMeta.csv or NN_recordingMeta.csv",
+                )
+            if not path.is_file():
+                raise InputError(path, "no such file")
+            candidates = [Recording(path.parent, match.group("prefix"))]
+        for rec in candidates:
+            found.setdefault((rec.directory.resolve(), rec.prefix), rec)
+    return list(found.values())
+
+
+# --------------------------------------------------------------------------------------------
+# CSV parsing with precise errors
+
+
+def _data_lines(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """1-based line numbers and field counts of the data records of ``path`` (error path only).
+
+    Returns ``(lines int64 [R], fields int64 [R])`` for every non-empty line after the header,
+    in file order, i.e. ``lines[i]`` is the line of the i-th row pyarrow parses.
+    """
+    data = np.fromfile(path, dtype=np.uint8)
+    newlines = np.flatnonzero(data == ord("\n"))
+    starts = np.concatenate([[0], newlines + 1])
+    ends = np.concatenate([newlines, [data.size]])
+    if starts[-1] >= data.size:  # file ends with a newline: no line after it
+        starts, ends = starts[:-1], ends[:-1]
+    length = ends - starts
+    cr_end = np.zeros(length.shape, dtype=bool)
+    nonzero = length > 0
+    cr_end[nonzero] = data[ends[nonzero] - 1] == ord("\r")
+    empty = (length - cr_end) <= 0
+    commas = np.flatnonzero(data == ord(","))
+    fields = np.searchsorted(commas, ends) - np.searchsorted(commas, starts) + 1
+    numbers = np.arange(1, starts.size + 1)
+    keep = ~empty
+    keep[:1] = False  # the header
+    return numbers[keep], fields[keep]
+
+
+def _read_csv(
+    path: Path, columns: Mapping[str, str], what: str, may_be_empty: frozenset[str] = frozenset()
+) -> pa.Table:
+    """Parse the required ``columns`` of a highD CSV with explicit types; InputError on bad input.
+
+    Checks: file present and non-empty, every required column in the header, cells parse as their
+    type, no empty/NaN cell, floats finite, at least one data row.
+    """
+    if not path.is_file():
+        raise InputError(path, f"missing {what} file", expected=f"{path.name} beside the other files")
+    if path.stat().st_size == 0:
+        raise InputError(path, "empty file", line=1, expected=f"a {what} header line")
+    try:
+        names = _header_names(path)
+    except OSError as exc:
+        raise InputError(path, f"cannot read: {exc}") from exc
+    if not names:
+        raise InputError(path, "empty header line", line=1, expected=f"a {what} header line")
+    for name in columns:
+        if name not in names:
+            close = difflib.get_close_matches(name, names, n=1)
+            hint = f"; found {close[0]!r}" if close else ""
+            raise InputError(
+                path,
+                f"no column {name!r} in the header{hint}",
+                line=1,
+                column=name,
+                expected=f"the highD {what} column {name!r}",
+            )
+        if names.count(name) > 1:
+            raise InputError(path, f"column {name!r} appears twice", line=1, column=name)
+    read_options = pacsv.ReadOptions(column_names=names, skip_rows=1)
+    convert = pacsv.ConvertOptions(
+        column_types={name: _ARROW_TYPES[kind] for name, kind in columns.items()},
+        include_columns=list(columns),
+        strings_can_be_null=True,
+    )
+    try:
+        table = pacsv.read_csv(path, read_options=read_options, convert_options=convert)
+    except pa.ArrowInvalid as exc:
+        _diagnose(path, names, columns)
+        raise InputError(path, f"cannot parse as CSV: {exc}", expected=f"a highD {what} file") from exc
+    except OSError as exc:
+        raise InputError(path, f"cannot read: {exc}") from exc
+    if table.num_rows == 0:
+        raise InputError(path, "no data rows", line=2, expected=f"at least one {what} row")
+    _check_cells(path, table, names, {k: v for k, v in columns.items() if k not in may_be_empty})
+    return table
+
+
+def _diagnose(path: Path, names: list[str], columns: Mapping[str, str]) -> None:
+    """After a failed fast parse: find the first bad line (field count or cell) and raise there."""
+    lines, fields = _data_lines(path)
+    wrong = np.flatnonzero(fields != len(names))
+    if wrong.size:
+        i = int(wrong[0])
+        got = int(fields[i])
+        last = i == lines.size - 1
+        if got < len(names):
+            raise InputError(
+                path,
+                f"{'truncated last line: ' if last else ''}{got} fields, the header has {len(names)}",
+                line=int(lines[i]),
+                column=names[got],
+                expected=f"{len(names)} comma-separated fields",
+            )
+        raise InputError(
+            path,
+            f"{got} fields, the header has {len(names)}",
+            line=int(lines[i]),
+            expected=f"{len(names)} comma-separated fields",
+        )
+    try:
+        table = pacsv.read_csv(
+            path,
+            read_options=pacsv.ReadOptions(column_names=names, skip_rows=1),
+            convert_options=pacsv.ConvertOptions(
+                column_types={name: pa.string() for name in columns},
+                include_columns=list(columns),
+                strings_can_be_null=False,
+                quoted_strings_can_be_null=False,
+            ),
+        )
+    except pa.ArrowInvalid:
+        return  # not a cell problem: the caller reports pyarrow's own message
+    first_bad: tuple[int, str] | None = None
+    for name in names:
+        kind = columns.get(name)
+        if kind not in ("int", "float"):
+            continue
+        cells = table.column(name)
+        ok = pc.or_(
+            pc.match_substring_regex(cells, _INT_RE if kind == "int" else _FLOAT_RE),
+            pc.is_in(cells, value_set=pa.array(_NULL_TOKENS)),
+        )
+        bad = np.flatnonzero(~np.asarray(ok))
+        if bad.size and (first_bad is None or bad[0] < first_bad[0]):
+            first_bad = (int(bad[0]), name)
+    if first_bad is not None:
+        row, name = first_bad
+        kind = columns[name]
+        value = table.column(name)[row].as_py()
+        raise InputError(
+            path,
+            f"cell {value!r} is not {_EXPECTED[kind]}",
+            line=int(lines[row]),
+            column=name,
+            expected=_EXPECTED[kind],
+        )
+
+
+def _check_cells(path: Path, table: pa.Table, names: list[str], columns: Mapping[str, str]) -> None:
+    """Empty/NaN cells (parsed as null) and non-finite floats, reported at their line."""
+    first_bad: tuple[int, str, str] | None = None
+    for name in names:
+        kind = columns.get(name)
+        if kind is None:
+            continue
+        column = table.column(name)
+        bad = np.zeros(0, dtype=np.int64)
+        message = "empty or NaN cell"
+        if column.null_count:
+            bad = np.flatnonzero(np.asarray(pc.is_null(column)))
+        elif kind == "float":
+            bad = np.flatnonzero(~np.isfinite(column.to_numpy()))
+            message = "infinite value"
+        if bad.size and (first_bad is None or bad[0] < first_bad[0]):
+            first_bad = (int(bad[0]), name, message)
+    if first_bad is not None:
+        row, name, message = first_bad
+        lines, _ = _data_lines(path)
+        expected = "a finite number" if columns[name] == "float" else _EXPECTED[columns[name]]
+        raise InputError(path, message, line=int(lines[row]), column=name, expected=expected)
+
+
+def _line(path: Path, row: int) -> int:
+    """The 1-based line of data row ``row`` of ``path`` (error path only)."""
+    lines, _ = _data_lines(path)
+    return int(lines[row])
+
+
+# --------------------------------------------------------------------------------------------
+# one recording
+
+
+@dataclass
+class _Meta:
+    """Parsed recordingMeta of one recording."""
+
+    recording_id: int
+    frame_rate: float
+    location_id: int
+    speed_limit: float
+    markings: dict[int, list[float]]  # drivingDirection → raw image y of the lane markings
+
+
+def _markings(path: Path, text: str | None, column: str, line: int) -> list[float]:
+    """``"8.51;12.59;16.43"`` → [8.51, 12.59, 16.43] (a handful of values, not rows)."""
+    if text is None or not text.strip():
+        return []
+    try:
+        values = [float(v) for v in text.split(";") if v.strip()]
+    except ValueError as exc:
+        raise InputError(
+            path,
+            f"lane markings {text!r} are not numbers",
+            line=line,
+            column=column,
+            expected="';'-separated y values in metres",
+        ) from exc
+    if not all(np.isfinite(values)):
+        raise InputError(path, f"lane markings {text!r} are not finite", line=line, column=column)
+    return values
+
+
+def _read_recording_meta(path: Path) -> _Meta:
+    table = _read_csv(
+        path, RECORDING_META_COLUMNS, "recordingMeta", frozenset({"upperLaneMarkings", "lowerLaneMarkings"})
+    )
+    if table.num_rows != 1:
+        raise InputError(
+            path, f"{table.num_rows} data rows", line=_line(path, 1), expected="exactly one data row"
+        )
+    row = {name: table.column(name)[0].as_py() for name in RECORDING_META_COLUMNS}
+    line = _line(path, 0)
+    if not row["frameRate"] > 0:
+        raise InputError(
+            path, f"frame rate {row['frameRate']}", line=line, column="frameRate", expected="a rate > 0 Hz"
+        )
+    return _Meta(
+        recording_id=int(row["id"]),
+        frame_rate=float(row["frameRate"]),
+        location_id=int(row["locationId"]),
+        speed_limit=float(row["speedLimit"]),
+        markings={
+            UPPER: _markings(path, row["upperLaneMarkings"], "upperLaneMarkings", line),
+            LOWER: _markings(path, row["lowerLaneMarkings"], "lowerLaneMarkings", line),
+        },
+    )
+
+
+def _numpy(table: pa.Table, columns: Mapping[str, str]) -> dict[str, np.ndarray]:
+    return {name: table.column(name).to_numpy() for name, kind in columns.items() if kind != "str"}
+
+
+def _dedupe(path: Path, cols: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """Sort the tracks by (id, frame); drop identical duplicate rows, refuse differing ones.
+
+    Returns the sorted columns and ``source_row int64 [N]``, each kept row's index in the file.
+    """
+    ids, frames = cols["id"], cols["frame"]
+    n = ids.size
+    order = np.arange(n)
+    in_order = (ids[1:] > ids[:-1]) | ((ids[1:] == ids[:-1]) & (frames[1:] >= frames[:-1]))
+    if not in_order.all():
+        order = np.lexsort((frames, ids))  # stable: the first occurrence in the file comes first
+        cols = {name: values[order] for name, values in cols.items()}
+        ids, frames = cols["id"], cols["frame"]
+    duplicate = (ids[1:] == ids[:-1]) & (frames[1:] == frames[:-1])
+    if not duplicate.any():
+        return cols, order
+    for name in TRACKS_COLUMNS:  # header order of highD, which is the order listed
+        values = cols[name]
+        differs = duplicate & (values[1:] != values[:-1])
+        if differs.any():
+            i = int(np.flatnonzero(differs)[0])  # the sort is stable: order[i] < order[i + 1]
+            lines, _ = _data_lines(path)
+            first, second = int(lines[order[i]]), int(lines[order[i + 1]])
+            raise InputError(
+                path,
+                f"duplicate (id, frame) = ({ids[i]}, {frames[i]}) with a different {name!r} than line "
+                f"{first} ({values[i + 1]} vs {values[i]})",
+                line=second,
+                column=name,
+                expected="one row per (id, frame)",
+            )
+    keep = np.ones(n, dtype=bool)
+    keep[1:] = ~duplicate
+    return {name: values[keep] for name, values in cols.items()}, order[keep]
+
+
+def _check_meta(
+    rec: Recording, meta_table: pa.Table, cols: dict[str, np.ndarray], source_row: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Cross-check tracksMeta against the tracks; map each track row to its meta row.
+
+    ``cols`` are the deduplicated tracks sorted by (id, frame), ``source_row [N]`` their rows in
+    the file. Returns ``(meta_row int64 [N], direction int64 [N])``; raises InputError on any
+    disagreement (id sets, initialFrame, finalFrame, numFrames, drivingDirection).
+    """
+    meta_path, tracks_path = rec.path("tracksMeta"), rec.path("tracks")
+    m = _numpy(meta_table, TRACKS_META_COLUMNS)
+    direction = m["drivingDirection"]
+    bad = np.flatnonzero((direction != UPPER) & (direction != LOWER))
+    if bad.size:
+        row = int(bad[0])
+        raise InputError(
+            meta_path,
+            f"drivingDirection is {direction[row]}",
+            line=_line(meta_path, row),
+            column="drivingDirection",
+            expected="1 (upper lanes, towards −x) or 2 (lower lanes, towards +x)",
+        )
+    meta_ids = m["id"]
+    meta_order = np.argsort(meta_ids, kind="stable")
+    sorted_ids = meta_ids[meta_order]
+    repeated = np.flatnonzero(sorted_ids[1:] == sorted_ids[:-1])
+    if repeated.size:
+        row = int(meta_order[repeated[0] + 1])
+        raise InputError(
+            meta_path,
+            f"vehicle id {meta_ids[row]} appears twice",
+            line=_line(meta_path, row),
+            column="id",
+            expected="one row per vehicle",
+        )
+    ids, frames = cols["id"], cols["frame"]
+    starts = np.flatnonzero(np.concatenate([[True], ids[1:] != ids[:-1]]))
+    ends = np.concatenate([starts[1:], [ids.size]])
+    track_ids = ids[starts]
+    pos = np.minimum(np.searchsorted(sorted_ids, track_ids), sorted_ids.size - 1)
+    unknown = np.flatnonzero(sorted_ids[pos] != track_ids)
+    if unknown.size:
+        k = int(unknown[0])
+        raise InputError(
+            tracks_path,
+            f"vehicle id {track_ids[k]} has no row in {meta_path.name}",
+            line=_line(tracks_path, int(source_row[starts[k]])),
+            column="id",
+            expected=f"an id listed in {meta_path.name}",
+        )
+    unused = np.setdiff1d(meta_ids, track_ids)
+    if unused.size:
+        row = int(np.flatnonzero(meta_ids == unused[0])[0])
+        raise InputError(
+            meta_path,
+            f"vehicle id {unused[0]} has no rows in {tracks_path.name}",
+            line=_line(meta_path, row),
+            column="id",
+            expected=f"an id present in {tracks_path.name}",
+        )
+    meta_rows = meta_order[pos]  # meta row of each track
+    observed = {
+        "initialFrame": frames[starts],
+        "finalFrame": frames[ends - 1],
+        "numFrames": ends - starts,
+    }
+    for name, got in observed.items():
+        stated = m[name][meta_rows]
+        wrong = np.flatnonzero(stated != got)
+        if wrong.size:
+            k = int(wrong[0])
+            row = int(meta_rows[k])
+            raise InputError(
+                meta_path,
+                f"{name} {stated[k]} for vehicle {track_ids[k]} disagrees with {tracks_path.name} "
+                f"(frames {frames[starts[k]]}..{frames[ends[k] - 1]}, {ends[k] - starts[k]} rows)",
+                line=_line(meta_path, row),
+                column=name,
+                expected=f"{got[k]}",
+            )
+    row_meta = np.repeat(meta_rows, ends - starts)
+    return row_meta, direction[row_meta]
+
+
+def _classes(meta_table: pa.Table) -> tuple[list[str], np.ndarray]:
+    """Lower-cased class names (``Car`` → ``car``) as (dictionary, code int32 [M] per meta row)."""
+    lowered = pc.utf8_lower(pc.utf8_trim_whitespace(meta_table.column("class").combine_chunks()))
+    encoded = pc.dictionary_encode(lowered)
+    return encoded.dictionary.to_pylist(), encoded.indices.to_numpy().astype(np.int32)
+
+
+def road_frame(direction: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Image-frame (y down) vectors ``(u, v)`` → the road frame of each row's driving direction.
+
+    All arrays ``[N]``; ``direction`` is highD's drivingDirection (1 upper, 2 lower). Lower
+    (+x travel): ``(u, −v)``; upper (−x travel): ``(−u, +v)``. The same for positions,
+    velocities and accelerations (a fixed rotation/reflection, no offset).
+    """
+    sign = np.where(direction == LOWER, 1.0, -1.0)
+    return sign * u + 0.0, -sign * v + 0.0  # + 0.0: no negative zeros
+
+
+def heading_from_velocity(vx: np.ndarray, vy: np.ndarray, min_speed: float = HEADING_MIN_SPEED) -> np.ndarray:
+    """``atan2(vy, vx)`` where the speed exceeds ``min_speed`` (m/s), else 0. Arrays ``[N]``."""
+    moving = np.hypot(vx, vy) > min_speed
+    return np.where(moving, np.arctan2(vy, vx), 0.0) + 0.0
+
+
+def road_lane_markings(raw: Sequence[float], direction: int) -> list[float]:
+    """Raw image-y lane markings → road-frame y (m), sorted ascending (right to left)."""
+    sign = 1.0 if direction == UPPER else -1.0
+    return sorted(float(sign * v) for v in raw)
+
+
+def _read_one(
+    rec: Recording, name_prefix: str
+) -> tuple[dict[str, Any], dict[str, track_table.RecordingMeta]]:
+    """Columns (numpy, with ``recording`` as names + codes) and metadata of one highD recording."""
+    for kind in KINDS:
+        if not rec.path(kind).is_file():
+            raise InputError(
+                rec.path(kind),
+                f"missing companion file of highD recording {rec.prefix!r}",
+                expected=f"{rec.path(kind).name} beside {rec.path('tracks').name}",
+            )
+    meta = _read_recording_meta(rec.path("recordingMeta"))
+    meta_table = _read_csv(rec.path("tracksMeta"), TRACKS_META_COLUMNS, "tracksMeta")
+    tracks_path = rec.path("tracks")
+    cols, source_row = _dedupe(
+        tracks_path, _numpy(_read_csv(tracks_path, TRACKS_COLUMNS, "tracks"), TRACKS_COLUMNS)
+    )
+    row_meta, direction = _check_meta(rec, meta_table, cols, source_row)
+    class_names, class_codes = _classes(meta_table)
+
+    length, width = cols["width"], cols["height"]
+    x, y = road_frame(direction, cols["x"] + length / 2, cols["y"] + width / 2)
+    vx, vy = road_frame(direction, cols["xVelocity"], cols["yVelocity"])
+    ax, ay = road_frame(direction, cols["xAcceleration"], cols["yAcceleration"])
+    names = [f"{name_prefix}-{rec.prefix}-{DIRECTION_NAMES[d]}" for d in (UPPER, LOWER)]
+    out: dict[str, Any] = {
+        "recording_names": names,
+        "recording_codes": (direction == LOWER).astype(np.int32),  # index into names
+        "class_names": class_names,
+        "class_codes": class_codes[row_meta],
+        "track_id": cols["id"],
+        "frame": cols["frame"],
+        "time_ns": np.rint(cols["frame"] / meta.frame_rate * 1e9).astype(np.int64),
+        "x": x,
+        "y": y,
+        "heading": heading_from_velocity(vx, vy),
+        "vx": vx,
+        "vy": vy,
+        "ax": ax,
+        "ay": ay,
+        "length": length,
+        "width": width,
+        "lane_id": cols["laneId"],
+    }
+    for source, target in NEIGHBOURS.items():
+        out[target] = cols[source]  # 0 (none) becomes null in _concat
+    files = [str(p) for p in rec.paths]
+    present = set(np.unique(direction).tolist())
+    recs: dict[str, track_table.RecordingMeta] = {}
+    for d, name in zip((UPPER, LOWER), names, strict=True):
+        if d not in present:
+            continue
+        sign = 1.0 if d == LOWER else -1.0
+        recs[name] = track_table.RecordingMeta(
+            frame_rate=meta.frame_rate,
+            coordinate_frame="road",
+            source_files=files,
+            extra={
+                "dataset": "highD",
+                "recording_id": meta.recording_id,
+                "location_id": meta.location_id,
+                "speed_limit_mps": meta.speed_limit if meta.speed_limit > 0 else None,
+                "driving_direction": d,
+                "direction": DIRECTION_NAMES[d],
+                "lane_markings_y": road_lane_markings(meta.markings[d], d),
+                "lane_markings_raw": meta.markings[d],
+                "road_from_image": [[sign, 0.0], [0.0, -sign]],
+            },
+        )
+    return out, recs
+
+
+# --------------------------------------------------------------------------------------------
+# public entry point
+
+
+def read(paths: Sequence[str | Path], *, recording_prefix: str = "highd", **_: Any) -> pa.Table:
+    """Read highD recordings (any of their files, or directories of them) into one track table.
+
+    Each recording ``NN`` gives ``{recording_prefix}-NN-upper`` and ``-lower`` (only those with
+    vehicles). Other options (e.g. ``topic``, meant for logs) are ignored. The table is validated.
+    """
+    if isinstance(paths, (str, Path)):
+        paths = [paths]
+    recs = recordings(paths)
+    parts = []
+    recording_meta: dict[str, track_table.RecordingMeta] = {}
+    for rec in progress(recs, desc="highD", total=len(recs), unit="recording"):
+        columns, metas = _read_one(rec, recording_prefix)
+        clash = set(metas) & set(recording_meta)
+        if clash:
+            raise InputError(
+                rec.path("tracks"),
+                f"recording name {sorted(clash)[0]!r} is given by two inputs",
+                expected="highD recordings with distinct numbers",
+            )
+        recording_meta.update(metas)
+        parts.append(columns)
+    table = track_table.build_table(
+        _concat(parts),
+        track_table.TableMeta(FORMAT, recording_meta, [f for rec in recs for f in map(str, rec.paths)]),
+    )
+    track_table.validate(table)
+    return table
+
+
+def _dictionary(parts: list[dict[str, Any]], names_key: str, codes_key: str) -> pa.DictionaryArray:
+    """Merge per-recording (names, codes) pairs into one dictionary array (no per-row strings)."""
+    merged: list[str] = []
+    chunks = []
+    for part in parts:
+        remap = np.empty(len(part[names_key]), dtype=np.int32)
+        for i, name in enumerate(part[names_key]):
+            if name not in merged:
+                merged.append(name)
+            remap[i] = merged.index(name)
+        chunks.append(remap[part[codes_key]])
+    return pa.DictionaryArray.from_arrays(
+        pa.array(np.concatenate(chunks).astype(np.int32)), pa.array(merged, type=pa.string())
+    )
+
+
+def _concat(parts: list[dict[str, Any]]) -> dict[str, Any]:
+    skip = {"recording_names", "recording_codes", "class_names", "class_codes"}
+    columns: dict[str, Any] = {
+        name: np.concatenate([p[name] for p in parts]) if len(parts) > 1 else parts[0][name]
+        for name in parts[0]
+        if name not in skip
+    }
+    for name in track_table.NEIGHBOUR_COLUMNS:
+        ids = columns[name]
+        columns[name] = pa.array(ids, mask=ids == 0, type=pa.int64())  # highD 0 = no neighbour
+    columns["recording"] = _dictionary(parts, "recording_names", "recording_codes")
+    columns["object_class"] = _dictionary(parts, "class_names", "class_codes")
+    return columns
