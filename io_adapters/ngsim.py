@@ -1,0 +1,733 @@
+"""NGSIM reader: US-101, I-80, Lankershim and Peachtree trajectories into the track table (DESIGN.md §1).
+
+Two source forms are read:
+
+* the original whitespace-separated ``trajectories-*.txt`` files of US-101 and I-80: 18 columns,
+  no header (:data:`TXT_COLUMNS`); their location comes from the ``location=`` option or the path;
+* the 25-column CSV export with a header (names matched case-insensitively; the ``Location``
+  column may mix lankershim, peachtree, us-101 and i-80 in one file).
+
+Conversion (all NGSIM is 10 Hz, in feet): positions, lengths, speeds and accelerations are scaled by
+0.3048; ``frame`` is ``Frame_ID`` and ``time_ns = Frame_ID * 1e8``. ``Local_Y`` (longitudinal) and
+``Local_X`` (lateral, to the right) locate the *front bumper*; the track table holds the centre.
+
+* Freeways (US-101, I-80, and ``unknown`` .txt files): road frame, ``x = (Local_Y - v_Length/2)``,
+  ``y = -Local_X``, ``vx = v_Vel``, ``vy`` the gradient of ``y`` along the track over ±0.5 s,
+  ``heading = atan2(vy, vx)`` (0 below 0.5 m/s).
+* Arterials (Lankershim, Peachtree): vehicles drive both ways and turn, so the frame is ``local``
+  (x = ``Local_Y``, y = ``-Local_X``), ``heading`` is the direction of motion of the front bumper
+  (differences over ±0.5 s; held through stops, ``Direction`` as a last resort) and the centre is the front
+  bumper moved back by half the length *along the heading* (for a southbound car that is +L/2 in x).
+  ``vx, vy = v_Vel * (cos, sin)(heading)``.
+
+``ax, ay`` are ``v_Acc`` along the heading. One recording per (location, source file, period):
+``ngsim-<location>-<file stem>``; when one file holds several recording periods, the periods become
+``...-p1``, ``...-p2`` (ordered by time). A period is a cluster of the epoch
+``Global_Time - 100 * Frame_ID``. The CSV export needs this: its Peachtree rows have two epochs,
+11,700 apart (3 h 15 min if seconds: Peachtree's 12:45 and 16:00 periods), whose vehicle ids and
+frames overlap, so that one recording per location would merge different vehicles. Within a recording, exact duplicate (vehicle, frame) rows are
+dropped; duplicates with differing values keep the first row in file order; both are counted in the
+recording metadata.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.csv as pacsv
+
+from io_adapters import track_table
+from io_adapters.errors import InputError
+from io_adapters.progress import progress
+
+FORMAT = "ngsim"
+FEET = 0.3048
+FRAME_RATE = 10.0
+FRAME_NS = 100_000_000
+GLOBAL_TIME_PER_FRAME = 100  # Global_Time is in ms: 100 per 10 Hz frame
+PERIOD_GAP = 1_000  # epochs further apart than this (Global_Time units) are different periods
+MIN_MOVING_SPEED = 0.5  # m/s; below it the motion gives no reliable heading
+GRADIENT_SPAN = 5  # rows either side for velocity directions: differences over ±0.5 s
+
+FREEWAYS = ("us-101", "i-80")
+ARTERIALS = ("lankershim", "peachtree")
+UNKNOWN_LOCATION = "unknown"
+
+TXT_COLUMNS: tuple[str, ...] = (
+    "Vehicle_ID",
+    "Frame_ID",
+    "Total_Frames",
+    "Global_Time",
+    "Local_X",
+    "Local_Y",
+    "Global_X",
+    "Global_Y",
+    "v_Length",
+    "v_Width",
+    "v_Class",
+    "v_Vel",
+    "v_Acc",
+    "Lane_ID",
+    "Preceding",
+    "Following",
+    "Space_Headway",
+    "Time_Headway",
+)
+# The columns this reader uses (lower case); the integer ones must hold whole numbers.
+USED_COLUMNS: tuple[str, ...] = (
+    "vehicle_id",
+    "frame_id",
+    "global_time",
+    "local_x",
+    "local_y",
+    "v_length",
+    "v_width",
+    "v_class",
+    "v_vel",
+    "v_acc",
+    "lane_id",
+    "preceding",
+    "following",
+)
+INTEGER_COLUMNS = frozenset(
+    {"vehicle_id", "frame_id", "global_time", "v_class", "lane_id", "preceding", "following"}
+)
+_CLASSES = ("unknown", "motorcycle", "car", "truck")  # index = v_Class (1, 2, 3), 0 = anything else
+# Fallback heading of a vehicle that never moves, from the CSV's Direction (1 E, 2 N, 3 W, 4 S),
+# with +x (Local_Y) northwards and +y (-Local_X) westwards as on the arterials.
+_DIRECTION_HEADING = {1: -math.pi / 2, 2: 0.0, 3: math.pi / 2, 4: math.pi}
+_LOCATION_PATTERNS = (
+    ("us-101", re.compile(r"(?<![a-z0-9])us[-_ ]?101(?!\d)")),
+    ("i-80", re.compile(r"(?<![a-z0-9])i[-_ ]?80(?!\d)")),
+    ("lankershim", re.compile(r"lankershim")),
+    ("peachtree", re.compile(r"peachtree")),
+)
+
+
+# --------------------------------------------------------------------------------------------- sniff
+
+
+def sniff(path: Path) -> bool:
+    """True for an NGSIM CSV (header with Vehicle_ID, Frame_ID, Local_X, Local_Y) or .txt (18 numbers)."""
+    path = Path(path)
+    if not path.is_file():
+        return False
+    try:
+        with path.open("rb") as fh:
+            head = fh.read(4096)
+    except OSError:
+        return False
+    first = head.split(b"\n", 1)[0].decode("utf-8", errors="replace").lstrip("\ufeff").strip()
+    if "," in first:
+        names = {name.strip().lower() for name in first.split(",")}
+        return {"vehicle_id", "frame_id", "local_x", "local_y"} <= names
+    tokens = first.split()
+    if len(tokens) != len(TXT_COLUMNS):
+        return False
+    try:
+        [float(t) for t in tokens]
+    except ValueError:
+        return False
+    return True
+
+
+# ---------------------------------------------------------------------------------------------- read
+
+
+def read(paths: Sequence[Path] | Path | str, **options: Any) -> pa.Table:
+    """Read NGSIM files into one validated track table.
+
+    Options: ``location`` (str) names the location of .txt files (us-101, i-80, lankershim,
+    peachtree; default: inferred from the path, else ``unknown``) and, for a CSV with a Location
+    column, keeps only that location's rows; ``split_periods`` (bool, default True) gives each
+    recording period of a file its own recording (False: one per location and file, and rows of
+    other periods at the same (vehicle, frame) count as conflicting duplicates).
+    """
+    if isinstance(paths, (str, Path)):
+        paths = [Path(paths)]
+    if not paths:
+        raise InputError(None, "no input files", expected="one or more NGSIM .txt or .csv files")
+    location = options.get("location")
+    if location is not None:
+        location = _normalise_location(str(location))
+    split_periods = bool(options.get("split_periods", True))
+    parsed = [_parse_file(Path(p), location) for p in progress(paths, desc="ngsim", unit="file")]
+    return _assemble(parsed, split_periods)
+
+
+@dataclass
+class _Parsed:
+    """The used columns of one file (float64 [n], lower-case names) and each row's location."""
+
+    path: Path
+    columns: dict[str, np.ndarray]
+    location_code: np.ndarray  # int64 [n] into `locations`
+    locations: list[str]
+    location_source: str  # "column", "option", "path" or "default"
+    direction: np.ndarray | None  # float64 [n], the CSV's Direction, or None
+
+
+def _parse_file(path: Path, location: str | None) -> _Parsed:
+    if not path.is_file():
+        raise InputError(path, "no such file")
+    with path.open("rb") as fh:
+        head = fh.read(1 << 16)
+    if not head.strip() and path.stat().st_size <= len(head):
+        raise InputError(path, "empty file", line=1, expected="NGSIM trajectory rows")
+    first = head.split(b"\n", 1)[0].decode("utf-8", errors="replace")
+    if "," in first:
+        return _parse_csv(path, first, location)
+    return _parse_txt(path, location)
+
+
+def _parse_txt(path: Path, location: str | None) -> _Parsed:
+    """The 18-column whitespace-separated form (no header)."""
+    n_fields = len(TXT_COLUMNS)
+    try:
+        frame = pd.read_csv(path, sep=r"\s+", header=None, dtype=np.float64, engine="c")
+        ok, error = frame.shape[1] == n_fields, f"{frame.shape[1]} columns"
+    except pd.errors.EmptyDataError as exc:
+        raise InputError(path, "empty file", line=1, expected="NGSIM trajectory rows") from exc
+    except (ValueError, pd.errors.ParserError) as exc:
+        ok, error = False, str(exc)
+    if not ok:
+        _check_fields(path, n_fields, whitespace=True, names=TXT_COLUMNS)
+        try:
+            frame = pd.read_csv(path, sep=r"\s+", header=None, dtype=str, engine="c", keep_default_na=False)
+        except (ValueError, pd.errors.ParserError) as exc:
+            raise InputError(path, f"cannot parse: {exc}", expected="18 numbers a line") from exc
+        columns = {
+            name.lower(): _coerce(frame[i], allow_missing=name.lower() not in USED_COLUMNS)
+            for i, name in enumerate(TXT_COLUMNS)
+        }
+        _check_values(path, columns, TXT_COLUMNS, header=False)
+        raise InputError(path, f"cannot parse: {error}", expected="18 whitespace-separated numbers a line")
+    columns = {name.lower(): frame[i].to_numpy(np.float64) for i, name in enumerate(TXT_COLUMNS)}
+    columns = {name: columns[name] for name in USED_COLUMNS}
+    short_line = bool(frame.isna().to_numpy().any())  # the parser pads short lines with NaN
+    if short_line or not all(np.isfinite(v).all() for v in columns.values()) or not _integral(columns):
+        _check_fields(path, n_fields, whitespace=True, names=TXT_COLUMNS)
+        _check_values(path, columns, TXT_COLUMNS, header=False)
+    loc, source = (location, "option") if location else _location_from_path(path)
+    n = len(columns["vehicle_id"])
+    return _Parsed(path, columns, np.zeros(n, dtype=np.int64), [loc], source, None)
+
+
+def _parse_csv(path: Path, first: str, location: str | None) -> _Parsed:
+    """The 25-column CSV export (header; names matched case-insensitively)."""
+    raw_header = first.lstrip("\ufeff").rstrip("\r").split(",")  # pyarrow drops a BOM, keeps spaces
+    header = [name.strip() for name in raw_header]
+    by_lower: dict[str, str] = {}  # lower-case stripped name -> the name as pyarrow sees it
+    for raw, name in zip(raw_header, header, strict=True):
+        by_lower.setdefault(name.lower(), raw)
+    for name in USED_COLUMNS:
+        if name not in by_lower:
+            raise InputError(
+                path,
+                f"missing column {name!r}",
+                line=1,
+                column=name,
+                expected=f"a header with {', '.join(USED_COLUMNS)} (any case)",
+            )
+    optional = [n for n in ("location", "direction") if n in by_lower]
+    wanted = [by_lower[n] for n in (*USED_COLUMNS, *optional)]
+    types: dict[str, pa.DataType] = {by_lower[n]: pa.float64() for n in USED_COLUMNS}
+    if "direction" in by_lower:
+        types[by_lower["direction"]] = pa.float64()
+    if "location" in by_lower:
+        types[by_lower["location"]] = pa.string()
+    convert = pacsv.ConvertOptions(include_columns=wanted, column_types=types, strings_can_be_null=False)
+    try:
+        table = pacsv.read_csv(path, convert_options=convert)
+    except pa.ArrowInvalid as exc:
+        if _line_numbers(path.read_bytes(), whitespace=False).size < 2:
+            raise InputError(
+                path, "the file has a header but no rows", line=2, expected="NGSIM rows"
+            ) from exc
+        _check_fields(path, len(header), whitespace=False, names=header)
+        try:
+            strings = pacsv.read_csv(
+                path,
+                convert_options=pacsv.ConvertOptions(
+                    include_columns=wanted, column_types=dict.fromkeys(wanted, pa.string())
+                ),
+            )
+        except pa.ArrowInvalid:
+            raise InputError(path, f"cannot parse: {exc}", expected="NGSIM CSV rows") from exc
+        checked = [n for n in (*USED_COLUMNS, "direction") if n in by_lower]
+        columns = {
+            n: _coerce(strings.column(by_lower[n]).to_pandas(), allow_missing=n == "direction")
+            for n in checked
+        }
+        _check_values(path, columns, header, header=True)
+        raise InputError(path, f"cannot parse: {exc}", expected="NGSIM CSV rows") from exc
+    if table.num_rows == 0:
+        raise InputError(path, "the file has a header but no rows", line=2, expected="NGSIM rows")
+    columns = {n: table.column(by_lower[n]).to_numpy() for n in USED_COLUMNS}
+    if not all(np.isfinite(v).all() for v in columns.values()) or not _integral(columns):
+        _check_fields(path, len(header), whitespace=False, names=header)
+        _check_values(path, columns, header, header=True)
+    direction = table.column(by_lower["direction"]).to_numpy() if "direction" in by_lower else None
+    n = table.num_rows
+    if "location" not in by_lower:
+        loc, source = (location, "option") if location else _location_from_path(path)
+        return _Parsed(path, columns, np.zeros(n, dtype=np.int64), [loc], source, direction)
+    raw = pc.utf8_trim_whitespace(table.column(by_lower["location"])).combine_chunks()
+    empty = np.asarray(pc.equal(raw, ""))
+    if empty.any():
+        row = int(np.flatnonzero(empty)[0])
+        raise InputError(
+            path,
+            "empty Location",
+            line=int(_line_numbers(path.read_bytes(), whitespace=False)[row + 1]),
+            column=by_lower["location"].strip(),
+            expected="a location name such as peachtree or us-101",
+        )
+    encoded = raw.dictionary_encode()
+    names = [_normalise_location(str(v)) for v in encoded.dictionary.to_pylist()]
+    unique_names = sorted(set(names))
+    remap = np.array([unique_names.index(v) for v in names], dtype=np.int64)
+    codes = remap[np.asarray(encoded.indices)]
+    parsed = _Parsed(path, columns, codes, unique_names, "column", direction)
+    if location is not None:
+        parsed = _keep_location(parsed, location)
+    return parsed
+
+
+def _keep_location(parsed: _Parsed, location: str) -> _Parsed:
+    if location not in parsed.locations:
+        raise InputError(
+            parsed.path,
+            f"no rows of location {location!r}",
+            column="Location",
+            expected=f"one of {parsed.locations}",
+        )
+    keep = parsed.location_code == parsed.locations.index(location)
+    direction = None if parsed.direction is None else parsed.direction[keep]
+    columns = {k: v[keep] for k, v in parsed.columns.items()}
+    return _Parsed(parsed.path, columns, np.zeros(int(keep.sum()), np.int64), [location], "column", direction)
+
+
+_NAN_LITERALS = ("nan", "na", "n/a", "null", "#n/a", "")
+
+
+def _coerce(cells: pd.Series, allow_missing: bool = False) -> np.ndarray:
+    """Cells as float64 [n], NaN where a cell is not a number (for locating bad cells).
+
+    With ``allow_missing`` (columns this reader does not use), missing-value cells such as NaN
+    count as fine (0.0): only text that is not a number at all is flagged.
+    """
+    values = np.array(pd.to_numeric(cells, errors="coerce"), dtype=np.float64)  # a writable copy
+    if allow_missing:
+        missing = np.asarray(cells.astype(str).str.strip().str.lower().isin(_NAN_LITERALS))
+        values[missing] = 0.0
+    return values
+
+
+def _integral(columns: dict[str, np.ndarray]) -> bool:
+    return all(np.array_equal(columns[n], np.round(columns[n])) for n in INTEGER_COLUMNS)
+
+
+def _normalise_location(name: str) -> str:
+    low = name.strip().lower()
+    for canonical, pattern in _LOCATION_PATTERNS:
+        if pattern.fullmatch(low):
+            return canonical
+    slug = re.sub(r"[^a-z0-9]+", "-", low).strip("-")
+    return slug or UNKNOWN_LOCATION
+
+
+def _is_freeway(location: str) -> bool:
+    """US-101, I-80 and .txt files of unknown location (the 18-column form is the freeways')."""
+    return location in FREEWAYS or location == UNKNOWN_LOCATION
+
+
+def _location_from_path(path: Path) -> tuple[str, str]:
+    """The location named by the file name, else by the nearest parent directory, else unknown."""
+    for part in (path.name, *(p.name for p in path.resolve().parents)):
+        for canonical, pattern in _LOCATION_PATTERNS:
+            if pattern.search(part.lower()):
+                return canonical, "path"
+    return UNKNOWN_LOCATION, "default"
+
+
+# ------------------------------------------------------------------------------ diagnosis of bad input
+
+
+def _line_spans(data: bytes) -> tuple[np.ndarray, np.ndarray]:
+    """Start and end (exclusive, without the newline and any CR) byte offsets of every line [L]."""
+    arr = np.frombuffer(data, dtype=np.uint8)
+    # Line breaks as the parsers see them: LF, CRLF, and a lone CR.
+    lone_cr = (arr == 13) & np.concatenate([arr[1:] != 10, [True]])
+    newline = np.flatnonzero((arr == 10) | lone_cr)
+    starts = np.concatenate([[0], newline + 1])
+    ends = np.concatenate([newline, [arr.size]])
+    if starts[-1] == arr.size:  # the file ends with a newline: no line after it
+        starts, ends = starts[:-1], ends[:-1]
+    has_cr = (ends > starts) & (arr[np.maximum(ends - 1, 0)] == 13)
+    return starts, ends - has_cr
+
+
+def _field_counts(data: bytes, starts: np.ndarray, ends: np.ndarray, whitespace: bool) -> np.ndarray:
+    """Number of fields on each line [L] (0 for a blank line), counted on the bytes, vectorised."""
+    arr = np.frombuffer(data, dtype=np.uint8)
+    if whitespace:
+        space = np.isin(arr, np.frombuffer(b" \t\r\n", dtype=np.uint8))
+        token_start = ~space
+        token_start[1:] &= space[:-1]
+        marks = token_start
+    else:
+        marks = arr == ord(",")
+    # Each segment runs to the next line's start; its newline and CR are neither commas nor tokens.
+    counts = np.add.reduceat(marks.astype(np.int64), starts) if starts.size else np.zeros(0, np.int64)
+    if whitespace:
+        return counts
+    return np.where(ends > starts, counts + 1, 0)
+
+
+def _blank(data: bytes, starts: np.ndarray, ends: np.ndarray, whitespace: bool) -> np.ndarray:
+    """Lines the parser skips [L]: whitespace-only for the .txt (pandas), empty for the CSV (pyarrow)."""
+    if whitespace:
+        return _field_counts(data, starts, ends, whitespace=True) == 0
+    return ends == starts
+
+
+def _line_numbers(data: bytes, whitespace: bool) -> np.ndarray:
+    """1-based line numbers of the lines the parser reads [rows incl. header]: row index → editor line."""
+    starts, ends = _line_spans(data)
+    return np.flatnonzero(~_blank(data, starts, ends, whitespace)) + 1
+
+
+def _check_fields(path: Path, expected: int, *, whitespace: bool, names: Sequence[str]) -> None:
+    """Raise InputError at the first non-blank line whose number of fields is not ``expected``."""
+    data = path.read_bytes()
+    starts, ends = _line_spans(data)
+    counts = _field_counts(data, starts, ends, whitespace)
+    wrong = ~_blank(data, starts, ends, whitespace) & (counts != expected)
+    if not wrong.any():
+        return
+    line = int(np.flatnonzero(wrong)[0])
+    got = int(counts[line])
+    truncated = line == starts.size - 1 and not data.endswith(b"\n") and got < expected
+    what = "truncated last line" if truncated else "wrong number of fields"
+    sep = "whitespace-separated" if whitespace else "comma-separated"
+    raise InputError(
+        path,
+        f"{what}: {got} fields",
+        line=line + 1,
+        column=names[got] if got < expected else None,
+        expected=f"{expected} {sep} fields",
+    )
+
+
+def _check_values(path: Path, columns: dict[str, np.ndarray], names: Sequence[str], *, header: bool) -> None:
+    """Raise InputError at the first cell (row-major) of ``columns`` that is not a finite number.
+
+    ``columns`` hold float64 [n] (lower-case names) with NaN where a cell did not parse; the cell's
+    text is read back from the line to say what it was.
+    """
+    lower = [n.lower() for n in names]
+    first_row, first_col = None, ""
+    for name in columns:
+        values = columns[name]
+        bad = ~np.isfinite(values)
+        if name in INTEGER_COLUMNS:
+            bad |= np.isfinite(values) & (values != np.round(values))
+        if bad.any():
+            row = int(np.flatnonzero(bad)[0])
+            if first_row is None or row < first_row:
+                first_row, first_col = row, name
+    if first_row is None:
+        return
+    data = path.read_bytes()
+    line = int(_line_numbers(data, whitespace=not header)[first_row + (1 if header else 0)])
+    starts, ends = _line_spans(data)
+    text = data[starts[line - 1] : ends[line - 1]].decode("utf-8", errors="replace")
+    cells = text.split(",") if header else text.split()
+    index = lower.index(first_col)
+    cell = cells[index].strip() if index < len(cells) else ""
+    integer = first_col in INTEGER_COLUMNS
+    if cell == "":
+        problem = "empty cell"
+    elif cell.lower() in _NAN_LITERALS:
+        problem = f"missing value {cell!r}"
+    elif cell.lower().lstrip("+-") in {"inf", "infinity"}:
+        problem = f"infinite value {cell!r}"
+    elif math.isfinite(columns[first_col][first_row]):
+        problem = f"{cell!r} is not a whole number"
+    else:
+        problem = f"{cell!r} is not a finite number"
+    raise InputError(
+        path,
+        problem,
+        line=line,
+        column=names[index],
+        expected="an integer" if integer else "a finite number",
+    )
+
+
+# ------------------------------------------------------------------------------------------ assembly
+
+
+def _periods(columns: dict[str, np.ndarray], split: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Period index per row [n] (0-based, in time order) and the epoch of each period [P]."""
+    epoch = columns["global_time"] - GLOBAL_TIME_PER_FRAME * columns["frame_id"]
+    if not split:
+        return np.zeros(epoch.size, dtype=np.int64), np.array([epoch.min()])
+    unique = np.unique(epoch)
+    cluster_of_unique = np.concatenate([[0], np.cumsum(np.diff(unique) > PERIOD_GAP)])
+    period = cluster_of_unique[np.searchsorted(unique, epoch)]
+    starts = np.flatnonzero(np.concatenate([[True], np.diff(cluster_of_unique) > 0]))
+    return period.astype(np.int64), unique[starts]
+
+
+def _assemble(files: list[_Parsed], split_periods: bool) -> pa.Table:
+    names: list[str] = []
+    metas: dict[str, track_table.RecordingMeta] = {}
+    origin: dict[str, Path] = {}
+    parts: list[dict[str, np.ndarray]] = []
+    for parsed in files:
+        cols = parsed.columns
+        period, epochs = _periods(cols, split_periods)
+        key = parsed.location_code * len(epochs) + period
+        n_rows = key.size
+        code = np.empty(n_rows, dtype=np.int64)
+        for loc_index, loc in enumerate(parsed.locations):
+            loc_keys = np.unique(key[parsed.location_code == loc_index])
+            for rank, k in enumerate(loc_keys, start=1):
+                rows = key == k
+                name = f"ngsim-{loc}-{parsed.path.stem}" + (f"-p{rank}" if loc_keys.size > 1 else "")
+                if name in metas:
+                    raise InputError(
+                        parsed.path,
+                        f"recording {name!r} also comes from {origin[name]}",
+                        expected="input files with distinct names per location",
+                    )
+                origin[name] = parsed.path
+                gt = cols["global_time"][rows]
+                metas[name] = track_table.RecordingMeta(
+                    frame_rate=FRAME_RATE,
+                    coordinate_frame="road" if _is_freeway(loc) else "local",
+                    source_files=[str(parsed.path)],
+                    extra=_recording_extra(
+                        loc,
+                        parsed.location_source,
+                        int(epochs[k % len(epochs)]),
+                        int(gt.min()),
+                        rank,
+                        loc_keys.size,
+                    ),
+                )
+                code[rows] = len(names)
+                names.append(name)
+        direction = parsed.direction if parsed.direction is not None else np.full(n_rows, np.nan)
+        parts.append({**cols, "recording": code, "direction": direction})
+    merged = parts[0] if len(parts) == 1 else {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    return _to_track_table(merged, names, metas, [str(p.path) for p in files])
+
+
+def _recording_extra(
+    location: str, source: str, epoch: int, start: int, period: int, n_periods: int
+) -> dict[str, Any]:
+    freeway = _is_freeway(location)
+    return {
+        "location": location,
+        "location_source": source,
+        "road_type": "freeway" if freeway else "arterial",
+        "global_time_start": start,
+        "global_time_epoch": epoch,
+        "global_time_note": "Global_Time as given by the source (ms); epoch = Global_Time - 100 * Frame_ID",
+        "period": period if n_periods > 1 else None,
+        "time": "time_ns = Frame_ID * 1e8 (frame = Frame_ID at 10 Hz)",
+        "units": "converted from feet (x 0.3048)",
+        "centre": (
+            "x = Local_Y - v_Length/2, y = -Local_X (road frame: x along travel, y left)"
+            if freeway
+            else "front bumper (Local_Y, -Local_X) moved back by v_Length/2 along the heading"
+        ),
+        "heading": (
+            "atan2(vy, vx); vy = gradient of y over +-0.5 s; 0 below 0.5 m/s"
+            if freeway
+            else "direction of motion of the front bumper (differences over +-0.5 s), held through stops"
+        ),
+        "lane_id": "NGSIM Lane_ID as given (arterials: 0 and >= 10 are intersections, turn bays)",
+    }
+
+
+def _to_track_table(
+    cols: dict[str, np.ndarray],
+    names: list[str],
+    metas: dict[str, track_table.RecordingMeta],
+    files: list[str],
+) -> pa.Table:
+    n = cols["vehicle_id"].size
+    rec = cols["recording"]
+    vehicle = cols["vehicle_id"].astype(np.int64)
+    frame = cols["frame_id"].astype(np.int64)
+    if not _is_sorted(rec, vehicle, frame):
+        order = np.lexsort((np.arange(n), frame, vehicle, rec))  # stable: file order within a key
+        cols = {k: v[order] for k, v in cols.items()}
+        rec, vehicle, frame = rec[order], vehicle[order], frame[order]
+
+    same_key = np.zeros(n, dtype=bool)
+    same_key[1:] = (rec[1:] == rec[:-1]) & (vehicle[1:] == vehicle[:-1]) & (frame[1:] == frame[:-1])
+    first_of_key = np.maximum.accumulate(np.where(same_key, 0, np.arange(n)))
+    identical = np.ones(n, dtype=bool)
+    for name in (*USED_COLUMNS, "direction"):
+        v = cols[name]
+        identical &= (v == v[first_of_key]) | (np.isnan(v) & np.isnan(v[first_of_key]))
+    n_rec = len(names)
+    exact = np.bincount(rec[same_key & identical], minlength=n_rec)
+    conflicting = np.bincount(rec[same_key & ~identical], minlength=n_rec)
+    rows_read = np.bincount(rec, minlength=n_rec)
+    for i, name in enumerate(names):
+        extra = metas[name].extra
+        extra["rows_read"] = int(rows_read[i])
+        extra["duplicate_rows_dropped"] = int(exact[i])
+        extra["conflicting_duplicates_dropped"] = int(conflicting[i])
+
+    if same_key.any():
+        keep = ~same_key
+        cols = {k: v[keep] for k, v in cols.items()}
+        rec, vehicle, frame = rec[keep], vehicle[keep], frame[keep]
+    freeway = np.array([metas[name].coordinate_frame == "road" for name in names])[rec]
+    kin = _kinematics(cols, rec, vehicle, frame, freeway)
+
+    cls = cols["v_class"].astype(np.int64)
+    cls_code = np.where((cls >= 1) & (cls <= 3), cls, 0).astype(np.int32)
+    columns: dict[str, Any] = {
+        "recording": pa.DictionaryArray.from_arrays(pa.array(rec.astype(np.int32)), pa.array(names)),
+        "track_id": vehicle,
+        "frame": frame,
+        "time_ns": frame * FRAME_NS,
+        **kin,
+        "length": (cols["v_length"] * FEET).astype(np.float32),
+        "width": (cols["v_width"] * FEET).astype(np.float32),
+        "lane_id": cols["lane_id"].astype(np.int32),
+        "object_class": pa.DictionaryArray.from_arrays(pa.array(cls_code), pa.array(_CLASSES)),
+        "preceding_id": np.where(cols["preceding"] == 0, np.nan, cols["preceding"]),
+        "following_id": np.where(cols["following"] == 0, np.nan, cols["following"]),
+    }
+    meta = track_table.TableMeta(FORMAT, metas, files)
+    table = track_table.build_table(columns, meta)
+    track_table.validate(table)
+    return table
+
+
+def _is_sorted(rec: np.ndarray, vehicle: np.ndarray, frame: np.ndarray) -> bool:
+    """Rows already in (recording, vehicle, frame) order (as the original .txt files are) [n]."""
+    same_rec = rec[1:] == rec[:-1]
+    same_vehicle = same_rec & (vehicle[1:] == vehicle[:-1])
+    ordered = (
+        (rec[1:] > rec[:-1])
+        | (same_rec & (vehicle[1:] > vehicle[:-1]))
+        | (same_vehicle & (frame[1:] >= frame[:-1]))
+    )
+    return bool(ordered.all())
+
+
+# ---------------------------------------------------------------------------------------- kinematics
+
+
+@dataclass
+class _Tracks:
+    """Per-row track extent on sorted rows: ``first[i]``, ``last[i]`` (inclusive) row of i's track."""
+
+    first: np.ndarray
+    last: np.ndarray
+
+
+def _tracks(rec: np.ndarray, vehicle: np.ndarray) -> _Tracks:
+    n = rec.size
+    new = np.ones(n, dtype=bool)
+    new[1:] = (rec[1:] != rec[:-1]) | (vehicle[1:] != vehicle[:-1])
+    starts = np.flatnonzero(new)
+    ends = np.concatenate([starts[1:], [n]]) - 1
+    length = np.diff(np.concatenate([starts, [n]]))
+    return _Tracks(np.repeat(starts, length), np.repeat(ends, length))
+
+
+def track_gradient(
+    values: np.ndarray, t: np.ndarray, first: np.ndarray, last: np.ndarray, span: int = 1
+) -> np.ndarray:
+    """d values / d t along each track [n], by differences over ±``span`` rows clipped to the track.
+
+    ``values``, ``t`` (s) [n] sorted by track then time; ``first``/``last`` [n] the track's row range
+    (inclusive). Inside a track this is the central difference over 2·span rows (a light smoothing:
+    the mean of the 2·span unit steps), one-sided near the ends, 0 for a single-row track. Frame gaps
+    are fine: the differences divide by the actual time between the rows.
+    """
+    i = np.arange(values.size)
+    lo = np.maximum(i - span, first)
+    hi = np.minimum(i + span, last)
+    dt = t[hi] - t[lo]
+    return np.where(dt > 0, (values[hi] - values[lo]) / np.where(dt > 0, dt, 1.0), 0.0)
+
+
+def _fill_within_track(
+    values: np.ndarray, valid: np.ndarray, tracks: _Tracks
+) -> tuple[np.ndarray, np.ndarray]:
+    """Invalid rows take the nearest earlier valid row of their track, else the nearest later one."""
+    n = values.size
+    i = np.arange(n)
+    before = np.maximum.accumulate(np.where(valid, i, -1))
+    after = np.minimum.accumulate(np.where(valid, i, n)[::-1])[::-1]
+    use_before = ~valid & (before >= tracks.first)
+    use_after = ~valid & ~use_before & (after <= tracks.last)
+    out = values.copy()
+    out[use_before] = values[before[use_before]]
+    out[use_after] = values[after[use_after]]
+    return out, valid | use_before | use_after
+
+
+def _kinematics(
+    cols: dict[str, np.ndarray], rec: np.ndarray, vehicle: np.ndarray, frame: np.ndarray, freeway: np.ndarray
+) -> dict[str, np.ndarray]:
+    """x, y, heading, vx, vy, ax, ay [n] for rows sorted by (recording, vehicle, frame)."""
+    tracks = _tracks(rec, vehicle)
+    t = frame / FRAME_RATE
+    half_length = cols["v_length"] * FEET / 2
+    speed = cols["v_vel"] * FEET
+    accel = cols["v_acc"] * FEET
+    front_x = cols["local_y"] * FEET
+    front_y = -cols["local_x"] * FEET
+
+    # Arterials: heading from the motion of the front bumper, held through stops.
+    gx = track_gradient(front_x, t, tracks.first, tracks.last, GRADIENT_SPAN)
+    gy = track_gradient(front_y, t, tracks.first, tracks.last, GRADIENT_SPAN)
+    moving = np.hypot(gx, gy) >= MIN_MOVING_SPEED
+    motion_heading, known = _fill_within_track(np.arctan2(gy, gx), moving, tracks)
+    direction = cols["direction"]
+    fallback = np.zeros(direction.size)
+    for code, angle in _DIRECTION_HEADING.items():
+        fallback[direction == code] = angle
+    arterial_heading = np.where(known, motion_heading, fallback)
+
+    # Freeways: road frame, vx = v_Vel, vy from the lateral motion of y.
+    vy_road = track_gradient(front_y, t, tracks.first, tracks.last, GRADIENT_SPAN)
+    road_heading = np.where(speed >= MIN_MOVING_SPEED, np.arctan2(vy_road, speed), 0.0)
+
+    heading = np.where(freeway, road_heading, arterial_heading)
+    cos, sin = np.cos(heading), np.sin(heading)
+    x = np.where(freeway, front_x - half_length, front_x - half_length * cos)
+    y = np.where(freeway, front_y, front_y - half_length * sin)
+    vx = np.where(freeway, speed, speed * cos)
+    vy = np.where(freeway, vy_road, speed * sin)
+    return {
+        "x": x,
+        "y": y,
+        "heading": heading.astype(np.float32),
+        "vx": vx.astype(np.float32),
+        "vy": vy.astype(np.float32),
+        "ax": (accel * cos).astype(np.float32),
+        "ay": (accel * sin).astype(np.float32),
+    }
