@@ -1,0 +1,783 @@
+"""A highD-like recording simulated with Eclipse SUMO: a straight two-carriageway highway.
+
+Why: lanecast needs highway data that anyone can regenerate (highD's licence forbids sharing it), with
+lane changes and with neighbour ids that come from an independent source (SUMO's own leader, follower
+and neighbour queries) so that lanecast's neighbour stage can be checked against them.
+
+The road: two straight carriageways of ``lanes_per_direction`` lanes (3.75 m wide) separated by a
+median, ``approach_length_m + section_length_m + approach_length_m`` long. Only the middle section is
+"filmed"; the approach lets inserted vehicles settle, and the simulation runs a warm-up before frame 1
+so that the section is in equilibrium. Cars and trucks (IDM car-following, LC2013 lane changing with
+keep-right and overtaking) have spread desired speeds; lane changes take ``lane_change_duration_s``
+with continuous lateral motion. One simulation step is one frame at 25 Hz.
+
+Output: highD's three CSV files ``NN_tracks.csv``, ``NN_tracksMeta.csv``, ``NN_recordingMeta.csv`` in
+highD's image coordinates: x to the right, y **down**, ``x, y`` = bounding-box top-left corner,
+``width`` = length along x, ``height`` = width along y. The upper carriageway (``drivingDirection``
+1) drives towards −x, the lower one (2) towards +x. Lanes are numbered like highD, from the top of the
+image across both carriageways, counting the space above the top marking as 1 and the median as one:
+with N lanes per direction the upper lanes are 2 … N+1 (top = its right-most, slow lane) and the
+lower lanes N+3 … 2N+2 (bottom = its slow lane); e.g. N = 3: upper 2, 3, 4 and lower 6, 7, 8.
+
+Neighbour columns come from SUMO: ``precedingId``/``followingId`` from ``vehicle.getLeader`` and
+``getFollower``; the left/right columns from ``vehicle.getNeighbors`` (left and right are taken in the
+direction of travel). A neighbour that overlaps the vehicle longitudinally is ``…AlongsideId``; when
+SUMO's nearest neighbour on a side is alongside, the preceding (following) one on that side is SUMO's
+leader (follower) of that alongside vehicle. Ids of vehicles not in the section in that frame are 0.
+``dhw`` is the bumper-to-bumper gap to the preceding vehicle, ``thw = dhw / |xVelocity|``, ``ttc =
+dhw / closing speed`` (0 where undefined, as in highD); ``yAcceleration`` is the finite difference of
+``yVelocity`` (SUMO's lateral speed), so it spikes at the start and end of a lane change.
+"""
+
+from __future__ import annotations
+
+import array
+import contextlib
+import io
+import os
+import shutil
+import subprocess
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.csv as pacsv
+
+from io_adapters.errors import InputError
+from io_adapters.progress import bar
+
+FRAME_RATE = 25.0
+STEP_S = 1.0 / FRAME_RATE
+LANE_WIDTH_M = 3.75
+MEDIAN_M = 4.0
+TOP_MARGIN_M = 8.0  # image y of the upper carriageway's top marking
+X_MARGIN_M = 10.0  # image x of the section's start (so that bounding boxes stay at x > 0)
+SPEED_LIMIT_MPS = 130.0 / 3.6
+# Mean arrival rate per carriageway (vehicles/s, Poisson arrivals); "medium" gives about 1,000
+# vehicles in 15 simulated minutes over both carriageways, like one highD recording.
+DENSITY_RATES: dict[str, float] = {"low": 0.25, "medium": 0.56, "high": 1.0}
+# (type id, class, length m, width m, share within its class)
+_CAR_TYPES = (
+    ("car_s", "Car", 4.2, 1.75, 0.3),
+    ("car_m", "Car", 4.7, 1.85, 0.5),
+    ("car_l", "Car", 5.1, 2.0, 0.2),
+)
+_TRUCK_TYPES = (("truck_m", "Truck", 11.0, 2.5, 0.4), ("truck_l", "Truck", 16.5, 2.55, 0.6))
+
+TRACKS_COLUMNS = (
+    "frame,id,x,y,width,height,xVelocity,yVelocity,xAcceleration,yAcceleration,frontSightDistance,"
+    "backSightDistance,dhw,thw,ttc,precedingXVelocity,precedingId,followingId,leftPrecedingId,"
+    "leftAlongsideId,leftFollowingId,rightPrecedingId,rightAlongsideId,rightFollowingId,laneId"
+).split(",")
+TRACKS_META_COLUMNS = (
+    "id,width,height,initialFrame,finalFrame,numFrames,class,drivingDirection,traveledDistance,"
+    "minXVelocity,maxXVelocity,meanXVelocity,minDHW,minTHW,minTTC,numLaneChanges"
+).split(",")
+RECORDING_META_COLUMNS = (
+    "id,frameRate,locationId,speedLimit,month,weekDay,startTime,duration,totalDrivenDistance,"
+    "totalDrivenTime,numVehicles,numCars,numTrucks,upperLaneMarkings,lowerLaneMarkings"
+).split(",")
+# traci.constants.VAR_LEADER / VAR_FOLLOWER (checked by the tests), here to keep traci out of imports.
+VAR_LEADER, VAR_FOLLOWER = 0x68, 0x78
+_NEIGHBOUR_HIGHD = (
+    "precedingId",
+    "followingId",
+    "leftPrecedingId",
+    "leftAlongsideId",
+    "leftFollowingId",
+    "rightPrecedingId",
+    "rightAlongsideId",
+    "rightFollowingId",
+)
+
+
+@dataclass(frozen=True)
+class HighwayConfig:
+    """Everything that determines a simulated recording (same config → byte-identical files)."""
+
+    minutes: float
+    seed: int
+    lanes_per_direction: int = 3
+    density: str = "medium"
+    truck_share: float = 0.2
+    section_length_m: float = 1000.0
+    approach_length_m: float = 1000.0
+    lane_change_duration_s: float = 3.0
+
+    @property
+    def road_length_m(self) -> float:
+        return 2 * self.approach_length_m + self.section_length_m
+
+    @property
+    def warmup_s(self) -> float:
+        """Long enough for a truck (≈ 20 m/s) inserted at t = 0 to cross the section's end."""
+        return round((self.approach_length_m + self.section_length_m) / 20.0 + 20.0)
+
+    @property
+    def n_frames(self) -> int:
+        return round(self.minutes * 60.0 * FRAME_RATE)
+
+    def check(self) -> None:
+        """Raise InputError for parameters that cannot give a recording."""
+        problems = []
+        if not self.minutes > 0:
+            problems.append(("minutes", f"{self.minutes}", "a positive number of minutes"))
+        if not 0 <= self.seed < 2**31:
+            problems.append(("seed", f"{self.seed}", "an integer in 0 … 2³¹−1"))
+        if not 1 <= self.lanes_per_direction <= 6:
+            problems.append(("lanes_per_direction", f"{self.lanes_per_direction}", "1 … 6"))
+        if self.density not in DENSITY_RATES:
+            problems.append(("density", repr(self.density), f"one of {sorted(DENSITY_RATES)}"))
+        if not 0.0 <= self.truck_share <= 1.0:
+            problems.append(("truck_share", f"{self.truck_share}", "a share in [0, 1]"))
+        if not self.section_length_m >= 50.0:
+            problems.append(("section_length_m", f"{self.section_length_m}", "at least 50 m"))
+        if not self.approach_length_m >= 100.0:
+            problems.append(("approach_length_m", f"{self.approach_length_m}", "at least 100 m"))
+        if not self.lane_change_duration_s > STEP_S:
+            problems.append(("lane_change_duration_s", f"{self.lane_change_duration_s}", "> 0.04 s"))
+        if problems:
+            name, got, expected = problems[0]
+            raise InputError(None, f"invalid simulation parameter {name} = {got}", expected=expected)
+
+
+# ----------------------------------------------------------------------------------------------
+# Scenario files
+
+
+def _sumo_home() -> Path:
+    import sumo  # the eclipse-sumo wheel
+
+    return Path(sumo.SUMO_HOME)
+
+
+def write_network(cfg: HighwayConfig, directory: Path) -> Path:
+    """Write plain nodes/edges for the two carriageways and build ``highway.net.xml`` with netconvert.
+
+    The lower carriageway runs along y = −median/2 towards +x, the upper one along +median/2 towards
+    −x; each edge spreads its lanes to its right, so lane 0 (the slow lane) is the outermost.
+    """
+    length = cfg.road_length_m
+    half = MEDIAN_M / 2
+    (directory / "highway.nod.xml").write_text(
+        "<nodes>\n"
+        f'  <node id="l0" x="0" y="{-half}" type="priority"/>\n'
+        f'  <node id="l1" x="{length}" y="{-half}" type="priority"/>\n'
+        f'  <node id="u1" x="{length}" y="{half}" type="priority"/>\n'
+        f'  <node id="u0" x="0" y="{half}" type="priority"/>\n'
+        "</nodes>\n"
+    )
+    lanes = cfg.lanes_per_direction
+    edge = f'numLanes="{lanes}" speed="{SPEED_LIMIT_MPS:.4f}" width="{LANE_WIDTH_M}" spreadType="right"'
+    (directory / "highway.edg.xml").write_text(
+        "<edges>\n"
+        f'  <edge id="lower" from="l0" to="l1" {edge}/>\n'
+        f'  <edge id="upper" from="u1" to="u0" {edge}/>\n'
+        "</edges>\n"
+    )
+    net = directory / "highway.net.xml"
+    home = _sumo_home()
+    cmd = [
+        str(home / "bin" / "netconvert"),
+        "--node-files", str(directory / "highway.nod.xml"),
+        "--edge-files", str(directory / "highway.edg.xml"),
+        "--output-file", str(net),
+        "--offset.disable-normalization", "true",
+        "--no-turnarounds", "true",
+        "--no-warnings", "true",
+    ]  # fmt: skip
+    done = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, "SUMO_HOME": str(home)})
+    if done.returncode != 0:
+        raise RuntimeError(f"netconvert failed: {done.stderr.strip()}")
+    return net
+
+
+def vehicle_types(truck_share: float) -> list[tuple[str, str, float, float, float]]:
+    """(type id, highD class, length, width, probability) of every vehicle type in the mix."""
+    types = [(t, c, ln, w, p * (1.0 - truck_share)) for t, c, ln, w, p in _CAR_TYPES]
+    types += [(t, c, ln, w, p * truck_share) for t, c, ln, w, p in _TRUCK_TYPES]
+    return [t for t in types if t[4] > 0]
+
+
+def write_routes(cfg: HighwayConfig, directory: Path) -> Path:
+    """Vehicle types (cars fast and spread, trucks slow) and one Poisson flow per carriageway."""
+    car = (
+        'vClass="passenger" carFollowModel="IDM" accel="1.6" decel="3.0" emergencyDecel="9" tau="1.2" '
+        'minGap="2.0" maxSpeed="55" speedFactor="normc(0.95,0.12,0.65,1.35)" '
+        'laneChangeModel="LC2013" lcKeepRight="1.0" lcSpeedGain="1.5" lcCooperative="1.0"'
+    )
+    truck = (
+        'vClass="truck" carFollowModel="IDM" accel="0.6" decel="2.5" emergencyDecel="7" tau="1.6" '
+        'minGap="2.5" maxSpeed="26" speedFactor="normc(0.64,0.04,0.55,0.72)" '
+        'laneChangeModel="LC2013" lcKeepRight="2.0" lcSpeedGain="0.5" lcCooperative="1.0"'
+    )
+    lines = ["<routes>"]
+    types = vehicle_types(cfg.truck_share)
+    for type_id, cls, length, width, _ in types:
+        attrs = car if cls == "Car" else truck
+        lines.append(f'  <vType id="{type_id}" length="{length}" width="{width}" {attrs}/>')
+    ids = " ".join(t[0] for t in types)
+    probs = " ".join(f"{t[4]:.6f}" for t in types)
+    lines.append(f'  <vTypeDistribution id="mix" vTypes="{ids}" probabilities="{probs}"/>')
+    rate = DENSITY_RATES[cfg.density]
+    end = cfg.warmup_s + cfg.minutes * 60.0 + 10.0
+    for name in ("lower", "upper"):
+        lines.append(f'  <route id="r_{name}" edges="{name}"/>')
+        lines.append(
+            f'  <flow id="{name}" route="r_{name}" type="mix" begin="0" end="{end:.2f}" '
+            f'period="exp({rate})" departLane="random" departSpeed="max"/>'
+        )
+    lines.append("</routes>")
+    path = directory / "highway.rou.xml"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+# ----------------------------------------------------------------------------------------------
+# Simulation
+
+
+def import_libsumo() -> ModuleType:
+    """Import libsumo without its stdout warning about the pyarrow version.
+
+    libsumo bundles its own libarrow (23.0, under mangled names in ``libsumo.libs``) and prints a
+    warning when pyarrow differs (here 26); both load side by side in one process, in either import
+    order, without crashing (checked by tests/test_simulate.py, which has pyarrow loaded first).
+    """
+    with contextlib.redirect_stdout(io.StringIO()):
+        import libsumo
+    return libsumo
+
+
+@dataclass
+class Samples:
+    """What the simulation recorded, one row per (vehicle in the section, frame).
+
+    Arrays of shape [R] (rows in the order recorded); ``neighbours`` int64 [R, 8] are vehicle numbers
+    (0 = none) in the order of ``_NEIGHBOUR_HIGHD``. Vehicle numbers start at 1 in order of departure.
+    Per vehicle number v (arrays of shape [V + 1], index 0 unused): ``type_index`` into ``types`` and
+    ``direction`` (1 upper, 2 lower).
+    """
+
+    frame: np.ndarray
+    vehicle: np.ndarray
+    x_front: np.ndarray  # network x of the front bumper centre (m)
+    y_centre: np.ndarray  # network y (up) of the centre (m)
+    speed: np.ndarray  # along the lane (m/s)
+    accel: np.ndarray  # along the lane (m/s²)
+    speed_lat: np.ndarray  # SUMO lateral speed, positive to the left of travel (m/s)
+    lane_index: np.ndarray  # SUMO lane index, 0 = right-most
+    neighbours: np.ndarray
+    type_index: np.ndarray
+    direction: np.ndarray
+    types: list[tuple[str, str, float, float, float]]
+    lane_centres_upper: np.ndarray  # network y of the upper lanes' centres, by lane index
+    lane_centres_lower: np.ndarray
+    wall_time_s: float
+
+
+def _sumo_args(cfg: HighwayConfig, net: Path, routes: Path) -> list[str]:
+    return [
+        "sumo",
+        "--net-file", str(net),
+        "--route-files", str(routes),
+        "--step-length", f"{STEP_S}",
+        "--lanechange.duration", f"{cfg.lane_change_duration_s}",
+        "--seed", str(int(cfg.seed)),
+        "--begin", "0",
+        "--no-step-log", "true",
+        "--no-warnings", "true",
+        "--time-to-teleport", "-1",
+        "--collision.action", "warn",
+        "--threads", "1",
+    ]  # fmt: skip
+
+
+def _side_neighbours(
+    leads: list[tuple[str, float]],
+    follows: list[tuple[str, float]],
+    back: float,
+    front: float,
+    inside: dict[str, tuple[float, float]],
+    results: dict[str, dict[int, Any]],
+) -> list[str]:
+    """SUMO ids (preceding, alongside, following) on one side of a vehicle ("" = none).
+
+    ``leads``/``follows`` are SUMO's ``getNeighbors`` answers for that side ((id, gap) pairs);
+    ``back, front`` the vehicle's extent along the road; ``inside`` the extents of the vehicles in
+    the section. A neighbour that overlaps [back, front] is alongside; the preceding (following)
+    one is then SUMO's leader (follower) of that alongside vehicle, unless it overlaps too.
+    """
+
+    def overlaps(other: str) -> bool:
+        ext = inside.get(other)
+        return ext is not None and ext[1] > back and ext[0] < front
+
+    pre = along = fol = ""
+    if leads:
+        lead = leads[0][0] if len(leads) == 1 else min(leads, key=lambda p: p[1])[0]
+        if overlaps(lead):
+            along = lead
+            nxt = results[lead][VAR_LEADER][0]
+            pre = "" if overlaps(nxt) else nxt
+        else:
+            pre = lead
+    if follows:
+        foll = follows[0][0] if len(follows) == 1 else min(follows, key=lambda p: p[1])[0]
+        if overlaps(foll):
+            along = along or foll
+            nxt = results[foll][VAR_FOLLOWER][0]
+            fol = "" if overlaps(nxt) else nxt
+        else:
+            fol = foll
+    return [pre, along, fol]
+
+
+def run_simulation(
+    cfg: HighwayConfig, workdir: Path, on_second: Callable[[], object] | None = None
+) -> Samples:
+    """Run SUMO (libsumo, in process) on the scenario in ``workdir`` and sample the section.
+
+    Subscriptions keep the per-step cost low: a vehicle on the approach is subscribed to its
+    position only; from 60 m before the section on to its full state (position, speeds,
+    acceleration, lane, leader, follower); once past the section it is unsubscribed. The four
+    ``getNeighbors`` queries are made only for vehicles in the section. ``on_second()`` is called
+    after every second of simulated time (for progress bars).
+    """
+    started = time.perf_counter()
+    net = write_network(cfg, workdir)
+    routes = write_routes(cfg, workdir)
+    types = vehicle_types(cfg.truck_share)
+    type_of = {t[0]: i for i, t in enumerate(types)}
+    libsumo = import_libsumo()
+    from traci import constants as tc
+
+    POS, SPEED, ACC, LAT, LANE = (
+        tc.VAR_POSITION,
+        tc.VAR_SPEED,
+        tc.VAR_ACCELERATION,
+        tc.VAR_SPEED_LAT,
+        tc.VAR_LANE_INDEX,
+    )
+    LEAD, FOLL = tc.VAR_LEADER, tc.VAR_FOLLOWER
+    full = [POS, SPEED, ACC, LAT, LANE, LEAD, FOLL]
+    search = float(cfg.section_length_m + 50.0)
+    params = {LEAD: search, FOLL: search}
+
+    road = cfg.road_length_m
+    s0 = cfg.approach_length_m  # the section along the direction of travel (same for both directions)
+    s1 = cfg.approach_length_m + cfg.section_length_m
+    s_watch = s0 - 60.0
+    warm_steps = round(cfg.warmup_s * FRAME_RATE)
+    total_steps = warm_steps + cfg.n_frames
+
+    number: dict[str, int] = {}
+    half_length: dict[str, float] = {}
+    lower: dict[str, bool] = {}
+    watched: set[str] = set()
+    type_index = [0]
+    direction = [0]
+    rows = array.array("d")  # 16 values per row (see the extend below), compact for ~1 M rows
+    if libsumo.simulation.isLoaded():
+        libsumo.close()
+    libsumo.start(_sumo_args(cfg, net, routes))
+    try:
+        vehicle = libsumo.vehicle
+        neighbours_of = vehicle.getNeighbors
+        centres_u = np.array(
+            [libsumo.lane.getShape(f"upper_{i}")[0][1] for i in range(cfg.lanes_per_direction)]
+        )
+        centres_l = np.array(
+            [libsumo.lane.getShape(f"lower_{i}")[0][1] for i in range(cfg.lanes_per_direction)]
+        )
+        for step in range(1, total_steps + 1):
+            libsumo.simulationStep()
+            for vid in libsumo.simulation.getDepartedIDList():
+                vehicle.subscribe(vid, [POS])
+                number[vid] = len(number) + 1
+                t = type_of[vehicle.getTypeID(vid)]
+                type_index.append(t)
+                half_length[vid] = types[t][2] / 2
+                lower[vid] = vid.startswith("lower")
+                direction.append(2 if lower[vid] else 1)
+            if on_second is not None and step % round(FRAME_RATE) == 0:
+                on_second()
+            results = vehicle.getAllSubscriptionResults()
+            # Along-road extent (back, front) of the vehicles in the section; staged subscriptions.
+            inside: dict[str, tuple[float, float]] = {}
+            for vid, r in results.items():
+                xf = r[POS][0]
+                s_front = xf if lower[vid] else road - xf
+                centre = s_front - half_length[vid]
+                if centre < s_watch:
+                    continue
+                if vid not in watched:
+                    vehicle.subscribe(vid, full, parameters=params)
+                    watched.add(vid)
+                elif centre > s1:
+                    vehicle.unsubscribe(vid)
+                    watched.discard(vid)
+                elif centre >= s0 and LEAD in r:
+                    inside[vid] = (s_front - 2 * half_length[vid], s_front)
+            if step <= warm_steps:
+                continue
+            frame = step - warm_steps
+
+            for vid, (back, front) in inside.items():
+                r = results[vid]
+                ids = [r[LEAD][0], r[FOLL][0]]
+                for lead_mode, foll_mode in ((2, 0), (3, 1)):  # left, right (in the direction of travel)
+                    ids += _side_neighbours(
+                        neighbours_of(vid, lead_mode),
+                        neighbours_of(vid, foll_mode),
+                        back,
+                        front,
+                        inside,
+                        results,
+                    )
+                pos = r[POS]
+                rows.extend(
+                    (frame, number[vid], pos[0], pos[1], r[SPEED], r[ACC], r[LAT], r[LANE],
+                     *(number[n] if n in inside else 0 for n in ids))
+                )  # fmt: skip
+    finally:
+        libsumo.close()
+    if not rows:
+        raise InputError(None, "the simulation recorded no vehicle in the section", expected="a longer run")
+    data = np.frombuffer(rows, dtype=np.float64).reshape(-1, 16)
+    return Samples(
+        frame=data[:, 0].astype(np.int64),
+        vehicle=data[:, 1].astype(np.int64),
+        x_front=data[:, 2],
+        y_centre=data[:, 3],
+        speed=data[:, 4],
+        accel=data[:, 5],
+        speed_lat=data[:, 6],
+        lane_index=data[:, 7].astype(np.int64),
+        neighbours=data[:, 8:16].astype(np.int64),
+        type_index=np.asarray(type_index, dtype=np.int64),
+        direction=np.asarray(direction, dtype=np.int64),
+        types=types,
+        lane_centres_upper=centres_u,
+        lane_centres_lower=centres_l,
+        wall_time_s=time.perf_counter() - started,
+    )
+
+
+# ----------------------------------------------------------------------------------------------
+# highD tables
+
+
+def lane_markings(samples: Samples) -> tuple[np.ndarray, np.ndarray, float]:
+    """Image y of the upper and lower markings (top to bottom) and the offset: y_img = offset − y_net."""
+    half = LANE_WIDTH_M / 2
+    cu, cl = samples.lane_centres_upper, samples.lane_centres_lower
+    offset = TOP_MARGIN_M + cu[0] + half
+    upper_net = np.concatenate([[cu[0] + half], cu - half])  # lane 0 is the top (outer) lane
+    lower_net = np.concatenate([[cl[-1] + half], (cl - half)[::-1]])  # lane 0 is the bottom lane
+    return offset - upper_net, offset - lower_net, float(offset)
+
+
+def highd_lane_id(lane_index: np.ndarray, direction: np.ndarray, lanes_per_direction: int) -> np.ndarray:
+    """highD laneId from SUMO's lane index [R] and drivingDirection [R] (1 upper, 2 lower)."""
+    n = lanes_per_direction
+    return np.where(direction == 1, 2 + lane_index, 2 * n + 2 - lane_index).astype(np.int64)
+
+
+def _per_track_gradient(values: np.ndarray, new_track: np.ndarray) -> np.ndarray:
+    """d values / dt along each track (rows sorted by track then frame; new_track marks first rows).
+
+    Central differences inside a track, one-sided at its ends, 0 for single-frame tracks.
+    """
+    n = values.size
+    prev_i = np.arange(n) - 1
+    next_i = np.arange(n) + 1
+    last = np.zeros(n, dtype=bool)
+    last[:-1] = new_track[1:]
+    last[-1] = True
+    prev_i = np.where(new_track, np.arange(n), prev_i)
+    next_i = np.where(last, np.arange(n), next_i)
+    span = (next_i - prev_i) * STEP_S
+    diff = values[np.minimum(next_i, n - 1)] - values[np.maximum(prev_i, 0)]
+    return np.divide(diff, span, out=np.zeros(n), where=span > 0)
+
+
+def _round(values: np.ndarray, decimals: int) -> np.ndarray:
+    return np.round(values, decimals) + 0.0  # + 0.0 turns -0.0 into 0.0
+
+
+def to_highd(samples: Samples, cfg: HighwayConfig, recording_id: int = 1) -> dict[str, pa.Table]:
+    """The three highD tables (``tracks``, ``tracksMeta``, ``recordingMeta``) from the samples."""
+    order = np.lexsort((samples.frame, samples.vehicle))
+    veh = samples.vehicle[order]
+    frame = samples.frame[order]
+    # Keep each vehicle's first contiguous run of frames (a track never comes back).
+    new_track = np.ones(veh.size, dtype=bool)
+    new_track[1:] = veh[1:] != veh[:-1]
+    gap = np.zeros(veh.size, dtype=bool)
+    gap[1:] = ~new_track[1:] & (frame[1:] != frame[:-1] + 1)
+    run = np.cumsum(new_track | gap)
+    first_run = run[new_track][np.cumsum(new_track) - 1]
+    keep = run == first_run
+    order, veh, frame = order[keep], veh[keep], frame[keep]
+    new_track = np.ones(veh.size, dtype=bool)
+    new_track[1:] = veh[1:] != veh[:-1]
+    starts = np.flatnonzero(new_track)
+
+    # highD ids: 1 … V in order of first frame, then of departure.
+    first_frames = frame[starts]
+    vehicles = veh[starts]
+    rank = np.lexsort((vehicles, first_frames))
+    highd_id_of = np.zeros(samples.type_index.size, dtype=np.int64)
+    highd_id_of[vehicles[rank]] = np.arange(1, vehicles.size + 1)
+    track_id = highd_id_of[veh]
+    # From here on rows are in highD's own order: by highD id, then frame.
+    final = np.lexsort((frame, track_id))
+    order, veh, frame, track_id = order[final], veh[final], frame[final], track_id[final]
+    new_track = np.ones(veh.size, dtype=bool)
+    new_track[1:] = veh[1:] != veh[:-1]
+
+    types = samples.types
+    lengths = np.array([t[2] for t in types])[samples.type_index[veh]]
+    widths = np.array([t[3] for t in types])[samples.type_index[veh]]
+    direction = samples.direction[veh]
+    lower = direction == 2
+    sign = np.where(lower, 1.0, -1.0)
+    _, _, y_offset = lane_markings(samples)
+    x_origin = cfg.approach_length_m - X_MARGIN_M
+    x_front = samples.x_front[order] - x_origin
+    x_left = np.where(lower, x_front - lengths, x_front)
+    y_top = y_offset - samples.y_centre[order] - widths / 2
+    image_length = cfg.section_length_m + 2 * X_MARGIN_M
+    x_vel = sign * samples.speed[order]
+    y_vel = np.where(lower, -1.0, 1.0) * samples.speed_lat[order]
+    x_acc = sign * samples.accel[order]
+    y_acc = _per_track_gradient(y_vel, new_track)
+    front_sight = np.where(lower, image_length - x_front, x_front)
+    back_sight = np.where(lower, x_left, image_length - (x_left + lengths))
+
+    # Neighbours: vehicle numbers → rows of the same frame (-1 where the neighbour has no row then).
+    n_frames = int(frame.max()) + 2
+    keys = veh * n_frames + frame
+    key_order = np.argsort(keys)
+    sorted_keys = keys[key_order]
+    neighbour_ids: dict[str, np.ndarray] = {}
+    pre_row = np.full(veh.size, -1, dtype=np.int64)
+    for i, name in enumerate(_NEIGHBOUR_HIGHD):  # 8 columns, each vectorised
+        raw = samples.neighbours[order, i]
+        wanted = raw * n_frames + frame
+        pos = np.clip(np.searchsorted(sorted_keys, wanted), 0, keys.size - 1)
+        found = (raw > 0) & (sorted_keys[pos] == wanted)
+        rows = np.where(found, key_order[pos], -1)
+        neighbour_ids[name] = np.where(found, track_id[np.maximum(rows, 0)], 0)
+        if i == 0:
+            pre_row = rows
+
+    has_pre = pre_row >= 0
+    pre = np.maximum(pre_row, 0)
+    gap_m = np.where(lower, x_left[pre] - x_front, x_left - (x_left[pre] + lengths[pre]))
+    dhw = np.where(has_pre, np.maximum(gap_m, 0.0), 0.0)
+    speed_abs = np.abs(x_vel)
+    thw = np.divide(dhw, speed_abs, out=np.zeros_like(dhw), where=has_pre & (speed_abs > 0.1))
+    closing = speed_abs - np.abs(x_vel[pre])
+    ttc = np.divide(dhw, closing, out=np.zeros_like(dhw), where=has_pre & (closing > 1e-3) & (dhw > 0))
+    pre_xvel = np.where(has_pre, x_vel[pre], 0.0)
+    lane_id = highd_lane_id(samples.lane_index[order], direction, cfg.lanes_per_direction)
+
+    tracks = {
+        "frame": frame,
+        "id": track_id,
+        "x": _round(x_left, 2),
+        "y": _round(y_top, 2),
+        "width": _round(lengths, 2),
+        "height": _round(widths, 2),
+        "xVelocity": _round(x_vel, 2),
+        "yVelocity": _round(y_vel, 2),
+        "xAcceleration": _round(x_acc, 4),
+        "yAcceleration": _round(y_acc, 4),
+        "frontSightDistance": _round(front_sight, 2),
+        "backSightDistance": _round(back_sight, 2),
+        "dhw": _round(dhw, 2),
+        "thw": _round(thw, 2),
+        "ttc": _round(ttc, 2),
+        "precedingXVelocity": _round(pre_xvel, 2),
+        **neighbour_ids,
+        "laneId": lane_id,
+    }
+    tracks_table = pa.table({name: tracks[name] for name in TRACKS_COLUMNS})
+
+    meta = _tracks_meta(tracks_table, samples, highd_id_of)
+    recording = _recording_meta(meta, samples, cfg, recording_id)
+    return {"tracks": tracks_table, "tracksMeta": meta, "recordingMeta": recording}
+
+
+def _tracks_meta(tracks: pa.Table, samples: Samples, highd_id_of: np.ndarray) -> pa.Table:
+    """One row per track, aggregated column-wise over the tracks table (rows sorted by id, frame)."""
+    tid = tracks.column("id").to_numpy()
+    frame = tracks.column("frame").to_numpy()
+    starts = np.flatnonzero(np.concatenate([[True], tid[1:] != tid[:-1]]))
+    ends = np.concatenate([starts[1:], [tid.size]]) - 1
+    counts = ends - starts + 1
+    col = {
+        name: tracks.column(name).to_numpy()
+        for name in ("x", "width", "height", "xVelocity", "dhw", "thw", "ttc", "laneId")
+    }
+    speed = np.abs(col["xVelocity"])
+    number_of = np.zeros(tid.max() + 1, dtype=np.int64)
+    number_of[highd_id_of[highd_id_of > 0]] = np.flatnonzero(highd_id_of > 0)
+    vnum = number_of[tid[starts]]
+    classes = np.array([t[1] for t in samples.types])[samples.type_index[vnum]]
+
+    def positive_min(values: np.ndarray) -> np.ndarray:
+        masked = np.where(values > 0, values, np.inf)
+        out = np.minimum.reduceat(masked, starts)
+        return np.where(np.isfinite(out), out, -1.0)
+
+    lane = col["laneId"]
+    change = np.zeros(tid.size, dtype=np.int64)
+    change[1:] = (lane[1:] != lane[:-1]) & (tid[1:] == tid[:-1])
+    return pa.table(
+        {
+            "id": tid[starts],
+            "width": col["width"][starts],
+            "height": col["height"][starts],
+            "initialFrame": frame[starts],
+            "finalFrame": frame[ends],
+            "numFrames": counts,
+            "class": pa.array(classes.tolist(), pa.string()),
+            "drivingDirection": samples.direction[vnum],
+            "traveledDistance": _round(np.abs(col["x"][ends] - col["x"][starts]), 2),
+            "minXVelocity": _round(np.minimum.reduceat(speed, starts), 2),
+            "maxXVelocity": _round(np.maximum.reduceat(speed, starts), 2),
+            "meanXVelocity": _round(np.add.reduceat(speed, starts) / counts, 2),
+            "minDHW": _round(positive_min(col["dhw"]), 2),
+            "minTHW": _round(positive_min(col["thw"]), 2),
+            "minTTC": _round(positive_min(col["ttc"]), 2),
+            "numLaneChanges": np.add.reduceat(change, starts),
+        }
+    )
+
+
+def _recording_meta(meta: pa.Table, samples: Samples, cfg: HighwayConfig, recording_id: int) -> pa.Table:
+    upper, lower, _ = lane_markings(samples)
+    classes = np.asarray(meta.column("class").to_pylist())
+    return pa.table(
+        {
+            "id": [recording_id],
+            "frameRate": [int(FRAME_RATE)],
+            "locationId": [0],  # not a highD location: simulated
+            "speedLimit": [round(SPEED_LIMIT_MPS, 2)],
+            "month": ["01.2000"],  # format fields of highD; a simulation has no calendar date
+            "weekDay": ["Sat"],
+            "startTime": ["12:00"],
+            "duration": [round(cfg.n_frames / FRAME_RATE, 2)],
+            "totalDrivenDistance": [round(float(np.sum(meta.column("traveledDistance").to_numpy())), 2)],
+            "totalDrivenTime": [round(float(np.sum(meta.column("numFrames").to_numpy())) / FRAME_RATE, 2)],
+            "numVehicles": [meta.num_rows],
+            "numCars": [int(np.sum(classes == "Car"))],
+            "numTrucks": [int(np.sum(classes == "Truck"))],
+            "upperLaneMarkings": [";".join(f"{v:.2f}" for v in upper)],
+            "lowerLaneMarkings": [";".join(f"{v:.2f}" for v in lower)],
+        }
+    )
+
+
+# ----------------------------------------------------------------------------------------------
+# Writing
+
+
+def _write_csv(table: pa.Table, path: Path) -> None:
+    with path.open("wb") as fh:
+        fh.write((",".join(table.column_names) + "\n").encode())
+        pacsv.write_csv(table, fh, pacsv.WriteOptions(include_header=False, quoting_style="none"))
+
+
+def file_names(recording_id: int) -> dict[str, str]:
+    """highD's file names for a recording id: ``NN_tracks.csv`` etc."""
+    return {kind: f"{recording_id:02d}_{kind}.csv" for kind in ("tracks", "tracksMeta", "recordingMeta")}
+
+
+def write_highd(tables: dict[str, pa.Table], out_dir: Path, recording_id: int = 1) -> Path:
+    """Write the three CSV files atomically: built in a temporary directory, then renamed into place."""
+    out_dir = Path(out_dir)
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.tmp-", dir=out_dir.parent))
+    try:
+        names = file_names(recording_id)
+        for kind, name in names.items():
+            _write_csv(tables[kind], tmp / name)
+        if not out_dir.exists():
+            os.replace(tmp, out_dir)
+        else:
+            for name in names.values():
+                os.replace(tmp / name, out_dir / name)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return out_dir
+
+
+def summary(tracks_meta: Path) -> dict[str, int]:
+    """Vehicles, cars, trucks and lane changes of a written ``NN_tracksMeta.csv``."""
+    meta = pacsv.read_csv(
+        tracks_meta,
+        convert_options=pacsv.ConvertOptions(
+            include_columns=["class", "numLaneChanges"], column_types={"class": pa.string()}
+        ),
+    )
+    classes = np.asarray(meta.column("class").to_pylist())
+    return {
+        "vehicles": meta.num_rows,
+        "cars": int(np.sum(classes == "Car")),
+        "trucks": int(np.sum(classes == "Truck")),
+        "lane_changes": int(np.sum(meta.column("numLaneChanges").to_numpy())),
+    }
+
+
+def simulate(
+    out_dir: Path,
+    *,
+    minutes: float,
+    seed: int,
+    lanes_per_direction: int = 3,
+    density: str = "medium",
+    truck_share: float = 0.2,
+    recording_id: int = 1,
+    section_length_m: float = 1000.0,
+    approach_length_m: float = 1000.0,
+    lane_change_duration_s: float = 3.0,
+    show_progress: bool = True,
+) -> Path:
+    """Simulate ``minutes`` of highway traffic and write a highD recording into ``out_dir``.
+
+    Returns ``out_dir``. The same arguments give byte-identical files.
+    """
+    cfg = HighwayConfig(
+        minutes=minutes,
+        seed=seed,
+        lanes_per_direction=lanes_per_direction,
+        density=density,
+        truck_share=truck_share,
+        section_length_m=section_length_m,
+        approach_length_m=approach_length_m,
+        lane_change_duration_s=lane_change_duration_s,
+    )
+    cfg.check()
+    if not 1 <= recording_id <= 99:
+        raise InputError(None, f"invalid recording id {recording_id}", expected="1 … 99")
+    if Path(out_dir).exists() and not Path(out_dir).is_dir():
+        raise InputError(out_dir, "exists and is not a directory", expected="a directory for the CSV files")
+    total_s = cfg.warmup_s + cfg.n_frames / FRAME_RATE
+    with tempfile.TemporaryDirectory(prefix="lanecast-sumo-") as work:
+        if show_progress:
+            with bar(desc="simulating", total=round(total_s), unit="sim s") as progress_bar:
+                samples = run_simulation(cfg, Path(work), lambda: progress_bar.update(1))
+        else:
+            samples = run_simulation(cfg, Path(work))
+    tables = to_highd(samples, cfg, recording_id)
+    return write_highd(tables, Path(out_dir), recording_id)

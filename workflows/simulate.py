@@ -1,0 +1,85 @@
+"""`lanecast simulate`: a highD-format recording of highway traffic simulated with Eclipse SUMO."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+DENSITIES = ("low", "medium", "high")
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "simulate",
+        help="simulate highway traffic with SUMO and write it as a highD recording",
+        description=(
+            "Drive Eclipse SUMO (libsumo) on a straight highway with two carriageways, cars and trucks with "
+            "spread desired speeds and continuous lane changes, and write the recorded middle section as "
+            "highD's three CSV files (NN_tracks.csv, NN_tracksMeta.csv, NN_recordingMeta.csv; 25 Hz) into "
+            "OUT_DIR. Neighbour ids come from SUMO. The same arguments give byte-identical files; about 15 "
+            "minutes at medium density give a recording of highD's size (about 1,000 vehicles)."
+        ),
+        epilog=(
+            "examples:\n"
+            "  lanecast simulate sim/ --minutes 15 --seed 1\n"
+            "  lanecast simulate sim/ --minutes 5 --seed 7 --density high --lanes-per-direction 2\n"
+            "  lanecast convert sim/ --out sim.parquet"
+        ),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("out_dir", type=Path, metavar="OUT_DIR", help="directory for the three CSV files")
+    p.add_argument("--minutes", type=float, required=True, help="simulated minutes to record")
+    p.add_argument("--seed", type=int, required=True, help="SUMO's random seed")
+    p.add_argument("--lanes-per-direction", type=int, default=3, help="lanes per carriageway (default 3)")
+    p.add_argument("--density", choices=DENSITIES, default="medium", help="traffic density (default medium)")
+    p.add_argument("--truck-share", type=float, default=0.2, help="share of trucks, 0…1 (default 0.2)")
+    p.add_argument("--recording-id", type=int, default=1, help="highD recording number NN (default 1)")
+    p.add_argument(
+        "--section-length",
+        type=float,
+        default=1000.0,
+        metavar="M",
+        help="length of the recorded section in metres (default 1000; highD films about 420)",
+    )
+    p.add_argument(
+        "--approach-length",
+        type=float,
+        default=1000.0,
+        metavar="M",
+        help="road before and after the section in metres, where traffic settles (default 1000)",
+    )
+    p.add_argument(
+        "--lane-change-duration",
+        type=float,
+        default=3.0,
+        metavar="S",
+        help="seconds a lane change takes, moving continuously sideways (default 3)",
+    )
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from io_adapters import sumo_highway
+
+    started = time.perf_counter()
+    out = sumo_highway.simulate(
+        args.out_dir,
+        minutes=args.minutes,
+        seed=args.seed,
+        lanes_per_direction=args.lanes_per_direction,
+        density=args.density,
+        truck_share=args.truck_share,
+        recording_id=args.recording_id,
+        section_length_m=args.section_length,
+        approach_length_m=args.approach_length,
+        lane_change_duration_s=args.lane_change_duration,
+    )
+    names = sumo_highway.file_names(args.recording_id)
+    summary = sumo_highway.summary(out / names["tracksMeta"])
+    print(
+        f"wrote {out}: {', '.join(names.values())}; {summary['vehicles']:,} vehicles "
+        f"({summary['cars']:,} cars, {summary['trucks']:,} trucks), {summary['lane_changes']:,} lane changes, "
+        f"{args.minutes:g} simulated minutes in {time.perf_counter() - started:.1f} s"
+    )
+    return 0
