@@ -1,0 +1,121 @@
+"""Benchmark: reading a 15-minute SceneUpdate (protobuf) MCAP into the track table.
+
+Compared, in the same run, with a bare loop that only decodes every message with the ``mcap``
+reader (CRC validation on, ``mcap_protobuf`` decoder). The goal is at least half the bare loop's
+speed. The log comes from a synthetic table (``--tracks`` tracks of ``--frames`` frames at 25 Hz,
+start times spread over ``--minutes``), so the figures need no dataset.
+
+    .venv/bin/python benchmarks/bench_mcap_read.py [--tracks 1000] [--frames 600] [--minutes 15]
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+
+from io_adapters import mcap_reader, mcap_writer, track_table
+
+
+def synthetic_table(
+    n_tracks: int, n_frames: int, minutes: float, rate: float = 25.0, seed: int = 0
+) -> pa.Table:
+    """Highway-like tracks: constant speed plus a slow lateral sway, lanes 3.75 m apart."""
+    rng = np.random.default_rng(seed)
+    total = int(minutes * 60 * rate)
+    start = rng.integers(0, max(total - n_frames, 1), n_tracks)
+    k = np.arange(n_frames)
+    frame = (start[:, None] + k[None, :]).ravel()
+    track = np.repeat(np.arange(1, n_tracks + 1), n_frames)
+    t = k[None, :] / rate
+    speed = rng.uniform(20, 40, n_tracks)[:, None]
+    lane = rng.integers(1, 4, n_tracks)[:, None]
+    x = (rng.uniform(0, 50, n_tracks)[:, None] + speed * t).ravel()
+    y = (lane * 3.75 + 0.3 * np.sin(0.5 * t + rng.uniform(0, 6, n_tracks)[:, None])).ravel()
+    n = frame.size
+    vx = np.broadcast_to(speed, (n_tracks, n_frames)).ravel()
+    cls = np.where(rng.random(n_tracks) < 0.2, "truck", "car")
+    cols = {
+        "recording": np.full(n, "synthetic"),
+        "track_id": track,
+        "frame": frame,
+        "time_ns": np.rint(frame * 1e9 / rate).astype(np.int64),
+        "x": x,
+        "y": y,
+        "heading": np.zeros(n),
+        "vx": vx,
+        "vy": np.zeros(n),
+        "ax": np.zeros(n),
+        "ay": np.zeros(n),
+        "length": np.repeat(np.where(cls == "truck", 12.0, 4.5), n_frames),
+        "width": np.repeat(np.where(cls == "truck", 2.5, 1.8), n_frames),
+        "lane_id": np.broadcast_to(lane, (n_tracks, n_frames)).ravel().astype(float),
+        "object_class": np.repeat(cls, n_frames),
+    }
+    meta = track_table.TableMeta("synthetic", {"synthetic": track_table.RecordingMeta(rate)})
+    return track_table.build_table(cols, meta)
+
+
+def bare_loop(path: Path) -> int:
+    """Decode every message with the mcap reader and do nothing else; returns the message count."""
+    from mcap.reader import make_reader
+    from mcap_protobuf.decoder import DecoderFactory
+
+    n = 0
+    with path.open("rb") as f:
+        reader = make_reader(f, validate_crcs=True, decoder_factories=[DecoderFactory()])
+        for _ in reader.iter_decoded_messages():
+            n += 1
+    return n
+
+
+def best_of(fn, repeats: int) -> tuple[float, float, object]:
+    """Best wall time and best CPU time (process) over ``repeats`` runs, and the last result."""
+    wall, cpu, result = float("inf"), float("inf"), None
+    for _ in range(repeats):
+        t0, c0 = time.perf_counter(), time.process_time()
+        result = fn()
+        wall = min(wall, time.perf_counter() - t0)
+        cpu = min(cpu, time.process_time() - c0)
+    return wall, cpu, result
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--tracks", type=int, default=1000)
+    ap.add_argument("--frames", type=int, default=600)
+    ap.add_argument("--minutes", type=float, default=15.0)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--log", type=Path, help="reuse or keep the generated log here")
+    args = ap.parse_args()
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = args.log or Path(tmp) / "bench.mcap"
+        if not path.exists():
+            table = synthetic_table(args.tracks, args.frames, args.minutes)
+            t0 = time.perf_counter()
+            mcap_writer.write(table, path, "mcap")
+            print(f"wrote {path}: {table.num_rows:,} rows in {time.perf_counter() - t0:.1f} s")
+        size = path.stat().st_size
+        t_bare, c_bare, n_msgs = best_of(lambda: bare_loop(path), args.repeats)
+        t_ours, c_ours, table = best_of(lambda: mcap_reader.read(path), args.repeats)
+        assert isinstance(table, pa.Table) and isinstance(n_msgs, int)
+        print(f"log: {size / 1e6:.1f} MB, {n_msgs:,} messages, {table.num_rows:,} objects")
+        print(
+            f"bare mcap decode loop : {t_bare:6.2f} s wall {c_bare:6.2f} s CPU  {n_msgs / t_bare:9,.0f} msg/s"
+        )
+        print(
+            f"lanecast read → table : {t_ours:6.2f} s wall {c_ours:6.2f} s CPU  {n_msgs / t_ours:9,.0f} msg/s  "
+            f"{table.num_rows / t_ours:11,.0f} rows/s"
+        )
+        print(
+            f"speed relative to the bare loop: {t_bare / t_ours:.2f} wall, {c_bare / c_ours:.2f} CPU (goal ≥ 0.5)"
+        )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,1172 @@
+"""Decoded drive-log messages ⇄ track-table columns: the part the MCAP and bag adapters share.
+
+Reading: a decoder appends every object of a message to an :class:`ObjectColumns` (flat Python
+lists, no message kept; protobuf SceneUpdates are decoded many messages at a time straight from
+the wire format by :func:`scene_update_block`), transforms (``/tf``, foxglove FrameTransforms,
+odometry) go into :class:`Transforms`, and :func:`assemble` turns everything into one track table:
+objects in moving frames moved into the fixed frame their transform chain reaches (map, odom,
+world, road, or a frame named in lanecast's metadata), heading from the quaternion yaw (from the
+velocity where there is no orientation), velocities and accelerations from the message where it
+has them, else from differences (positions, then velocities), frame indices on the topic's
+timeline at its nominal rate (median message interval, snapped to a whole rate within 1 %).
+Recordings: one per object topic, named after the file stem (``<stem>-<topic>`` when a log has
+several), or the names stored in lanecast's metadata.
+
+Conventions of the logs lanecast writes (documented here, used by both writers):
+
+- one topic per recording: ``/tracked_objects`` for a single recording, ``/tracked_objects/r<i>``
+  for several; in ROS bags each has a ``<topic>/markers`` MarkerArray companion.
+- the log's metadata (MCAP metadata record ``lanecast``; in ROS bags a ``std_msgs/msg/String`` on
+  ``/lanecast/metadata``, and rosbag2 ``custom_data``) holds a JSON document: ``source_format``,
+  ``frame_rate``, ``units`` and per recording ``topic``, ``frame_rate``, ``coordinate_frame``, the
+  frame origin (``frame0``, ``time0_ns``) or an explicit frame list, ``source_files`` and ``extra``.
+- SceneUpdate: one message per frame, entity id = track id, one cube (centre, yaw, length × width ×
+  1.5 m), entity metadata ``class``, ``lane_id`` (absent = null), ``vx``, ``vy`` (float32 in their
+  shortest decimal form); accelerations are not written (read back as velocity differences;
+  ``ax``/``ay`` keys are read where a log has them).
+- Autoware TrackedObjects: UUID = the track id as 8 little-endian bytes then 8 zero bytes; twist and
+  acceleration in the object's body frame (Autoware's convention); the class as the Autoware label.
+  The MarkerArray companion: cube marker per object, id = track id, ``ns`` = lanecast's class
+  string, ``text`` = ``lane_id=<n>`` (empty = null): this is where the lane and the exact class
+  round-trip.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+
+from io_adapters import track_table
+from io_adapters.errors import FrameError, LogError
+
+FIXED_FRAMES: frozenset[str] = frozenset({"map", "odom", "world", "road"})
+META_NAME = "lanecast"
+META_TOPIC = "/lanecast/metadata"
+TRACK_TOPIC = "/tracked_objects"
+MARKER_SUFFIX = "/markers"
+BOX_HEIGHT = 1.5  # m, height of the cubes written (the table has no height)
+
+# Autoware ObjectClassification labels.
+AUTOWARE_LABELS: dict[int, str] = {
+    0: "unknown",
+    1: "car",
+    2: "truck",
+    3: "bus",
+    4: "trailer",
+    5: "motorcycle",
+    6: "bicycle",
+    7: "pedestrian",
+}
+LABEL_OF_CLASS: dict[str, int] = {v: k for k, v in AUTOWARE_LABELS.items()}
+KNOWN_CLASSES = frozenset(AUTOWARE_LABELS.values()) | {"van", "motorbike"}
+
+# Per-row numeric slots of ObjectColumns.floats, in order.
+_FLOATS = ("x", "y", "qx", "qy", "qz", "qw", "length", "width", "vx", "vy", "ax", "ay", "lane")
+_NF = len(_FLOATS)
+NAN = math.nan
+
+
+def track_id_of(text: str) -> int:
+    """A track id from an entity id string: the int64 it spells, else a stable 56-bit hash."""
+    try:
+        value = int(text)
+        if -(2**63) <= value < 2**63:
+            return value
+    except ValueError:
+        pass
+    return int.from_bytes(hashlib.blake2b(text.encode(), digest_size=7).digest(), "little")
+
+
+def uuid_to_track_id(uuid: Any) -> int:
+    """A track id from a 16-byte UUID: lanecast's own (8 LE bytes + 8 zeros) exactly, else a hash."""
+    raw = bytes(np.asarray(uuid, dtype=np.uint8))
+    if raw[8:] == bytes(8):
+        return int.from_bytes(raw[:8], "little", signed=True)
+    return int.from_bytes(hashlib.blake2b(raw, digest_size=7).digest(), "little")
+
+
+def track_id_to_uuid(track_id: int) -> np.ndarray:
+    """uint8[16]: the track id in 8 little-endian bytes, then zeros."""
+    return np.frombuffer(int(track_id).to_bytes(8, "little", signed=True) + bytes(8), dtype=np.uint8).copy()
+
+
+def yaw_of(qx: np.ndarray, qy: np.ndarray, qz: np.ndarray, qw: np.ndarray) -> np.ndarray:
+    """Yaw (rad, about z) of quaternions; arrays of shape [n]. NaN for the zero quaternion (no
+    orientation given), so that the heading comes from the velocity instead."""
+    yaw = np.arctan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
+    return np.where((qx == 0) & (qy == 0) & (qz == 0) & (qw == 0), np.nan, yaw)
+
+
+def quat_of_yaw(yaw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(qz, qw) of a rotation by ``yaw`` about z (qx = qy = 0); arrays of shape [n]."""
+    half = 0.5 * np.asarray(yaw, dtype=np.float64)
+    return np.sin(half), np.cos(half)
+
+
+def rotate(vx: np.ndarray, vy: np.ndarray, angle: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotate 2D vectors [n] by ``angle`` [n] (rad, counter-clockwise)."""
+    c, s = np.cos(angle), np.sin(angle)
+    return c * vx - s * vy, s * vx + c * vy
+
+
+class Categorical:
+    """Strings as int32 codes [n] into ``names`` (how classes and frame ids travel, cheaply)."""
+
+    __slots__ = ("codes", "names")
+
+    def __init__(self, codes: np.ndarray, names: list[str]) -> None:
+        self.codes = np.asarray(codes, dtype=np.int32)
+        self.names = list(names)
+
+    @classmethod
+    def from_strings(cls, values: Iterable[str]) -> Categorical:
+        lookup: dict[str, int] = {}
+        codes = [lookup.setdefault(v, len(lookup)) for v in values]
+        return cls(np.asarray(codes, dtype=np.int32), list(lookup))
+
+    @classmethod
+    def concat(cls, parts: list[Categorical]) -> Categorical:
+        """One categorical of all parts, in order (categories merged)."""
+        lookup: dict[str, int] = {}
+        codes = []
+        for p in parts:
+            lut = np.asarray([lookup.setdefault(n, len(lookup)) for n in p.names], dtype=np.int32)
+            codes.append(lut[p.codes] if p.codes.size else p.codes)
+        return cls(np.concatenate(codes) if codes else np.zeros(0, np.int32), list(lookup))
+
+    def take(self, idx: np.ndarray) -> Categorical:
+        return Categorical(self.codes[idx], self.names)
+
+    def strings(self) -> np.ndarray:
+        return (
+            np.asarray(self.names, dtype=object)[self.codes]
+            if self.names
+            else np.zeros(self.codes.size, object)
+        )
+
+    def where(self, mask: np.ndarray, other: Categorical) -> Categorical:
+        """Values of ``other`` where mask [n] holds, else own."""
+        merged = Categorical.concat([self, other])
+        n = self.codes.size
+        return Categorical(np.where(mask, merged.codes[n:], merged.codes[:n]), merged.names)
+
+    def to_arrow(self) -> pa.DictionaryArray:
+        return pa.DictionaryArray.from_arrays(
+            pa.array(self.codes, pa.int32()), pa.array(self.names, pa.string())
+        )
+
+
+class ObjectColumns:
+    """Objects of one topic, accumulated message by message (no message is kept).
+
+    Per-message decoders append to flat lists: ints (time_ns, message stamp ns, track id), floats
+    (see ``_FLOATS``; NaN = not in the message), the class and the frame id. Vectorised decoders
+    append whole blocks of arrays (:meth:`add_block`).
+    """
+
+    __slots__ = ("blocks", "classes", "floats", "frame_ids", "ints", "messages", "velocity_in_body")
+
+    def __init__(self) -> None:
+        self.ints: list[int] = []
+        self.floats: list[float] = []
+        self.classes: list[str] = []
+        self.frame_ids: list[str] = []
+        self.blocks: list[dict[str, Any]] = []
+        self.messages = 0
+        self.velocity_in_body = False
+
+    def add_block(self, block: dict[str, Any], messages: int) -> None:
+        """Arrays [n] named like ``_FLOATS`` (a ``yaw`` instead of the quaternion) plus time_ns,
+        msg_time, track_id, and
+        ``classes``/``frame_ids`` as :class:`Categorical`."""
+        self.blocks.append(block)
+        self.messages += messages
+
+    def __len__(self) -> int:
+        return len(self.classes) + sum(int(b["track_id"].size) for b in self.blocks)
+
+    def arrays(self) -> tuple[dict[str, np.ndarray], Categorical, Categorical]:
+        """All rows as numpy columns [n], the classes and the frame ids."""
+        ints = np.asarray(self.ints, dtype=np.int64).reshape(-1, 3)
+        floats = np.asarray(self.floats, dtype=np.float64).reshape(-1, _NF)
+        listed: dict[str, np.ndarray] = {
+            "time_ns": ints[:, 0],
+            "msg_time": ints[:, 1],
+            "track_id": ints[:, 2],
+        }
+        for i, name in enumerate(_FLOATS):
+            if not name.startswith("q"):
+                listed[name] = floats[:, i]
+        listed["yaw"] = yaw_of(floats[:, 2], floats[:, 3], floats[:, 4], floats[:, 5])
+        parts = [listed, *self.blocks]
+        cols = {k: np.concatenate([p[k] for p in parts]) if len(parts) > 1 else listed[k] for k in listed}
+        classes = Categorical.concat(
+            [Categorical.from_strings(self.classes)] + [b["classes"] for b in self.blocks]
+        )
+        frames = Categorical.concat(
+            [Categorical.from_strings(self.frame_ids)] + [b["frame_ids"] for b in self.blocks]
+        )
+        return cols, classes, frames
+
+
+# --------------------------------------------------------------------------------------- decoders
+
+
+def add_scene_update_json(cols: ObjectColumns, doc: Mapping[str, Any], log_time: int) -> None:
+    """Append the cube entities of a JSON-encoded ``foxglove.SceneUpdate``."""
+    ints, floats, classes, frames = cols.ints, cols.floats, cols.classes, cols.frame_ids
+    cols.messages += 1
+    for e in doc.get("entities", ()):
+        cubes = e.get("cubes")
+        if not cubes:
+            continue
+        c = cubes[0]
+        pose = c.get("pose", {})
+        p = pose.get("position", {})
+        q = pose.get("orientation", {})
+        s = c.get("size", {})
+        ts = e.get("timestamp") or {}
+        t = int(ts.get("sec", 0)) * 1_000_000_000 + int(ts.get("nsec", 0)) or log_time
+        meta = {kv.get("key"): kv.get("value") for kv in e.get("metadata", ())}
+        ints += (t, log_time, track_id_of(str(e.get("id", ""))))
+        floats += (
+            float(p.get("x", 0.0)),
+            float(p.get("y", 0.0)),
+            float(q.get("x", 0.0)),
+            float(q.get("y", 0.0)),
+            float(q.get("z", 0.0)),
+            float(q.get("w", 1.0)),
+            float(s.get("x", 0.0)),
+            float(s.get("y", 0.0)),
+            *(float(meta[k]) if k in meta else NAN for k in ("vx", "vy", "ax", "ay", "lane_id")),
+        )
+        classes.append(str(meta.get("class", "unknown")))
+        frames.append(str(e.get("frame_id", "")))
+
+
+def _stamp(header: Any) -> int:
+    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+
+
+def add_tracked_objects(cols: ObjectColumns, msg: Any, log_time: int) -> None:
+    """Append the objects of an Autoware ``TrackedObjects`` (twist/accel in the body frame)."""
+    cols.messages += 1
+    cols.velocity_in_body = True
+    t = _stamp(msg.header) or log_time
+    frame_id = msg.header.frame_id
+    ints, floats, classes, frames = cols.ints, cols.floats, cols.classes, cols.frame_ids
+    for o in msg.objects:
+        k = o.kinematics
+        pose = k.pose_with_covariance.pose
+        p, q = pose.position, pose.orientation
+        v = k.twist_with_covariance.twist.linear
+        a = k.acceleration_with_covariance.accel.linear
+        d = o.shape.dimensions
+        label = max(o.classification, key=lambda c: c.probability).label if o.classification else 0
+        ints += (t, t, uuid_to_track_id(o.object_id.uuid))
+        # The pose's orientation is used whatever orientation_availability says: Autoware expresses
+        # the twist in that orientation's frame.
+        floats += (p.x, p.y, q.x, q.y, q.z, q.w, d.x, d.y, v.x, v.y, a.x, a.y, NAN)
+        classes.append(AUTOWARE_LABELS.get(int(label), "unknown"))
+        frames.append(frame_id)
+
+
+def parse_marker_text(text: str) -> float:
+    """The lane id in a marker's text (``lane_id=<n>``), NaN where absent."""
+    for token in text.replace(";", " ").split():
+        if token.startswith("lane_id="):
+            try:
+                return float(int(token[8:]))
+            except ValueError:
+                return NAN
+    return NAN
+
+
+def add_marker_array(cols: ObjectColumns, msg: Any, log_time: int) -> None:
+    """Append the cube markers (type CUBE, action ADD) of a ``MarkerArray``: id = track id."""
+    cols.messages += 1
+    ints, floats, classes, frames = cols.ints, cols.floats, cols.classes, cols.frame_ids
+    for m in msg.markers:
+        if m.type != 1 or m.action != 0:
+            continue
+        p, q = m.pose.position, m.pose.orientation
+        t = _stamp(m.header) or log_time
+        ints += (t, t, int(m.id))
+        floats += (p.x, p.y, q.x, q.y, q.z, q.w, m.scale.x, m.scale.y, NAN, NAN, NAN, NAN)
+        floats.append(parse_marker_text(m.text))
+        classes.append(m.ns)
+        frames.append(m.header.frame_id)
+
+
+@dataclass
+class Transforms:
+    """Planar poses of child frames in parent frames over time (from /tf, /tf_static, odometry)."""
+
+    edges: dict[str, tuple[str, list[int], list[float]]] = field(
+        default_factory=dict
+    )  # child -> parent, t, xyyaw
+    sources: set[str] = field(default_factory=set)
+
+    def add(self, parent: str, child: str, t: int, x: float, y: float, q: Any, source: str) -> None:
+        parent, child = parent.lstrip("/"), child.lstrip("/")
+        entry = self.edges.get(child)
+        if entry is None or entry[0] != parent:
+            entry = (parent, [], [])
+            self.edges[child] = entry
+        entry[1].append(t)
+        yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+        entry[2].extend((x, y, yaw))
+        self.sources.add(source)
+
+    def add_tf(self, msg: Any, source: str) -> None:
+        """A ``tf2_msgs/msg/TFMessage``."""
+        for tr in msg.transforms:
+            v = tr.transform.translation
+            self.add(
+                tr.header.frame_id,
+                tr.child_frame_id,
+                _stamp(tr.header),
+                v.x,
+                v.y,
+                tr.transform.rotation,
+                source,
+            )
+
+    def add_odometry(self, msg: Any, source: str) -> None:
+        """A ``nav_msgs/msg/Odometry``: the pose of ``child_frame_id`` in ``header.frame_id``."""
+        pose = msg.pose.pose
+        self.add(
+            msg.header.frame_id,
+            msg.child_frame_id,
+            _stamp(msg.header),
+            pose.position.x,
+            pose.position.y,
+            pose.orientation,
+            source,
+        )
+
+    def add_frame_transform(self, tr: Any, source: str) -> None:
+        """A ``foxglove.FrameTransform`` (protobuf object, or its JSON document)."""
+        if isinstance(tr, Mapping):
+            ts, v, q = tr.get("timestamp") or {}, tr.get("translation") or {}, tr.get("rotation") or {}
+            rotation = SimpleNamespace(**{k: float(q.get(k, 1.0 if k == "w" else 0.0)) for k in "xyzw"})
+            t = int(ts.get("sec", 0)) * 1_000_000_000 + int(ts.get("nsec", 0))
+            parent, child = str(tr.get("parent_frame_id", "")), str(tr.get("child_frame_id", ""))
+            self.add(parent, child, t, float(v.get("x", 0.0)), float(v.get("y", 0.0)), rotation, source)
+            return
+        t = tr.timestamp.seconds * 1_000_000_000 + tr.timestamp.nanos
+        self.add(
+            tr.parent_frame_id, tr.child_frame_id, t, tr.translation.x, tr.translation.y, tr.rotation, source
+        )
+
+    def chain(self, frame: str, fixed: Iterable[str]) -> list[str] | None:
+        """Frames from ``frame`` up to the first fixed frame, or None when the tree has no such path."""
+        fixed = set(fixed)
+        path = [frame]
+        while path[-1] not in fixed:
+            entry = self.edges.get(path[-1])
+            if entry is None or entry[0] in path:
+                return None
+            path.append(entry[0])
+        return path
+
+    def to_fixed(
+        self, path: list[str], t: np.ndarray, x: np.ndarray, y: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Points [n] at times t [n] in ``path[0]`` → (x, y, added yaw) in ``path[-1]`` (interpolated)."""
+        yaw_total = np.zeros_like(x)
+        for child in path[:-1]:
+            _, times, xyyaw = self.edges[child]
+            et = np.asarray(times, dtype=np.int64)
+            poses = np.asarray(xyyaw, dtype=np.float64).reshape(-1, 3)
+            order = np.argsort(et, kind="stable")
+            et, poses = et[order], poses[order]
+            tq = (t - et[0]).astype(np.float64)
+            tr = (et - et[0]).astype(np.float64)
+            ex = np.interp(tq, tr, poses[:, 0])
+            ey = np.interp(tq, tr, poses[:, 1])
+            eyaw = np.interp(tq, tr, np.unwrap(poses[:, 2]))
+            x, y = rotate(x, y, eyaw)
+            x, y = x + ex, y + ey
+            yaw_total = yaw_total + eyaw
+        return x, y, yaw_total
+
+
+# ------------------------------------------------------------------------------------ assembling
+
+
+@dataclass
+class TopicData:
+    """What was decoded from one topic."""
+
+    topic: str
+    msgtype: str
+    columns: ObjectColumns = field(default_factory=ObjectColumns)
+
+
+def finite_difference(group: np.ndarray, t_ns: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """d(values)/dt along groups; all arrays [n], rows sorted by (group, t).
+
+    Central differences inside a group, one-sided at its ends, 0 for a single-row group.
+    """
+    n = values.shape[0]
+    if n == 0:
+        return np.zeros(0)
+    idx = np.arange(n)
+    same_prev = np.zeros(n, dtype=bool)
+    same_prev[1:] = group[1:] == group[:-1]
+    same_next = np.zeros(n, dtype=bool)
+    same_next[:-1] = same_prev[1:]
+    prev = np.where(same_prev, idx - 1, idx)
+    nxt = np.where(same_next, idx + 1, idx)
+    dt = (t_ns[nxt] - t_ns[prev]).astype(np.float64) * 1e-9
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = np.where(dt > 0, (values[nxt] - values[prev]) / dt, 0.0)
+    return out
+
+
+def nominal_rate(msg_times: np.ndarray) -> float:
+    """The nominal rate (Hz) of a topic from its distinct message stamps [n] (median interval)."""
+    stamps = np.unique(msg_times)
+    if stamps.size < 2:
+        return 10.0
+    interval = float(np.median(np.diff(stamps)))
+    rate = 1e9 / interval
+    # Snap to a round rate where the log is within 1 % of one (25 Hz, 10 Hz, …).
+    rounded = round(rate)
+    return float(rounded) if rounded > 0 and abs(rate - rounded) < 0.01 * rate else rate
+
+
+def frames_of(msg_times: np.ndarray, spec: Mapping[str, Any] | None) -> tuple[np.ndarray, float]:
+    """Frame indices [n] of rows from their message stamps [n], and the frame rate.
+
+    ``spec`` (from lanecast's metadata) gives ``frame_rate`` with ``frame0``/``time0_ns`` or an
+    explicit ``frames`` list (one per distinct stamp); without it the rate is estimated and frame 0
+    is the first message.
+    """
+    if spec is not None and "frames" in spec:
+        stamps, inverse = np.unique(msg_times, return_inverse=True)
+        listed = np.asarray(spec["frames"], dtype=np.int64)
+        if listed.size == stamps.size:
+            return listed[inverse], float(spec["frame_rate"])
+    if spec is not None and "frame0" in spec:
+        rate = float(spec["frame_rate"])
+        t0, f0 = int(spec["time0_ns"]), int(spec["frame0"])
+    else:
+        rate = nominal_rate(msg_times)
+        t0, f0 = (int(msg_times.min()) if msg_times.size else 0), 0
+    frames = f0 + np.rint((msg_times - t0).astype(np.float64) * rate / 1e9).astype(np.int64)
+    return frames, rate
+
+
+def _merge_markers(main: dict[str, np.ndarray], classes: Categorical, markers: ObjectColumns) -> Categorical:
+    """Take lane ids and class strings from a lanecast marker companion, matched on (stamp, id)."""
+    if len(markers) == 0:
+        return classes
+    m, m_cls, _ = markers.arrays()
+    n_main = main["msg_time"].size
+    # Dense ranks of (stamp, id) over both sides make one sortable int64 key per row.
+    _, rt = np.unique(np.concatenate([main["msg_time"], m["msg_time"]]), return_inverse=True)
+    ids, ri = np.unique(np.concatenate([main["track_id"], m["track_id"]]), return_inverse=True)
+    key = rt.astype(np.int64) * ids.size + ri
+    q, mk = key[:n_main], key[n_main:]
+    order = np.argsort(mk, kind="stable")
+    mk_sorted = mk[order]
+    idx = np.minimum(np.searchsorted(mk_sorted, q), max(order.size - 1, 0))
+    hit = mk_sorted[idx] == q
+    src = order[idx]
+    main["lane"] = np.where(hit, m["lane"][src], main["lane"])
+    return classes.where(hit, m_cls.take(src))
+
+
+def assemble(
+    path: Path,
+    topics: Mapping[str, TopicData],
+    transforms: Transforms,
+    log_meta: Mapping[str, Any] | None,
+    *,
+    source_format: str,
+    topic: str | None = None,
+    fixed_frames: Iterable[str] = FIXED_FRAMES,
+    extra: Mapping[str, Any] | None = None,
+) -> pa.Table:
+    """One track table from the decoded topics of one log (validated).
+
+    With lanecast's metadata the recordings and their topics come from it (marker companions fill
+    lanes and classes); otherwise every supported topic with objects is one recording, named after
+    the file's stem (``<stem>-<topic>`` when there are several).
+    """
+    fixed = set(fixed_frames)
+    recordings_meta = (log_meta or {}).get("recordings") or {}
+    if recordings_meta:
+        fixed |= {str(r.get("coordinate_frame")) for r in recordings_meta.values()}
+    if topic is not None:
+        plan = [(topic, None)]
+        for name, spec in recordings_meta.items():
+            if spec.get("topic") == topic:
+                plan = [(topic, name)]
+    elif recordings_meta:
+        plan = [
+            (spec["topic"], name) for name, spec in recordings_meta.items() if spec.get("topic") in topics
+        ]
+    else:
+        marker_topics = {t + MARKER_SUFFIX for t in topics}
+        plan = [(t, None) for t in sorted(topics) if t not in marker_topics or len(topics) == 1]
+    stem = path.stem if path.suffix else path.name
+    multi = len(plan) > 1
+    pieces: list[dict[str, np.ndarray]] = []
+    piece_classes: list[Categorical] = []
+    rec_names: list[str] = []
+    recordings: dict[str, track_table.RecordingMeta] = {}
+    for tp, name in plan:
+        data = topics[tp]
+        spec = recordings_meta.get(name) if name else None
+        rec_name = name or (f"{stem}-{tp.strip('/').replace('/', '-')}" if multi else stem)
+        cols, classes, frame_ids = data.columns.arrays()
+        marker = topics.get(tp + MARKER_SUFFIX)
+        if spec is not None and marker is not None and marker is not data:
+            classes = _merge_markers(cols, classes, marker.columns)
+        elif data.msgtype.endswith("MarkerArray"):
+            known = np.asarray([n in KNOWN_CLASSES for n in classes.names] + [True], dtype=bool)
+            unknown = ~known[classes.codes]
+            classes = classes.where(unknown, Categorical(np.zeros(unknown.size, np.int32), ["unknown"]))
+        frame_name = _to_fixed_frame(
+            path, tp, cols, frame_ids, transforms, fixed, data.columns.velocity_in_body
+        )
+        frames, rate = frames_of(cols["msg_time"], spec)
+        piece, order, dropped = _derive(cols, frames, data.columns.velocity_in_body)
+        pieces.append(piece)
+        piece_classes.append(classes.take(order))
+        rec_names.append(rec_name)
+        rec_extra: dict[str, Any] = dict(spec.get("extra", {})) if spec else {}
+        rec_extra.update({"topic": tp, "message_type": data.msgtype, "messages": data.columns.messages})
+        if dropped:
+            rec_extra["duplicates_dropped"] = dropped
+        if extra:
+            rec_extra.update(extra)
+        recordings[rec_name] = track_table.RecordingMeta(
+            frame_rate=float(spec["frame_rate"]) if spec else rate,
+            coordinate_frame=frame_name,
+            source_files=list(spec.get("source_files", [])) if spec else [str(path)],
+            extra=rec_extra,
+        )
+    columns: dict[str, Any] = {k: np.concatenate([p[k] for p in pieces]) for k in pieces[0]}
+    columns["object_class"] = Categorical.concat(piece_classes).to_arrow()
+    sizes = [p["track_id"].size for p in pieces]
+    columns["recording"] = Categorical(np.repeat(np.arange(len(sizes)), sizes), rec_names).to_arrow()
+    meta = track_table.TableMeta(
+        source_format=str((log_meta or {}).get("source_format") or source_format),
+        recordings=recordings,
+        source_files=[str(path)],
+    )
+    table = track_table.build_table(columns, meta)
+    track_table.validate(table, source=path)
+    return table
+
+
+def _to_fixed_frame(
+    path: Path,
+    topic: str,
+    cols: dict[str, np.ndarray],
+    frame_ids: Categorical,
+    transforms: Transforms,
+    fixed: set[str],
+    body: bool,
+) -> str:
+    """Move rows in moving frames into a fixed frame (in place); return the fixed frame's name.
+
+    Velocities and accelerations given in the message frame's axes are rotated with it; body-frame
+    ones (``body``) stay as they are (they turn with the heading later).
+    """
+    present = np.bincount(frame_ids.codes, minlength=len(frame_ids.names)) > 0
+    distinct = sorted({frame_ids.names[i].lstrip("/") for i in np.flatnonzero(present)})
+    names = [n.lstrip("/") for n in frame_ids.names]
+    target: str | None = next((f for f in distinct if f in fixed), None)
+    for frame in distinct:
+        if frame in fixed:
+            if target is not None and frame != target:
+                raise FrameError(
+                    f"{path}: topic {topic!r} mixes the fixed frames {target!r} and {frame!r}; "
+                    "expected one fixed frame per topic"
+                )
+            continue
+        chain = transforms.chain(frame, [target] if target else fixed)
+        if chain is None:
+            have = ", ".join(sorted(transforms.sources)) or "none"
+            raise FrameError(
+                f"{path}: topic {topic!r} has objects in frame {frame!r}, which is not a fixed frame "
+                f"({', '.join(sorted(fixed))}), and the log has no transform from it to one "
+                f"(transform topics found: {have}); expected /tf (tf2_msgs/msg/TFMessage or "
+                f"foxglove.FrameTransform(s)) or an odometry topic (nav_msgs/msg/Odometry) linking "
+                f"{frame!r} to a fixed frame"
+            )
+        target = chain[-1]
+        rows = np.isin(frame_ids.codes, [i for i, n in enumerate(names) if n == frame])
+        x, y, dyaw = transforms.to_fixed(chain, cols["msg_time"][rows], cols["x"][rows], cols["y"][rows])
+        cols["x"][rows], cols["y"][rows] = x, y
+        cols["yaw"][rows] += dyaw
+        for a, b in () if body else (("vx", "vy"), ("ax", "ay")):
+            va, vb = rotate(cols[a][rows], cols[b][rows], dyaw)
+            cols[a][rows], cols[b][rows] = va, vb
+    return target or "map"
+
+
+def _derive(
+    cols: dict[str, np.ndarray], frames: np.ndarray, body: bool
+) -> tuple[dict[str, np.ndarray], np.ndarray, int]:
+    """Sort by (track, frame), drop duplicate (track, frame), derive heading, velocity, acceleration.
+
+    Returns the columns, the row order applied (for the categoricals) and the duplicates dropped.
+    """
+    order = np.lexsort((cols["time_ns"], frames, cols["track_id"]))
+    track, frame = cols["track_id"][order], frames[order]
+    keep = np.ones(order.size, dtype=bool)
+    keep[1:] = (track[1:] != track[:-1]) | (frame[1:] != frame[:-1])
+    order = order[keep]
+    dropped = int((~keep).sum())
+    c = {k: v[order] for k, v in cols.items() if k != "msg_time"}
+    track, frame = c["track_id"], frames[order]
+    heading = c["yaw"]
+    t = c["time_ns"]
+    vx, vy = c["vx"], c["vy"]
+    if body:
+        vx, vy = rotate(vx, vy, np.nan_to_num(heading))
+        ax, ay = rotate(c["ax"], c["ay"], np.nan_to_num(heading))
+    else:
+        ax, ay = c["ax"], c["ay"]
+    missing_v = np.isnan(vx) | np.isnan(vy)
+    if missing_v.any():
+        vx = np.where(np.isnan(vx), finite_difference(track, t, c["x"]), vx)
+        vy = np.where(np.isnan(vy), finite_difference(track, t, c["y"]), vy)
+    if (np.isnan(ax) | np.isnan(ay)).any():
+        ax = np.where(np.isnan(ax), finite_difference(track, t, vx), ax)
+        ay = np.where(np.isnan(ay), finite_difference(track, t, vy), ay)
+    out = {
+        "track_id": track,
+        "frame": frame,
+        "time_ns": t,
+        "x": c["x"],
+        "y": c["y"],
+        "heading": np.where(np.isnan(heading), np.arctan2(vy, vx), heading),
+        "vx": vx,
+        "vy": vy,
+        "ax": ax,
+        "ay": ay,
+        "length": c["length"],
+        "width": c["width"],
+        "lane_id": c["lane"],
+    }
+    return out, order, dropped
+
+
+# ------------------------------------------------------------------------------------- writing
+
+
+def recording_topics(names: list[str]) -> dict[str, str]:
+    """Recording name → topic in a log lanecast writes (see the module docstring)."""
+    if len(names) == 1:
+        return {names[0]: TRACK_TOPIC}
+    return {name: f"{TRACK_TOPIC}/r{i}" for i, name in enumerate(names)}
+
+
+@dataclass
+class FrameGroups:
+    """Rows of one recording grouped into messages: one message per frame.
+
+    ``order`` [n] sorts the recording's rows by (frame, track); ``starts`` [m+1] bounds message i
+    as ``order[starts[i]:starts[i+1]]``; ``stamp`` [m] is the message time (earliest row time).
+    """
+
+    order: np.ndarray
+    starts: np.ndarray
+    stamp: np.ndarray
+    frame: np.ndarray
+
+
+def frame_groups(frame: np.ndarray, track: np.ndarray, time_ns: np.ndarray) -> FrameGroups:
+    order = np.lexsort((track, frame))
+    f = frame[order]
+    starts = np.concatenate([[0], np.flatnonzero(f[1:] != f[:-1]) + 1, [f.size]]).astype(np.int64)
+    stamp = np.minimum.reduceat(time_ns[order], starts[:-1]) if f.size else np.zeros(0, np.int64)
+    return FrameGroups(order, starts, stamp, f[starts[:-1]])
+
+
+def message_plan(
+    recording: np.ndarray, frame: np.ndarray, track: np.ndarray, time_ns: np.ndarray, names: list[str]
+) -> tuple[dict[str, FrameGroups], np.ndarray]:
+    """Frame groups per recording and all messages in log-time order: int64 [m, 3] (stamp, rec, group).
+
+    Inputs are the table's columns [n]; ``names`` fixes the recording index ``rec``.
+    """
+    groups: dict[str, FrameGroups] = {}
+    keys = []
+    for i, name in enumerate(names):
+        rows = np.flatnonzero(recording == name)
+        g = frame_groups(frame[rows], track[rows], time_ns[rows])
+        g.order = rows[g.order]
+        groups[name] = g
+        keys.append(np.stack([g.stamp, np.full(g.stamp.size, i), np.arange(g.stamp.size)], axis=1))
+    allkeys = np.concatenate(keys) if keys else np.zeros((0, 3), np.int64)
+    return groups, allkeys[np.lexsort((allkeys[:, 2], allkeys[:, 1], allkeys[:, 0]))]
+
+
+def log_metadata(
+    table: pa.Table, topics: Mapping[str, str], groups: Mapping[str, FrameGroups]
+) -> dict[str, Any]:
+    """The JSON document lanecast stores in the logs it writes (see the module docstring)."""
+    meta = track_table.read_meta(table)
+    recordings: dict[str, Any] = {}
+    for name, rec in meta.recordings.items():
+        if name not in topics:
+            continue
+        g = groups[name]
+        spec: dict[str, Any] = {
+            "topic": topics[name],
+            "frame_rate": rec.frame_rate,
+            "coordinate_frame": rec.coordinate_frame,
+            "source_files": rec.source_files,
+            "extra": rec.extra,
+        }
+        if g.frame.size:
+            f0, t0 = int(g.frame[0]), int(g.stamp[0])
+            predicted = f0 + np.rint((g.stamp - t0).astype(np.float64) * rec.frame_rate / 1e9).astype(
+                np.int64
+            )
+            if np.array_equal(predicted, g.frame):
+                spec.update(frame0=f0, time0_ns=t0)
+            else:
+                spec["frames"] = g.frame.tolist()
+        recordings[name] = spec
+    return {
+        "version": 1,
+        "source_format": meta.source_format,
+        "source_files": meta.source_files,
+        "frame_rate": meta.frame_rate,
+        "units": track_table.UNITS,
+        "recordings": recordings,
+    }
+
+
+def parse_log_metadata(path: Path, text: str | bytes) -> dict[str, Any]:
+    """lanecast's metadata document from a log, checked enough to use."""
+    try:
+        doc = json.loads(text)
+        if not isinstance(doc, dict) or not isinstance(doc.get("recordings", {}), dict):
+            raise ValueError("not an object with 'recordings'")
+        return doc
+    except ValueError as exc:
+        raise LogError(path, f"unreadable lanecast metadata: {exc}", expected="a JSON document") from exc
+
+
+def table_columns(table: pa.Table) -> dict[str, np.ndarray]:
+    """The columns the writers need as numpy arrays [n] (lane_id: NaN = null)."""
+    out: dict[str, np.ndarray] = {
+        name: table.column(name).to_numpy()
+        for name in (
+            "track_id",
+            "frame",
+            "time_ns",
+            "x",
+            "y",
+            "heading",
+            "vx",
+            "vy",
+            "ax",
+            "ay",
+            "length",
+            "width",
+        )
+    }
+    lane = table.column("lane_id").cast(pa.float64()).to_numpy(zero_copy_only=False)
+    out["lane_id"] = np.asarray(lane, dtype=np.float64)
+    out["recording"] = table.column("recording").cast(pa.string()).to_numpy(zero_copy_only=False)
+    out["object_class"] = table.column("object_class").cast(pa.string()).to_numpy(zero_copy_only=False)
+    return out
+
+
+# ---------------------------------------------------- vectorised protobuf SceneUpdate decoding
+#
+# upb gives one Python object per field access (~15 µs per entity here), so protobuf
+# SceneUpdate messages are decoded from the wire format directly with numpy, many messages at
+# once: every level of nesting is one pass that walks the fields of all its messages in parallel
+# (one iteration per field position, not per message). Key/value pairs and numbers written the
+# usual way take a fast path; anything else falls back to the general one.
+
+# Bytes a fixed-width field's value takes, by wire type (VARINT and LEN are measured).
+_FIXED_WIDTH = np.array([0, 8, 0, 0, 0, 4, 0, 0], dtype=np.int64)
+
+
+@dataclass
+class _Fields:
+    """Fields of a batch of protobuf messages, one entry per field occurrence (arrays [m])."""
+
+    owner: np.ndarray  # index of the top-level object the message belongs to
+    field: np.ndarray
+    wire: np.ndarray
+    start: np.ndarray  # value span (LEN: payload; fixed: the bytes; VARINT: the varint)
+    end: np.ndarray
+
+    def pick(self, field_no: int, wire: int) -> np.ndarray:
+        return (self.field == field_no) & (self.wire == wire)
+
+
+_SHIFTS = np.arange(0, 70, 7, dtype=np.uint64)
+
+
+def _varints(buf: np.ndarray, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Varints at byte offsets pos [n] of buf (uint8 [N]) → (values uint64 [n], next offsets [n]).
+
+    One-byte varints (most tags and lengths) take one gather; longer ones a 10-byte window each.
+    """
+    b = buf[np.minimum(pos, buf.size - 1)]
+    value = b.astype(np.uint64)
+    nxt = pos + 1
+    more = np.flatnonzero(b >= 0x80)
+    if more.size:
+        b1 = buf[np.minimum(pos[more] + 1, buf.size - 1)]
+        if int(b1.max()) < 0x80:  # all two bytes long (lengths of 128 B to 16 kB)
+            value[more] = (value[more] & np.uint64(0x7F)) | (b1.astype(np.uint64) << np.uint64(7))
+            nxt[more] += 1
+            return value, nxt
+        window = _windows(buf, pos[more], 10)
+        cont = window >= 0x80
+        if cont.all(axis=1).any():
+            raise ValueError("malformed protobuf varint")
+        stop = np.argmin(cont, axis=1)
+        used = np.arange(10)[None, :] <= stop[:, None]
+        parts = np.where(used, (window & 0x7F).astype(np.uint64) << _SHIFTS, np.uint64(0))
+        value[more] = np.bitwise_or.reduce(parts, axis=1)
+        nxt[more] += stop
+    return value, nxt
+
+
+_BAD_WIRE = np.array([False, False, False, True, True, False, True, True])
+
+
+def _fields_at(buf: np.ndarray, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The fields starting at pos [n]: (wire type int8, field number, value start, value end)."""
+    tag, p = _varints(buf, pos)
+    wire = (tag & np.uint64(7)).astype(np.int8)
+    field_no = (tag >> np.uint64(3)).astype(np.int64)
+    vstart = p
+    vend = p + _FIXED_WIDTH[wire]
+    w = np.flatnonzero(wire == 2)
+    if w.size:
+        length, q = _varints(buf, p[w])
+        vstart = p.copy()
+        vstart[w] = q
+        vend[w] = q + length.astype(np.int64)
+    w = np.flatnonzero(wire == 0)
+    if w.size:
+        vend[w] = _varints(buf, p[w])[1]
+    return wire, field_no, vstart, vend
+
+
+def _scan(buf: np.ndarray, starts: np.ndarray, ends: np.ndarray, owners: np.ndarray) -> _Fields:
+    """All fields of the messages buf[starts[i]:ends[i]] [n], tagged with owners[i]."""
+    out: list[tuple[np.ndarray, ...]] = []
+    keep = starts < ends
+    owner, pos, end = owners[keep], starts[keep], ends[keep]
+    while pos.size:
+        b = buf[pos]
+        if int(b.max()) < 0x80 and ((b & 7) == 2).all():
+            # Fast path: every field here is a length-delimited one with a one-byte tag (the usual
+            # case for messages of sub-messages and strings).
+            wire = np.full(b.size, 2, dtype=np.int8)
+            field_no = (b >> 3).astype(np.int64)
+            length, vstart = _varints(buf, pos + 1)
+            vend = vstart + length.astype(np.int64)
+        else:
+            wire, field_no, vstart, vend = _fields_at(buf, pos)
+        if _BAD_WIRE[wire].any() or (vend > end).any():
+            raise ValueError("malformed protobuf message (bad wire type or a field past its message)")
+        out.append((owner, field_no, wire, vstart, vend))
+        more = vend < end
+        if more.all():
+            pos = vend
+        else:
+            owner, pos, end = owner[more], vend[more], end[more]
+    if not out:
+        e = np.zeros(0, dtype=np.int64)
+        return _Fields(e, e, e.astype(np.int8), e, e)
+    return _Fields(*(np.concatenate(c) for c in zip(*out, strict=True)))
+
+
+def _sub(buf: np.ndarray, f: _Fields, mask: np.ndarray) -> _Fields:
+    """The fields of the sub-messages selected by ``mask`` (owners carried over)."""
+    return _scan(buf, f.start[mask], f.end[mask], f.owner[mask])
+
+
+def _f64(buf: np.ndarray, pos: np.ndarray) -> np.ndarray:
+    """float64 [n] stored little-endian at byte offsets pos [n] of buf."""
+    if buf.size < 8:
+        raise ValueError("buffer too short for a double")
+    # An overlapping view: element i is the 8 bytes from buf[i] (copied, then seen as float64).
+    every_byte = np.ndarray((buf.size - 7,), dtype="V8", buffer=buf, strides=(1,))
+    return every_byte[pos].view("<f8")
+
+
+def _double_messages(buf: np.ndarray, f: _Fields, mask: np.ndarray, k: int, n: int) -> np.ndarray:
+    """float64 [k, n]: double fields 1..k of the messages selected by mask (Vector3, Point,
+    Quaternion), column = owner; 0 where absent.
+
+    Such a message is a run of 9-byte fields (tag, 8 bytes), any of them omitted when zero: read at
+    a fixed stride; other layouts go through the general scan.
+    """
+    out = np.zeros((k, n))
+    flat = out.reshape(-1)
+    start, end, owner = f.start[mask], f.end[mask], f.owner[mask]
+    length = end - start
+    slots = length // 9
+    ok = (length % 9 == 0) & (slots <= k)
+    for slot in range(k):
+        rows = np.flatnonzero(ok & (slots > slot))
+        if not rows.size:
+            break
+        at = start[rows] + 9 * slot
+        tag = buf[at]
+        good = ((tag & 7) == 1) & (tag >= 8) & (tag < 8 * (k + 1))
+        if not good.all():
+            ok[rows[~good]] = False
+            rows, at, tag = rows[good], at[good], tag[good]
+        flat[((tag >> 3).astype(np.int64) - 1) * n + owner[rows]] = _f64(buf, at + 1)
+    if not ok.all():
+        slow = ~ok
+        g = _scan(buf, start[slow], end[slow], owner[slow])
+        m = (g.wire == 1) & (g.field >= 1) & (g.field <= k)
+        out[g.field[m] - 1, g.owner[m]] = _f64(buf, g.start[m])
+    return out
+
+
+def _windows(buf: np.ndarray, starts: np.ndarray, width: int) -> np.ndarray:
+    """uint8 [n, width]: the ``width`` bytes from each offset starts[i] (past the end: zeros)."""
+    if starts.size and int(starts.max()) + width <= buf.size:
+        every_byte = np.ndarray((buf.size - width + 1,), dtype=f"V{width}", buffer=buf, strides=(1,))
+        return every_byte[starts].view(np.uint8).reshape(-1, width)
+    idx = starts[:, None] + np.arange(width)
+    return np.where(idx < buf.size, buf[np.minimum(idx, buf.size - 1)], 0).astype(np.uint8)
+
+
+_MAX_STRING = 256  # bytes kept of a string (class names, frame ids, ids): bounds the [n, width] work
+
+
+def _strings(buf: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
+    """Byte strings buf[starts[i]:ends[i]] (at most _MAX_STRING bytes) as a fixed-width bytes array [n]."""
+    lengths = np.minimum(ends - starts, _MAX_STRING)
+    width = max(int(lengths.max()) if lengths.size else 1, 1)
+    raw = _windows(buf, starts, width)
+    raw = np.where(np.arange(width)[None, :] < lengths[:, None], raw, 0).astype(np.uint8)
+    return raw.view(f"S{width}").ravel()
+
+
+def _decimal_digits(buf: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Plain decimals ``[-]d*[.d*]`` → (mantissa int64, digits after the dot, negative, valid) [n]."""
+    n = starts.size
+    lengths = ends - starts
+    width = min(max(int(lengths.max()) if n else 1, 1), 32)  # longer ones are not plain decimals here
+    raw = _windows(buf, starts, width).T  # [width, n]: row j = the j-th character of every string
+    inside = np.arange(width)[:, None] < lengths[None, :]
+    digit = raw - np.uint8(48)
+    isdig = (digit < 10) & inside
+    isdot = (raw == 46) & inside
+    neg = raw[0] == 45
+    allowed = isdig | isdot
+    allowed[0] |= neg
+    ndig = isdig.sum(axis=0)
+    valid = (allowed | ~inside).all(axis=0) & (isdot.sum(axis=0) <= 1) & (ndig >= 1) & (ndig <= 15)
+    valid &= lengths <= width
+    mantissa = np.zeros(n, dtype=np.int64)
+    frac = np.zeros(n, dtype=np.int64)
+    seen_dot = np.zeros(n, dtype=bool)
+    for j in range(width):
+        d = isdig[j]
+        mantissa = np.where(d, mantissa * 10 + digit[j], mantissa)
+        frac += d & seen_dot
+        seen_dot |= isdot[j]
+    return mantissa, frac, neg, valid
+
+
+def _floats(buf: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
+    """Decimal strings buf[starts[i]:ends[i]] [n] → float64 (correctly rounded; others parsed by numpy)."""
+    mantissa, frac, neg, valid = _decimal_digits(buf, starts, ends)
+    value = mantissa / np.power(10.0, frac)
+    value = np.where(neg, -value, value)
+    if not valid.all():
+        bad = np.flatnonzero(~valid)
+        value[bad] = [float(bytes(buf[starts[i] : ends[i]])) for i in bad.tolist()]
+    return value
+
+
+def _integers(buf: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Decimal integer strings [n] → (int64 values, valid) (invalid: not an integer, or > 15 digits)."""
+    mantissa, frac, neg, valid = _decimal_digits(buf, starts, ends)
+    return np.where(neg, -mantissa, mantissa), valid & (frac == 0) & (
+        buf[np.minimum(ends - 1, buf.size - 1)] != 46
+    )
+
+
+def _key_value_spans(buf: np.ndarray, f: _Fields) -> tuple[np.ndarray, ...]:
+    """KeyValuePair sub-messages (entity field 6) → (entity, key start, key end, value start, value end).
+
+    Fast path for the usual layout (key then value, both shorter than 128 bytes), the general scan
+    for the rest.
+    """
+    m = f.pick(6, 2)
+    entity, s, e = f.owner[m], f.start[m], f.end[m]
+    last = buf.size - 1
+    klen = buf[np.minimum(s + 1, last)].astype(np.int64)
+    vpos = s + 2 + klen
+    vlen = buf[np.minimum(vpos + 1, last)].astype(np.int64)
+    fast = (
+        (e - s >= 4)
+        & (buf[np.minimum(s, last)] == 0x0A)
+        & (klen < 0x80)
+        & (buf[np.minimum(vpos, last)] == 0x12)
+        & (vlen < 0x80)
+        & (vpos + 2 + vlen == e)
+    )
+    ks, ke, vs, ve = s + 2, s + 2 + klen, vpos + 2, vpos + 2 + vlen
+    if not fast.all():
+        slow = np.flatnonzero(~fast)
+        kv = _scan(buf, s[slow], e[slow], slow)
+        ks[slow] = ke[slow] = vs[slow] = ve[slow] = 0
+        for field_no, (a, b) in ((1, (ks, ke)), (2, (vs, ve))):
+            sel = kv.pick(field_no, 2)
+            a[kv.owner[sel]], b[kv.owner[sel]] = kv.start[sel], kv.end[sel]
+    return entity, ks, ke, vs, ve
+
+
+def _key_signatures(buf: np.ndarray, ks: np.ndarray, ke: np.ndarray) -> np.ndarray:
+    """int64 [n]: length and first two bytes of each key buf[ks:ke] (what tells lanecast's keys apart)."""
+    last = buf.size - 1
+    length = ke - ks
+    b0 = np.where(length > 0, buf[np.minimum(ks, last)], 0).astype(np.int64)
+    b1 = np.where(length > 1, buf[np.minimum(ks + 1, last)], 0).astype(np.int64)
+    return (length << 16) | (b0 << 8) | b1
+
+
+def _key_is(buf: np.ndarray, sig: np.ndarray, ks: np.ndarray, key: bytes) -> np.ndarray:
+    """Mask [n] of the keys (signatures ``sig``, starts ``ks``) equal to ``key``."""
+    k = key + b"\0\0"
+    mask = sig == (len(key) << 16) | (k[0] << 8) | k[1]
+    if len(key) > 2 and mask.any():
+        cand = np.flatnonzero(mask)
+        for j in range(2, len(key)):
+            cand = cand[buf[ks[cand] + j] == key[j]]
+        mask[:] = False
+        mask[cand] = True
+    return mask
+
+
+def _times(buf: np.ndarray, f: _Fields, mask: np.ndarray, n: int) -> np.ndarray:
+    """int64 [n] ns of the Timestamp sub-messages (seconds = 1, nanos = 2) selected by mask; 0 if absent.
+
+    Fast path for the usual layout (seconds then nanos, either omitted when zero).
+    """
+    start, end, owner = f.start[mask], f.end[mask], f.owner[mask]
+    out = np.zeros(n, dtype=np.int64)
+    last = buf.size - 1
+    sec = np.zeros(start.size, dtype=np.uint64)
+    nsec = np.zeros(start.size, dtype=np.uint64)
+    pos = start.copy()
+    has = (pos < end) & (buf[np.minimum(pos, last)] == 0x08)
+    i = np.flatnonzero(has)
+    sec[i], pos[i] = _varints(buf, pos[i] + 1)
+    has = (pos < end) & (buf[np.minimum(pos, last)] == 0x10)
+    i = np.flatnonzero(has)
+    nsec[i], pos[i] = _varints(buf, pos[i] + 1)
+    fast = pos == end
+    value = sec.astype(np.int64) * 1_000_000_000 + nsec.astype(np.int64)
+    out[owner[fast]] = value[fast]
+    if not fast.all():
+        g = _scan(buf, start[~fast], end[~fast], owner[~fast])
+        for field_no, scale in ((1, 1_000_000_000), (2, 1)):
+            m = g.pick(field_no, 0)
+            out[g.owner[m]] += _varints(buf, g.start[m])[0].astype(np.int64) * scale
+    return out
+
+
+def _categories(values: np.ndarray) -> tuple[np.ndarray, list[str]]:
+    """Bytes strings [n] → (int32 codes [n], category strings)."""
+    cats, codes = np.unique(values, return_inverse=True)
+    return codes.astype(np.int32), [c.decode(errors="replace") for c in cats.tolist()]
+
+
+def scene_update_block(
+    buf: np.ndarray, starts: np.ndarray, ends: np.ndarray, log_times: np.ndarray
+) -> dict[str, Any]:
+    """Decode protobuf ``foxglove.SceneUpdate`` messages buf[starts[i]:ends[i]] (i < m) at once.
+
+    Returns the columns of their entities that have a cube (arrays [n], NaN = absent, first cube
+    of an entity), as :meth:`ObjectColumns.add_block` takes them.
+    """
+    msgs = _scan(buf, starts, ends, np.arange(starts.size))
+    ent = msgs.pick(2, 2)
+    n = int(ent.sum())
+    e_msg = msgs.owner[ent]
+    f = _scan(buf, msgs.start[ent], msgs.end[ent], np.arange(n))
+    # Timestamp (sec, nsec) of each entity; 0 → the message's log time.
+    time_ns = _times(buf, f, f.pick(1, 2), n)
+    msg_time = log_times[e_msg]
+    time_ns = np.where(time_ns == 0, msg_time, time_ns)
+    # The first cube of each entity.
+    cubes = f.pick(8, 2)
+    has_cube, first = np.unique(f.owner[cubes], return_index=True)
+    cube_sel = np.flatnonzero(cubes)[first]
+    c = _scan(buf, f.start[cube_sel], f.end[cube_sel], f.owner[cube_sel])
+    pose = _sub(buf, c, c.pick(1, 2))
+    position = _double_messages(buf, pose, pose.pick(1, 2), 3, n)
+    quaternion = _double_messages(buf, pose, pose.pick(2, 2), 4, n)
+    size = _double_messages(buf, c, c.pick(2, 2), 3, n)
+    vals = {
+        "x": position[0],
+        "y": position[1],
+        "length": size[0],
+        "width": size[1],
+        "yaw": yaw_of(*quaternion),
+    }
+    # Metadata: class, lane_id and the kinematics lanecast writes.
+    kv_entity, ks, ke, vs, ve = _key_value_spans(buf, f)
+    sig = _key_signatures(buf, ks, ke)
+    for name, key in (("vx", b"vx"), ("vy", b"vy"), ("ax", b"ax"), ("ay", b"ay"), ("lane", b"lane_id")):
+        column = np.full(n, NAN)
+        m = _key_is(buf, sig, ks, key)
+        if m.any():
+            column[kv_entity[m]] = _floats(buf, vs[m], ve[m])
+        vals[name] = column
+    cls_s, cls_e = np.zeros(n, np.int64), np.zeros(n, np.int64)
+    m = _key_is(buf, sig, ks, b"class")
+    cls_s[kv_entity[m]], cls_e[kv_entity[m]] = vs[m], ve[m]
+    # Ids and frame ids (absent = empty string).
+    spans = {}
+    for field_no in (2, 3):
+        st, en = np.zeros(n, np.int64), np.zeros(n, np.int64)
+        m = f.pick(field_no, 2)
+        st[f.owner[m]], en[f.owner[m]] = f.start[m], f.end[m]
+        spans[field_no] = (st[has_cube], en[has_cube])
+    track, numeric = _integers(buf, *spans[3])
+    if not numeric.all():
+        bad = np.flatnonzero(~numeric)
+        uniq, inv = np.unique(_strings(buf, spans[3][0][bad], spans[3][1][bad]), return_inverse=True)
+        track[bad] = np.array(
+            [track_id_of(u.decode(errors="replace")) for u in uniq.tolist()], dtype=np.int64
+        )[inv]
+    cls_codes, cls_names = _categories(_strings(buf, cls_s[has_cube], cls_e[has_cube]))
+    block: dict[str, Any] = {k: v[has_cube] for k, v in vals.items()}
+    block.update(
+        time_ns=time_ns[has_cube],
+        msg_time=msg_time[has_cube],
+        track_id=track,
+        classes=Categorical(cls_codes, [c or "unknown" for c in cls_names]),
+        frame_ids=Categorical(*_categories(_strings(buf, *spans[2]))),
+    )
+    return block

@@ -1,0 +1,254 @@
+"""Damaged and unsupported logs: the documented LogError (file, offset/topic, expected), and --salvage."""
+
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+import pytest
+
+from io_adapters import mcap_reader, mcap_writer, rosbag_reader, track_table
+from io_adapters.errors import LogError
+
+RATE = 25.0
+
+
+@pytest.fixture(scope="module")
+def table() -> pa.Table:
+    """4 cars × 60 frames at 25 Hz (frames 0..74)."""
+    n, k = 60, np.arange(4)
+    f = (np.arange(n)[None, :] + 5 * k[:, None]).ravel()
+    cols = {
+        "recording": np.full(f.size, "r"),
+        "track_id": np.repeat(k + 1, n),
+        "frame": f,
+        "time_ns": np.rint(f * 1e9 / RATE).astype(np.int64),
+        "x": f * 1.2 + np.repeat(k * 10.0, n),
+        "y": np.repeat(k * 3.5, n),
+        "heading": np.zeros(f.size),
+        "vx": np.full(f.size, 30.0),
+        "vy": np.zeros(f.size),
+        "ax": np.zeros(f.size),
+        "ay": np.zeros(f.size),
+        "length": np.full(f.size, 4.5),
+        "width": np.full(f.size, 1.8),
+        "lane_id": np.repeat(k + 1.0, n),
+        "object_class": np.full(f.size, "car"),
+    }
+    return track_table.build_table(
+        cols, track_table.TableMeta("test", {"r": track_table.RecordingMeta(RATE)})
+    )
+
+
+@pytest.fixture(scope="module")
+def log(tmp_path_factory: pytest.TempPathFactory, table: pa.Table) -> Path:
+    """The table as an MCAP with many small chunks."""
+    return mcap_writer.write(table, tmp_path_factory.mktemp("log") / "log.mcap", "mcap", chunk_size=3000)
+
+
+def chunk_layout(path: Path) -> list[tuple[int, int, set[int]]]:
+    """(offset, length, log times of its messages) of every chunk, from the mcap library's summary."""
+    from mcap.data_stream import ReadDataStream
+    from mcap.reader import make_reader
+    from mcap.records import Chunk, Message
+    from mcap.stream_reader import breakup_chunk
+
+    with path.open("rb") as f:
+        summary = make_reader(f).get_summary()
+        assert summary is not None
+        out = []
+        for ci in summary.chunk_indexes:
+            f.seek(ci.chunk_start_offset + 9)
+            chunk = Chunk.read(ReadDataStream(f))
+            times = {r.log_time for r in breakup_chunk(chunk) if isinstance(r, Message)}
+            out.append((ci.chunk_start_offset, ci.chunk_length, times))
+    return out
+
+
+def rows_at(table: pa.Table, times: set[int]) -> pa.Table:
+    return table.filter(pc.is_in(table.column("time_ns"), pa.array(sorted(times), pa.int64())))
+
+
+def test_empty_and_foreign_files(tmp_path: Path) -> None:
+    empty = tmp_path / "empty.mcap"
+    empty.write_bytes(b"")
+    with pytest.raises(LogError, match="empty") as err:
+        mcap_reader.read(empty)
+    assert err.value.path == str(empty) and err.value.offset == 0
+    text = tmp_path / "notes.mcap"
+    text.write_bytes(b"hello, world, this is not a log")
+    with pytest.raises(LogError, match="not an MCAP file") as err:
+        mcap_reader.read(text)
+    assert err.value.offset == 0 and err.value.expected == "the MCAP magic"
+    bag = tmp_path / "empty.bag"
+    bag.write_bytes(b"")
+    with pytest.raises(LogError, match="empty"):
+        rosbag_reader.read(bag)
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    (broken / "metadata.yaml").write_text("rosbag2_bagfile_information: [\n")
+    with pytest.raises(LogError, match="cannot read the bag") as err:
+        rosbag_reader.read(broken)
+    assert err.value.path == str(broken)
+
+
+@pytest.mark.parametrize("fraction", [0.001, 0.3, 0.55, 0.9, 0.999])
+def test_truncated_log_names_offset(log: Path, tmp_path: Path, fraction: float) -> None:
+    data = log.read_bytes()
+    cut = max(int(len(data) * fraction), 5)
+    path = tmp_path / "cut.mcap"
+    path.write_bytes(data[:cut])
+    with pytest.raises(LogError, match=r"truncated|does not end with the MCAP magic") as err:
+        mcap_reader.read(path)
+    assert err.value.path == str(path)
+    assert err.value.offset is not None and 0 <= err.value.offset <= cut
+    assert err.value.expected is not None
+
+
+def test_salvage_truncated_log_keeps_complete_chunks(
+    log: Path, table: pa.Table, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    chunks = chunk_layout(log)
+    data = log.read_bytes()
+    offset, length, _ = chunks[5]
+    path = tmp_path / "cut.mcap"
+    path.write_bytes(data[: offset + length // 2])  # cut in the middle of the sixth chunk
+    back, stats = mcap_reader.read_log(path, salvage=True)
+    kept = set().union(*(times for _, _, times in chunks[:5]))
+    expected = rows_at(table, kept)
+    assert back.num_rows == expected.num_rows
+    np.testing.assert_array_equal(back.column("time_ns").to_numpy(), expected.column("time_ns").to_numpy())
+    np.testing.assert_allclose(back.column("x").to_numpy(), expected.column("x").to_numpy())
+    assert (stats.chunks, stats.chunks_lost, stats.messages, stats.messages_lost) == (6, 1, len(kept), None)
+    err = capsys.readouterr().err
+    assert "salvaged" in err and "truncated" in err and str(path) in err
+
+
+def test_flipped_byte_in_chunk(
+    log: Path, table: pa.Table, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    chunks = chunk_layout(log)
+    offset, length, lost_times = chunks[3]
+    data = bytearray(log.read_bytes())
+    data[offset + length // 2] ^= 0x5A  # inside the compressed records
+    path = tmp_path / "flip.mcap"
+    path.write_bytes(bytes(data))
+    with pytest.raises(LogError, match="corrupt chunk") as err:
+        mcap_reader.read(path)
+    assert err.value.offset == offset and err.value.path == str(path)
+    back, stats = mcap_reader.read_log(path, salvage=True)
+    kept = set(table.column("time_ns").to_numpy().tolist()) - lost_times
+    expected = rows_at(table, kept)
+    np.testing.assert_array_equal(back.column("time_ns").to_numpy(), expected.column("time_ns").to_numpy())
+    np.testing.assert_array_equal(back.column("track_id").to_numpy(), expected.column("track_id").to_numpy())
+    assert stats.chunks == len(chunks) and stats.chunks_lost == 1
+    assert stats.messages_lost == len(lost_times)
+    assert track_table.read_meta(back).recordings["r"].extra["salvage"]["chunks_lost"] == 1
+    assert "lost 1 chunks" in capsys.readouterr().err
+
+
+def test_flipped_byte_in_chunk_length_resyncs(log: Path, table: pa.Table, tmp_path: Path) -> None:
+    chunks = chunk_layout(log)
+    offset, _, lost_times = chunks[2]
+    data = bytearray(log.read_bytes())
+    data[offset + 6] ^= 0x40  # the record length: the walk loses its place
+    path = tmp_path / "flip.mcap"
+    path.write_bytes(bytes(data))
+    with pytest.raises(LogError, match="corrupt record") as err:
+        mcap_reader.read(path)
+    assert err.value.offset == offset
+    back, stats = mcap_reader.read_log(path, salvage=True)
+    kept = set(table.column("time_ns").to_numpy().tolist()) - lost_times
+    assert back.num_rows == rows_at(table, kept).num_rows
+    assert stats.chunks_lost == 1 and stats.messages_lost == len(lost_times)
+
+
+def _foreign_log(path: Path, schema_name: str) -> Path:
+    """An MCAP with one channel whose schema is unknown to lanecast."""
+    from mcap.writer import Writer
+
+    with path.open("wb") as f:
+        w = Writer(f)
+        w.start()
+        sid = w.register_schema(schema_name, "protobuf", b"\x00")
+        cid = w.register_channel("/sensors/thing", "protobuf", sid)
+        w.add_message(cid, log_time=1, data=b"\x08\x01", publish_time=1)
+        w.finish()
+    return path
+
+
+def test_unknown_schema_and_no_supported_topic(tmp_path: Path) -> None:
+    path = _foreign_log(tmp_path / "thing.mcap", "acme.Thing")
+    with pytest.raises(LogError, match=r"no supported topic.*/sensors/thing \[acme.Thing\]") as err:
+        mcap_reader.read(path)
+    assert "foxglove.SceneUpdate" in (err.value.expected or "")
+    with pytest.raises(
+        LogError, match=r"'/sensors/thing' has schema 'acme.Thing'.*holds no tracked objects"
+    ) as err:
+        mcap_reader.read(path, topic="/sensors/thing")
+    assert err.value.offset is not None
+
+
+def test_channel_with_undefined_schema(tmp_path: Path) -> None:
+    """Hand-written records: a channel refers to schema 9, which the file never defines."""
+    from mcap.writer import Writer
+
+    path = tmp_path / "orphan.mcap"
+    with path.open("wb") as f:
+        w = Writer(f, use_chunking=False, repeat_schemas=False)
+        w.start()
+        body = struct.pack("<HH", 1, 9) + _s("/objects") + _s("protobuf") + struct.pack("<I", 0)
+        f.write(bytes([0x04]) + struct.pack("<Q", len(body)) + body)
+        w.add_message(1, log_time=5, data=b"", publish_time=5)
+        w.finish()
+    with pytest.raises(LogError, match=r"'/objects' refers to schema 9") as err:
+        mcap_reader.read(path)
+    assert err.value.offset is not None and err.value.offset > 8
+
+
+def _s(text: str) -> bytes:
+    raw = text.encode()
+    return struct.pack("<I", len(raw)) + raw
+
+
+def test_undecodable_message_names_topic(tmp_path: Path) -> None:
+    from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+    from mcap.writer import Writer
+    from mcap_protobuf.schema import build_file_descriptor_set
+
+    path = tmp_path / "garbled.mcap"
+    with path.open("wb") as f:
+        w = Writer(f)
+        w.start()
+        sid = w.register_schema(
+            "foxglove.SceneUpdate", "protobuf", build_file_descriptor_set(SceneUpdate).SerializeToString()
+        )
+        cid = w.register_channel("/scene", "protobuf", sid)
+        w.add_message(
+            cid, log_time=1, data=b"\x12\x50\x1a\x01", publish_time=1
+        )  # entity runs past the message
+        w.finish()
+    with pytest.raises(LogError, match="SceneUpdate messages cannot be decoded") as err:
+        mcap_reader.read(path)
+    assert err.value.path == str(path) and err.value.offset is not None
+
+
+def test_convert_cli_reports_damage_and_salvages(
+    log: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from workflows.cli import main
+
+    chunks = chunk_layout(log)
+    data = bytearray(log.read_bytes())
+    data[chunks[1][0] + chunks[1][1] // 2] ^= 0xFF
+    path = tmp_path / "damaged.mcap"
+    path.write_bytes(bytes(data))
+    assert main(["convert", str(path), "--out", str(tmp_path / "t.parquet")]) == 2
+    err = capsys.readouterr().err
+    assert "corrupt chunk" in err and f"offset {chunks[1][0]}" in err and str(path) in err
+    assert main(["convert", str(path), "--salvage", "--out", str(tmp_path / "t.parquet")]) == 0
+    captured = capsys.readouterr()
+    assert "lost 1 chunks" in captured.err and "wrote" in captured.out
