@@ -58,6 +58,10 @@ _MSG_HEAD = struct.Struct("<HIQQ")
 _REC_HEAD = struct.Struct("<BQ")
 
 
+# Topics lanecast writes into annotated logs (forecasts); never read back as tracked objects.
+OWN_TOPIC_PREFIX = "/lanecast/"
+
+
 def sniff(path: str | Path) -> bool:
     """True for a file that starts with the MCAP magic."""
     path = Path(path)
@@ -336,6 +340,8 @@ class _LogDecoder:
     def _scene_update(self, ch: _Channel, schema: _Schema | None) -> Callable[[Any, int], None] | None:
         if self.topic is not None and ch.topic != self.topic:
             return None
+        if self.topic is None and ch.topic.startswith(OWN_TOPIC_PREFIX):
+            return None  # lanecast's own forecasts in an annotated log are not tracked objects
         if ch.encoding == "protobuf":
             return _ProtobufBatch(self._columns(ch.topic, SCENE_UPDATE))
         if ch.encoding == "json":
