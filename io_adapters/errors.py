@@ -49,6 +49,22 @@ class InputError(LanecastError):
             text += f" (expected {expected})"
         super().__init__(text)
 
+    def __reduce__(self) -> tuple[object, ...]:
+        # Picklable across worker processes (bulk runs), keyword arguments included.
+        return (_rebuild, (type(self), self.path, self.reason, self.line, self.offset, self.column, self.expected))
+
+
+def _rebuild(
+    cls: type[InputError],
+    path: str | None,
+    reason: str,
+    line: int | None,
+    offset: int | None,
+    column: str | None,
+    expected: str | None,
+) -> InputError:
+    return cls(path, reason, line=line, offset=offset, column=column, expected=expected)
+
 
 class FormatNotRecognisedError(InputError):
     """No adapter recognises the file."""

@@ -175,3 +175,15 @@ def test_convert_and_info_on_a_track_table(tmp_path: Path, capsys: pytest.Captur
     assert "rec-a" in out
     assert "total: 1 recordings, 2 tracks, 8 rows, 2 lane changes" in out
     assert main(["convert", str(src), "--out", str(src)]) == 2
+
+
+def test_input_errors_survive_pickling_between_processes() -> None:
+    import pickle
+
+    from io_adapters.errors import LogError
+
+    err = LogError("a.mcap", "truncated", offset=1234, expected="a complete chunk")
+    back = pickle.loads(pickle.dumps(err))
+    assert type(back) is LogError
+    assert str(back) == str(err) == "a.mcap, offset 1234: truncated (expected a complete chunk)"
+    assert back.offset == 1234
