@@ -1,0 +1,203 @@
+"""The windows dataset: what the network learns from, in memory and on disk (DESIGN.md §2).
+
+On disk a windows dataset is a directory that training memory-maps:
+
+- ``inputs.npy``   float32 [N, 4, 8, 30]: channels (x, y, v, a) in the window frame, physical units
+  (m, m, m/s, m/s^2); rows FL, F, FR, L, T, R, RL, RR; time oldest -> t0; absent = 0
+- ``present.npy``  bool [N, 8, 30]
+- ``future.npy``   float32 [N, 5, 2]: target offsets at t0+1..5 s in the window frame (NaN if unknown)
+- ``maneuver.npy`` int64 [N, 5]: 0 straight, 1 left, 2 right (-1 unknown)
+- ``windows.parquet`` one row per window: recording, track_id, t0_ns, split, origin_x, origin_y,
+  origin_heading (the window frame in the source frame)
+- ``manifest.json`` parameters, sources, counts per split, label distribution, units, version
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from io_adapters.atomic import atomic_path
+from io_adapters.errors import InputError
+
+ROWS: tuple[str, ...] = ("FL", "F", "FR", "L", "T", "R", "RL", "RR")
+CHANNELS: tuple[str, ...] = ("x", "y", "v", "a")
+CHANNEL_UNITS: tuple[str, ...] = ("m", "m", "m/s", "m/s^2")
+HISTORY = 30  # frames at 10 Hz, t0 included
+HORIZONS = 5  # future steps, 1 s apart
+MANEUVERS: tuple[str, ...] = ("straight", "left", "right")
+SPLITS: tuple[str, ...] = ("train", "val", "test", "none")
+
+INDEX_SCHEMA = pa.schema(
+    [
+        pa.field("recording", pa.string()),
+        pa.field("track_id", pa.int64()),
+        pa.field("t0_ns", pa.int64()),
+        pa.field("split", pa.string()),
+        pa.field("origin_x", pa.float64()),
+        pa.field("origin_y", pa.float64()),
+        pa.field("origin_heading", pa.float64()),
+    ]
+)
+_ARRAYS = ("inputs", "present", "future", "maneuver")
+
+
+@dataclass
+class Windows:
+    """N windows: network inputs, targets and one index row per window (see the module docstring)."""
+
+    inputs: np.ndarray  # float32 [N, 4, 8, 30]
+    present: np.ndarray  # bool [N, 8, 30]
+    future: np.ndarray  # float32 [N, 5, 2]
+    maneuver: np.ndarray  # int64 [N, 5]
+    index: pa.Table  # INDEX_SCHEMA, N rows
+    manifest: dict[str, Any] = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return int(self.inputs.shape[0])
+
+    def check(self) -> None:
+        """Raise InputError if the arrays disagree with each other or with the contract."""
+        n = len(self)
+        expected = {
+            "inputs": ((n, 4, 8, HISTORY), np.float32),
+            "present": ((n, 8, HISTORY), np.bool_),
+            "future": ((n, HORIZONS, 2), np.float32),
+            "maneuver": ((n, HORIZONS), np.int64),
+        }
+        for name, (shape, dtype) in expected.items():
+            arr = getattr(self, name)
+            if arr.shape != shape or arr.dtype != dtype:
+                raise InputError(
+                    None,
+                    f"windows array {name!r} is {arr.dtype}{list(arr.shape)}",
+                    expected=f"{np.dtype(dtype)}{list(shape)}",
+                )
+        if self.index.num_rows != n:
+            raise InputError(None, f"windows index has {self.index.num_rows} rows", expected=f"{n} rows")
+
+    def origin(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(x [N], y [N], heading [N]) of every window frame in the source frame (float64)."""
+        return (
+            self.index.column("origin_x").to_numpy(),
+            self.index.column("origin_y").to_numpy(),
+            self.index.column("origin_heading").to_numpy(),
+        )
+
+
+def to_source_frame(
+    xy: np.ndarray, origin_x: np.ndarray, origin_y: np.ndarray, heading: np.ndarray
+) -> np.ndarray:
+    """Window-frame points [N, ..., 2] to the source frame: origin + R(heading) @ xy (float64)."""
+    c = np.cos(heading).reshape((-1,) + (1,) * (xy.ndim - 2))
+    s = np.sin(heading).reshape(c.shape)
+    x = xy[..., 0].astype(np.float64)
+    y = xy[..., 1].astype(np.float64)
+    ox = np.asarray(origin_x, dtype=np.float64).reshape(c.shape)
+    oy = np.asarray(origin_y, dtype=np.float64).reshape(c.shape)
+    return np.stack([ox + c * x - s * y, oy + s * x + c * y], axis=-1)
+
+
+def empty_windows(manifest: dict[str, Any] | None = None) -> Windows:
+    """A dataset with no windows (all arrays with N = 0)."""
+    return Windows(
+        inputs=np.zeros((0, 4, 8, HISTORY), np.float32),
+        present=np.zeros((0, 8, HISTORY), bool),
+        future=np.zeros((0, HORIZONS, 2), np.float32),
+        maneuver=np.zeros((0, HORIZONS), np.int64),
+        index=INDEX_SCHEMA.empty_table(),
+        manifest=dict(manifest or {}),
+    )
+
+
+def save_windows(windows: Windows, directory: str | Path) -> Path:
+    """Write the dataset directory atomically (a reader never sees half of it); return its path."""
+    windows.check()
+    directory = Path(directory)
+    with atomic_path(directory, directory=True) as tmp:
+        for name in _ARRAYS:
+            np.save(tmp / f"{name}.npy", np.ascontiguousarray(getattr(windows, name)), allow_pickle=False)
+        pq.write_table(windows.index.cast(INDEX_SCHEMA), tmp / "windows.parquet", compression="zstd")
+        (tmp / "manifest.json").write_text(json.dumps(_jsonable(windows.manifest), indent=2, sort_keys=True))
+    return directory
+
+
+def load_windows(directory: str | Path, mmap: bool = True) -> Windows:
+    """Load a dataset written by :func:`save_windows` in one call; arrays memory-mapped (read-only)."""
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise InputError(
+            directory, "no such windows directory", expected="a directory from `lanecast windows`"
+        )
+    for name in (*(f"{a}.npy" for a in _ARRAYS), "windows.parquet", "manifest.json"):
+        if not (directory / name).is_file():
+            raise InputError(directory / name, "missing file of a windows dataset")
+    arrays = {}
+    for name in _ARRAYS:
+        path = directory / f"{name}.npy"
+        try:
+            arrays[name] = np.load(path, mmap_mode="r" if mmap else None, allow_pickle=False)
+        except (ValueError, OSError) as exc:
+            raise InputError(path, f"not a readable .npy array: {exc}") from exc
+    try:
+        index = pq.read_table(directory / "windows.parquet")
+        manifest = json.loads((directory / "manifest.json").read_text())
+    except (OSError, pa.ArrowInvalid, json.JSONDecodeError) as exc:
+        raise InputError(directory, f"damaged windows dataset: {exc}") from exc
+    windows = Windows(index=index, manifest=manifest, **arrays)
+    windows.check()
+    return windows
+
+
+def subset(windows: Windows, mask_or_indices: np.ndarray | list[int] | slice) -> Windows:
+    """The windows selected by a boolean mask [N], integer indices or a slice (arrays copied)."""
+    sel = mask_or_indices
+    if not isinstance(sel, slice):
+        sel = np.asarray(sel)
+        if sel.dtype == bool:
+            if sel.shape != (len(windows),):
+                raise InputError(None, f"mask of shape {sel.shape}", expected=f"({len(windows)},)")
+            sel = np.flatnonzero(sel)
+    rows = np.arange(len(windows))[sel]
+    return Windows(
+        inputs=np.asarray(windows.inputs[rows]),
+        present=np.asarray(windows.present[rows]),
+        future=np.asarray(windows.future[rows]),
+        maneuver=np.asarray(windows.maneuver[rows]),
+        index=windows.index.take(pa.array(rows, pa.int64())),
+        manifest=dict(windows.manifest),
+    )
+
+
+def concat_windows(parts: list[Windows], manifest: dict[str, Any] | None = None) -> Windows:
+    """Concatenate datasets (e.g. one per recording) into one."""
+    if not parts:
+        return empty_windows(manifest)
+    return Windows(
+        inputs=np.concatenate([p.inputs for p in parts]),
+        present=np.concatenate([p.present for p in parts]),
+        future=np.concatenate([p.future for p in parts]),
+        maneuver=np.concatenate([p.maneuver for p in parts]),
+        index=pa.concat_tables([p.index.cast(INDEX_SCHEMA) for p in parts]),
+        manifest=dict(manifest if manifest is not None else parts[0].manifest),
+    )
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return _jsonable(value.tolist())
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, Path):
+        return str(value)
+    return value
