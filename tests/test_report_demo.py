@@ -1,0 +1,90 @@
+"""`lanecast report` scores the forecasts stored in annotated logs; `lanecast demo` runs everything."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from io_adapters import highd, registry
+from workflows.cli import main
+
+
+@pytest.fixture(scope="module")
+def annotated(sim_recording_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """The simulated recording as an MCAP drive log, annotated with the shipped model."""
+    work = tmp_path_factory.mktemp("report")
+    table = highd.read([sim_recording_dir])
+    log = registry.write_any(table, work / "drive.mcap", "mcap")
+    assert main(["annotate", str(log), "--out", str(work / "annotated")]) == 0
+    return log, work / "annotated"
+
+
+def test_report_scores_logged_forecasts_like_batch_prediction(
+    annotated: tuple[Path, Path], tmp_path: Path
+) -> None:
+    """The report's metrics equal those of batch prediction on the same windows, without the log."""
+    from models.metrics import summary
+    from models.predict import STCNNForecaster
+    from pipeline.make_windows import make_windows
+    from workflows import report
+
+    log, out_dir = annotated
+    assert main(["report", str(out_dir), "--out", str(tmp_path / "r")]) == 0
+    metrics = json.loads((tmp_path / "r" / "metrics.json").read_text())
+    assert set(metrics) >= {"stcnn", "cv", "ca", "meta"}
+    assert (tmp_path / "r" / "report.html").read_text().count("data:image/png;base64,") >= 2
+    assert (tmp_path / "r" / "logs" / "drive" / "metrics.json").is_file()
+
+    # Independent computation: windows at the forecast times, the shipped model, models.metrics.
+    docs = report.prediction_documents(out_dir / "drive.mcap")
+    t0 = np.unique([d["t0_ns"] for d in docs])
+    windows = make_windows(registry.read_any([log]), split="none", t0_ns=t0, allow_empty=True)
+    known = np.isfinite(np.asarray(windows.future)).all(axis=(1, 2))
+    pred = STCNNForecaster.load(None).predict(
+        np.asarray(windows.inputs)[known], np.asarray(windows.present)[known], top_k=3, batch_size=4096
+    )
+    vehicle = windows.index.column("track_id").to_numpy()[known]
+    expected = summary(
+        pred.offsets,
+        np.asarray(windows.future)[known],
+        np.asarray(windows.maneuver)[known],
+        vehicle,
+        candidates=pred.top_offsets,
+        predicted_maneuver=pred.maneuver,
+    )
+    assert metrics["stcnn"]["n_windows"] == expected["n_windows"] == int(known.sum())
+    np.testing.assert_allclose(metrics["stcnn"]["rmse"], expected["rmse"], rtol=1e-4, atol=1e-4)
+    np.testing.assert_allclose(metrics["stcnn"]["min_ade"], expected["min_ade"], rtol=1e-4, atol=1e-4)
+    assert metrics["stcnn"]["maneuver_accuracy"] == pytest.approx(expected["maneuver_accuracy"], abs=1e-9)
+    assert metrics["stcnn"]["confusion"] == expected["confusion"]
+
+
+def test_report_refuses_a_log_without_forecasts(annotated: tuple[Path, Path], tmp_path: Path) -> None:
+    log, _ = annotated
+    assert main(["report", str(log), "--out", str(tmp_path / "r")]) == 2
+    assert not (tmp_path / "r" / "metrics.json").exists()
+
+
+def test_demo_runs_the_whole_pipeline(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "demo"
+    assert main(["demo", "--out", str(out), "--minutes", "2", "--density", "low"]) == 0
+    printed = capsys.readouterr().out
+    assert f"{out / 'annotated' / 'highway.mcap'}" in printed
+    assert f"{out / 'report' / 'report.html'}" in printed
+    metrics = json.loads((out / "report" / "metrics.json").read_text())
+    assert metrics["meta"]["forecasts_scored"] > 100
+    # Forecasts are in the annotated log, the original log is untouched and still readable.
+    assert report_topics(out / "annotated" / "highway.mcap") >= {"/lanecast/forecast", "/lanecast/prediction"}
+    assert registry.read_any([out / "logs" / "highway.mcap"]).num_rows > 0
+
+
+def report_topics(path: Path) -> set[str]:
+    from mcap.reader import make_reader
+
+    with path.open("rb") as fh:
+        summary = make_reader(fh).get_summary()
+    assert summary is not None
+    return {c.topic for c in summary.channels.values()}
