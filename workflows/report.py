@@ -217,6 +217,7 @@ def score_log(log: Path, topic: str | None) -> dict[str, Any]:
         "inputs": inputs,
         "present": present,
         "probs": fc.probs[fc_rows],
+        "alt_probs": fc.alt_probs[fc_rows],
     }
 
 
@@ -275,7 +276,7 @@ def example_scenes(parts: list[dict[str, Any]], count: int) -> list[Any]:
                     offsets=p["offsets"][i],
                     maneuver=p["maneuver_pred"][i],
                     alternatives=cand,
-                    alt_probs=np.full(len(cand), np.nan),
+                    alt_probs=p["alt_probs"][i] if p["candidates"] is not None else np.full(1, np.nan),
                 )
             )
         if len(scenes) >= count:
