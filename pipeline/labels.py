@@ -3,8 +3,12 @@
 A lane change happens where ``lane_id`` changes between two consecutive rows of a track (both
 known); the change's instant is the first row in the new lane. Every row of that track within
 ±``window_s`` (2 s, inclusive) of the instant is a lane change; its direction is the sign of the
-target's lateral displacement across the change, measured in its own heading frame at the change
-(to the left, +y, = 1) over ±``span_s`` (1 s) clipped to the track. Where changes are closer than
+target's lateral displacement across the change over ±``span_s`` (1 s), to the left (+y) = 1.
+"Lateral" is relative to the road: in a road frame it is plain +y; in any other frame it is
+relative to the chord of the track over ±``reference_s`` (3 s), which follows the road through
+the change. (Not relative to the target's own heading at the change: during a lane change that
+heading already points across the lanes, so the displacement along it has no lateral part and
+its sign would be noise.) All spans are clipped to the track. Where changes are closer than
 2 s the nearer one wins. Rows with no lane id and no change near them are unknown (-1), so a table
 without lane ids has unknown maneuvers everywhere (documented fallback; its neighbours come from
 lateral bands).
@@ -19,6 +23,7 @@ from pipeline.neighbours import Columns
 STRAIGHT, LEFT, RIGHT, UNKNOWN = 0, 1, 2, -1
 WINDOW_S = 2.0
 SPAN_S = 1.0
+REFERENCE_S = 3.0
 
 
 def track_bounds(cols: Columns) -> tuple[np.ndarray, np.ndarray]:
@@ -34,7 +39,7 @@ def track_bounds(cols: Columns) -> tuple[np.ndarray, np.ndarray]:
 
 
 def lane_changes(
-    cols: Columns, rate_hz: float = 10.0, span_s: float = SPAN_S
+    cols: Columns, rate_hz: float = 10.0, span_s: float = SPAN_S, reference_s: float = REFERENCE_S
 ) -> tuple[np.ndarray, np.ndarray]:
     """Rows where the lane id changes (first row in the new lane) and the direction of each
     (1 left, 2 right, 0 if there is no lateral displacement). int64 [c] each."""
@@ -54,7 +59,11 @@ def lane_changes(
     after = np.minimum(rows + m - 1, last[rows])
     dx = cols.x[after] - cols.x[before]
     dy = cols.y[after] - cols.y[before]
-    h = cols.heading[rows]
+    r = max(round(reference_s * rate_hz), 1)
+    ref_before = np.maximum(rows - r, first[rows])
+    ref_after = np.minimum(rows + r - 1, last[rows])
+    chord = np.arctan2(cols.y[ref_after] - cols.y[ref_before], cols.x[ref_after] - cols.x[ref_before])
+    h = np.where(cols.road_frame[cols.rec[rows]], 0.0, chord)  # road frame: +x is the direction of travel
     lateral = -np.sin(h) * dx + np.cos(h) * dy
     direction = np.where(lateral > 0, LEFT, np.where(lateral < 0, RIGHT, STRAIGHT)).astype(np.int64)
     return rows, direction

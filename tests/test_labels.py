@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pyarrow as pa
+import pytest
 
 from io_adapters.track_table import RecordingMeta, TableMeta, build_table, validate
 from pipeline.labels import lane_changes, row_labels
@@ -12,12 +13,19 @@ from pipeline.make_windows import make_windows
 from pipeline.neighbours import columns
 
 
-def track_table(y: np.ndarray, lane: np.ndarray, *, rate: float = 10.0, rotate: float = 0.0) -> pa.Table:
-    """One car at 30 m/s along x with lateral position ``y`` and ``lane`` per frame (NaN = unknown)."""
+def track_table(
+    y: np.ndarray, lane: np.ndarray, *, rate: float = 10.0, rotate: float = 0.0, steer: bool = False
+) -> pa.Table:
+    """One car at 30 m/s along x with lateral position ``y`` and ``lane`` per frame (NaN = unknown).
+
+    ``steer``: the heading follows the motion (as in real data and SUMO), so that during a lane
+    change it points across the lanes; otherwise it stays along the road.
+    """
     n = y.size
     t = np.arange(n) / rate
     x = 30.0 * t
     c, s = np.cos(rotate), np.sin(rotate)
+    along = rotate + (np.arctan2(np.gradient(y, t), 30.0) if steer else np.zeros(n))
     cols = {
         "recording": ["r"] * n,
         "track_id": np.full(n, 1),
@@ -25,7 +33,7 @@ def track_table(y: np.ndarray, lane: np.ndarray, *, rate: float = 10.0, rotate: 
         "time_ns": np.rint(t * 1e9).astype(np.int64),
         "x": c * x - s * y,
         "y": s * x + c * y,
-        "heading": np.full(n, rotate),
+        "heading": along,
         "vx": np.full(n, 30.0 * c),
         "vy": np.full(n, 30.0 * s),
         "ax": np.zeros(n),
@@ -145,3 +153,18 @@ def test_partly_unknown_lanes() -> None:
     labels = row_labels(columns(track_table(y, lane)))
     assert np.all(labels[150:] == -1)
     np.testing.assert_array_equal(labels[:150], np.where(np.abs(np.arange(150) - 100) <= 20, 1, 0))
+
+
+@pytest.mark.parametrize("rotate", [0.0, 0.7, -2.5])
+@pytest.mark.parametrize("direction", [1, -1])
+def test_direction_is_right_when_the_heading_points_across_the_lanes(rotate: float, direction: int) -> None:
+    """A constant-rate lane change (SUMO's) with the heading along the motion: the displacement
+    along the heading at the change has no lateral part, yet the label must say left or right."""
+    y, lane = change_at(200, 100, direction)
+    table = track_table(y, lane, rotate=rotate, steer=True)
+    rows, dirs = lane_changes(columns(table))
+    assert rows.tolist() == [100]
+    assert dirs.tolist() == [1 if direction == 1 else 2]
+    labels = row_labels(columns(table))
+    assert set(labels[80:121].tolist()) == {1 if direction == 1 else 2}
+    assert set(labels[:80].tolist()) == set(labels[121:].tolist()) == {0}
