@@ -29,6 +29,7 @@ import numpy as np
 import pyarrow as pa
 
 from io_adapters import ros_types, track_table
+from io_adapters import scene_update_wire as wire
 from io_adapters import tracked_objects as to
 from io_adapters.errors import LogError
 
@@ -56,6 +57,7 @@ _ROS_NAMES = {
 
 _MSG_HEAD = struct.Struct("<HIQQ")
 _REC_HEAD = struct.Struct("<BQ")
+_LEN = struct.Struct("<Q")
 
 
 # Topics lanecast writes into annotated logs (forecasts); never read back as tracked objects.
@@ -136,13 +138,14 @@ class _ProtobufBatch:
     """Protobuf SceneUpdate messages of one topic, decoded together (vectorised) per ~8 MB of data.
 
     Holds the decompressed bytes of the chunks it has spans in until it is flushed, never more.
+    (Larger batches cost no less: the decoder works through them in cache-sized entity groups.)
     """
 
     LIMIT = 8 << 20
 
     def __init__(self, columns: to.ObjectColumns) -> None:
         self.columns = columns
-        self.pieces: list[tuple[int, bytes, list[int], list[int], list[int]]] = []
+        self.pieces: list[tuple[int, bytes, Any, Any, Any]] = []
         self.size = 0
 
     def __call__(self, data: Any, log_time: int) -> None:
@@ -150,7 +153,7 @@ class _ProtobufBatch:
         raw = bytes(data)
         self.add(-1, raw, ([0], [len(raw)], [log_time]))
 
-    def add(self, offset: int, data: bytes, spans: tuple[list[int], list[int], list[int]]) -> None:
+    def add(self, offset: int, data: bytes, spans: tuple[Any, Any, Any]) -> None:
         """Messages data[starts[i]:ends[i]] at log times[i], from the record at file offset ``offset``."""
         self.pieces.append((offset, data, *spans))
         self.size += len(data)
@@ -167,27 +170,34 @@ class _ProtobufBatch:
         except (ValueError, IndexError) as exc:
             for piece in pieces:  # find the record that holds the bad message
                 try:
-                    to.scene_update_block(*_piece_arrays([piece]))
+                    wire.scene_update_block(*_piece_arrays([piece]))
                 except (ValueError, IndexError):
                     setattr(exc, "offset", piece[0])  # noqa: B010
                     break
             raise
 
-    def _decode(self, pieces: list[tuple[int, bytes, list[int], list[int], list[int]]]) -> None:
+    def _decode(self, pieces: list[tuple[int, bytes, Any, Any, Any]]) -> None:
         args = _piece_arrays(pieces)
-        self.columns.add_block(to.scene_update_block(*args), int(args[1].size))
+        self.columns.add_block(wire.scene_update_block(*args), int(args[1].size))
 
 
 def _piece_arrays(
-    pieces: list[tuple[int, bytes, list[int], list[int], list[int]]],
+    pieces: list[tuple[int, bytes, Any, Any, Any]],
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """One buffer and the message spans [m] and log times [m] of several pieces."""
     base = np.cumsum([0] + [len(p[1]) for p in pieces[:-1]])
-    buf = np.frombuffer(b"".join(p[1] for p in pieces), dtype=np.uint8)
+    buf = np.frombuffer(b"".join([*(p[1] for p in pieces), bytes(wire.PAD)]), dtype=np.uint8)
     starts = np.concatenate([np.asarray(p[2], dtype=np.int64) + b for p, b in zip(pieces, base, strict=True)])
     ends = np.concatenate([np.asarray(p[3], dtype=np.int64) + b for p, b in zip(pieces, base, strict=True)])
     times = np.concatenate([np.asarray(p[4], dtype=np.int64) for p in pieces])
     return buf, starts, ends, times
+
+
+def _read(raw: np.ndarray, at: np.ndarray, dtype: str) -> np.ndarray:
+    """Little-endian integers of type ``dtype`` at byte offsets at [n] of raw (uint8 [N]) → [n]."""
+    size = np.dtype(dtype).itemsize
+    every = np.ndarray((raw.size - size + 1,), dtype=dtype, buffer=raw, strides=(1,))
+    return every[at]
 
 
 class _LogDecoder:
@@ -358,8 +368,15 @@ class _LogDecoder:
         )
 
     # -- chunk contents
-    def records(self, buf: Any, start: int, end: int, in_chunk: bool) -> int:
-        """Decode Schema/Channel/Message records in buf[start:end]; return the message count."""
+    def records(self, buf: Any, start: int, end: int, in_chunk: bool, hint: np.ndarray | None = None) -> int:
+        """Decode Schema/Channel/Message records in buf[start:end]; return the message count.
+
+        ``hint``: the record offsets the chunk's MessageIndex records list (checked before use).
+        """
+        if in_chunk and start == 0:
+            count = self._batched_chunk(buf, end, hint)
+            if count is not None:
+                return count
         pos = start
         count = 0
         unpack_head, unpack_msg = _REC_HEAD.unpack_from, _MSG_HEAD.unpack_from
@@ -400,6 +417,51 @@ class _LogDecoder:
                 except (ValueError, IndexError) as exc:
                     raise self._undecodable(exc) from exc
         return count
+
+    def _batched_chunk(self, buf: Any, end: int, hint: np.ndarray | None) -> int | None:
+        """The message count of a chunk buf[:end] holding only Message records on channels decoded
+        in batches, whose spans go to the batches; None (nothing done) for any other chunk.
+
+        The record offsets are the chunk's MessageIndex offsets (``hint``) where they check out as
+        the exact chain of records, else one Python step per record; the record headers are then
+        read with numpy.
+        """
+        data = buf.obj
+        raw = np.frombuffer(data, dtype=np.uint8)
+        at = _verified_offsets(raw, end, hint) if hint is not None else None
+        if at is None:
+            positions: list[int] = []
+            append, unpack_len = positions.append, _LEN.unpack_from
+            pos = 0
+            try:
+                while pos < end:
+                    append(pos)
+                    pos += 9 + unpack_len(buf, pos + 1)[0]
+            except struct.error:
+                return None
+            if pos != end or not positions:
+                return None
+            at = np.asarray(positions, dtype=np.int64)
+        nxt = np.append(at[1:], end)
+        if (raw[at] != OP_MESSAGE).any() or (nxt - at < 9 + 22).any():
+            return None
+        cids = _read(raw, at + 9, "<u2")
+        handlers: dict[int, _ProtobufBatch | None] = {}
+        for cid in np.unique(cids).tolist():
+            h = self.handlers[cid] if cid in self.handlers else self.handler(cid)
+            if h is not None and type(h) is not _ProtobufBatch:
+                return None
+            handlers[cid] = h
+        times = _read(raw, at + 9 + 6, "<u8").astype(np.int64)
+        for cid, h in handlers.items():
+            if h is None:
+                continue
+            sel = cids == cid if len(handlers) > 1 else slice(None)
+            try:
+                h.add(self.offset, data, (at[sel] + 9 + 22, nxt[sel], times[sel]))
+            except (ValueError, IndexError) as exc:
+                raise self._undecodable(exc) from exc
+        return int(at.size)
 
     def finish(self) -> None:
         """Decode what the batches still hold."""
@@ -459,6 +521,39 @@ def _chunk_payload(buf: Any, body: int, end: int) -> bytes:
     if crc and zlib.crc32(data) != crc:
         raise ValueError(f"CRC mismatch (stored {crc:#010x}, computed {zlib.crc32(data):#010x})")
     return data
+
+
+def _index_offsets(buf: Any, pos: int, size: int) -> np.ndarray | None:
+    """Message offsets [n] (int64) listed by the MessageIndex records starting at pos, or None."""
+    parts = []
+    while pos + 15 <= size:
+        op, length = _REC_HEAD.unpack_from(buf, pos)
+        if op != OP_MESSAGE_INDEX or pos + 9 + length > size:
+            break
+        (n,) = struct.unpack_from("<I", buf, pos + 11)
+        if n % 16 or 6 + n > length:
+            return None
+        pairs = np.frombuffer(buf, dtype="<u8", count=n // 8, offset=pos + 15)
+        parts.append(pairs[1::2].astype(np.int64))
+        del pairs  # no view of the mmap may outlive the read
+        pos += 9 + length
+    return np.concatenate(parts) if parts else None
+
+
+def _verified_offsets(raw: np.ndarray, end: int, hint: np.ndarray) -> np.ndarray | None:
+    """The sorted offsets ``hint`` if they are exactly the chain of records of raw[:end] (each record
+    ends where the next starts, the first at 0, the last at end), else None."""
+    if not hint.size:
+        return None
+    at = np.sort(hint)
+    if at[0] != 0 or at[-1] + 9 > end:
+        return None
+    lengths = _read(raw, at + 1, "<u8")
+    if (lengths > np.uint64(end)).any():
+        return None
+    if not (at + 9 + lengths.astype(np.int64) == np.append(at[1:], end)).all():
+        return None
+    return at
 
 
 def _index_count(buf: Any, pos: int, size: int) -> tuple[int, int]:
@@ -547,7 +642,8 @@ def _walk(buf: Any, path: Path, dec: _LogDecoder, salvage: bool) -> None:
                 stats.chunks += 1
                 try:
                     data = _chunk_payload(buf, body, nxt)
-                    stats.messages += dec.records(memoryview(data), 0, len(data), True)
+                    hint = _index_offsets(buf, nxt, size)
+                    stats.messages += dec.records(memoryview(data), 0, len(data), True, hint)
                 except (ValueError, struct.error, zlib.error) as exc:
                     raise _Damage(
                         pos, f"corrupt chunk: {exc}", "an intact zstd/lz4 chunk with a matching CRC", True

@@ -1,13 +1,13 @@
 """Decoded drive-log messages ⇄ track-table columns: the part the MCAP and bag adapters share.
 
 Reading: a decoder appends every object of a message to an :class:`ObjectColumns` (flat Python
-lists, no message kept; protobuf SceneUpdates are decoded many messages at a time straight from
-the wire format by :func:`scene_update_block`), transforms (``/tf``, foxglove FrameTransforms,
-odometry) go into :class:`Transforms`, and :func:`assemble` turns everything into one track table:
-objects in moving frames moved into the fixed frame their transform chain reaches (map, odom,
-world, road, or a frame named in lanecast's metadata), heading from the quaternion yaw (from the
-velocity where there is no orientation), velocities and accelerations from the message where it
-has them, else from differences (positions, then velocities), frame indices on the topic's
+lists, no message kept; protobuf SceneUpdates are decoded many messages at a time straight from the
+wire format by :mod:`io_adapters.scene_update_wire`), transforms (``/tf``, foxglove
+FrameTransforms, odometry) go into :class:`Transforms`, and :func:`assemble` turns everything into
+one track table: objects in moving frames moved into the fixed frame their transform chain reaches
+(map, odom, world, road, or a frame named in lanecast's metadata), heading from the quaternion yaw
+(from the velocity where there is no orientation), velocities and accelerations from the message
+where it has them, else from differences (positions, then velocities), frame indices on the topic's
 timeline at its nominal rate (median message interval, snapped to a whole rate within 1 %).
 Recordings: one per object topic, named after the file stem (``<stem>-<topic>`` when a log has
 several), or the names stored in lanecast's metadata.
@@ -559,7 +559,11 @@ def assemble(
             source_files=list(spec.get("source_files", [])) if spec else [str(path)],
             extra=rec_extra,
         )
-    columns: dict[str, Any] = {k: np.concatenate([p[k] for p in pieces]) for k in pieces[0]}
+    columns: dict[str, Any] = (
+        dict(pieces[0])
+        if len(pieces) == 1
+        else {k: np.concatenate([p[k] for p in pieces]) for k in pieces[0]}
+    )
     columns["object_class"] = Categorical.concat(piece_classes).to_arrow()
     sizes = [p["track_id"].size for p in pieces]
     columns["recording"] = Categorical(np.repeat(np.arange(len(sizes)), sizes), rec_names).to_arrow()
@@ -620,6 +624,21 @@ def _to_fixed_frame(
     return target or "map"
 
 
+def _row_order(track: np.ndarray, frame: np.ndarray, time_ns: np.ndarray) -> np.ndarray:
+    """The order [n] sorting rows by (track, frame, time): one argsort of a combined integer key
+    where (track, frame) pairs are distinct and the key fits, else a lexsort (a third of the speed)."""
+    if track.size:
+        t0, f0 = int(track.min()), int(frame.min())
+        frames = int(frame.max()) - f0 + 1
+        if (int(track.max()) - t0 + 1) * frames < 2**62:
+            key = (track - t0) * frames + (frame - f0)
+            order = np.argsort(key)
+            ordered = key[order]
+            if not (ordered[1:] == ordered[:-1]).any():
+                return order
+    return np.lexsort((time_ns, frame, track))
+
+
 def _derive(
     cols: dict[str, np.ndarray], frames: np.ndarray, body: bool
 ) -> tuple[dict[str, np.ndarray], np.ndarray, int]:
@@ -627,7 +646,7 @@ def _derive(
 
     Returns the columns, the row order applied (for the categoricals) and the duplicates dropped.
     """
-    order = np.lexsort((cols["time_ns"], frames, cols["track_id"]))
+    order = _row_order(cols["track_id"], frames, cols["time_ns"])
     track, frame = cols["track_id"][order], frames[order]
     keep = np.ones(order.size, dtype=bool)
     keep[1:] = (track[1:] != track[:-1]) | (frame[1:] != frame[:-1])
@@ -650,13 +669,14 @@ def _derive(
     if (np.isnan(ax) | np.isnan(ay)).any():
         ax = np.where(np.isnan(ax), finite_difference(track, t, vx), ax)
         ay = np.where(np.isnan(ay), finite_difference(track, t, vy), ay)
+    no_yaw = np.isnan(heading)
     out = {
         "track_id": track,
         "frame": frame,
         "time_ns": t,
         "x": c["x"],
         "y": c["y"],
-        "heading": np.where(np.isnan(heading), np.arctan2(vy, vx), heading),
+        "heading": np.where(no_yaw, np.arctan2(vy, vx), heading) if no_yaw.any() else heading,
         "vx": vx,
         "vy": vy,
         "ax": ax,
@@ -791,382 +811,3 @@ def table_columns(table: pa.Table) -> dict[str, np.ndarray]:
     out["recording"] = table.column("recording").cast(pa.string()).to_numpy(zero_copy_only=False)
     out["object_class"] = table.column("object_class").cast(pa.string()).to_numpy(zero_copy_only=False)
     return out
-
-
-# ---------------------------------------------------- vectorised protobuf SceneUpdate decoding
-#
-# upb gives one Python object per field access (~15 µs per entity here), so protobuf
-# SceneUpdate messages are decoded from the wire format directly with numpy, many messages at
-# once: every level of nesting is one pass that walks the fields of all its messages in parallel
-# (one iteration per field position, not per message). Key/value pairs and numbers written the
-# usual way take a fast path; anything else falls back to the general one.
-
-# Bytes a fixed-width field's value takes, by wire type (VARINT and LEN are measured).
-_FIXED_WIDTH = np.array([0, 8, 0, 0, 0, 4, 0, 0], dtype=np.int64)
-
-
-@dataclass
-class _Fields:
-    """Fields of a batch of protobuf messages, one entry per field occurrence (arrays [m])."""
-
-    owner: np.ndarray  # index of the top-level object the message belongs to
-    field: np.ndarray
-    wire: np.ndarray
-    start: np.ndarray  # value span (LEN: payload; fixed: the bytes; VARINT: the varint)
-    end: np.ndarray
-
-    def pick(self, field_no: int, wire: int) -> np.ndarray:
-        return (self.field == field_no) & (self.wire == wire)
-
-
-_SHIFTS = np.arange(0, 70, 7, dtype=np.uint64)
-
-
-def _varints(buf: np.ndarray, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Varints at byte offsets pos [n] of buf (uint8 [N]) → (values uint64 [n], next offsets [n]).
-
-    One-byte varints (most tags and lengths) take one gather; longer ones a 10-byte window each.
-    """
-    b = buf[np.minimum(pos, buf.size - 1)]
-    value = b.astype(np.uint64)
-    nxt = pos + 1
-    more = np.flatnonzero(b >= 0x80)
-    if more.size:
-        b1 = buf[np.minimum(pos[more] + 1, buf.size - 1)]
-        if int(b1.max()) < 0x80:  # all two bytes long (lengths of 128 B to 16 kB)
-            value[more] = (value[more] & np.uint64(0x7F)) | (b1.astype(np.uint64) << np.uint64(7))
-            nxt[more] += 1
-            return value, nxt
-        window = _windows(buf, pos[more], 10)
-        cont = window >= 0x80
-        if cont.all(axis=1).any():
-            raise ValueError("malformed protobuf varint")
-        stop = np.argmin(cont, axis=1)
-        used = np.arange(10)[None, :] <= stop[:, None]
-        parts = np.where(used, (window & 0x7F).astype(np.uint64) << _SHIFTS, np.uint64(0))
-        value[more] = np.bitwise_or.reduce(parts, axis=1)
-        nxt[more] += stop
-    return value, nxt
-
-
-_BAD_WIRE = np.array([False, False, False, True, True, False, True, True])
-
-
-def _fields_at(buf: np.ndarray, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The fields starting at pos [n]: (wire type int8, field number, value start, value end)."""
-    tag, p = _varints(buf, pos)
-    wire = (tag & np.uint64(7)).astype(np.int8)
-    field_no = (tag >> np.uint64(3)).astype(np.int64)
-    vstart = p
-    vend = p + _FIXED_WIDTH[wire]
-    w = np.flatnonzero(wire == 2)
-    if w.size:
-        length, q = _varints(buf, p[w])
-        vstart = p.copy()
-        vstart[w] = q
-        vend[w] = q + length.astype(np.int64)
-    w = np.flatnonzero(wire == 0)
-    if w.size:
-        vend[w] = _varints(buf, p[w])[1]
-    return wire, field_no, vstart, vend
-
-
-def _scan(buf: np.ndarray, starts: np.ndarray, ends: np.ndarray, owners: np.ndarray) -> _Fields:
-    """All fields of the messages buf[starts[i]:ends[i]] [n], tagged with owners[i]."""
-    out: list[tuple[np.ndarray, ...]] = []
-    keep = starts < ends
-    owner, pos, end = owners[keep], starts[keep], ends[keep]
-    while pos.size:
-        b = buf[pos]
-        if int(b.max()) < 0x80 and ((b & 7) == 2).all():
-            # Fast path: every field here is a length-delimited one with a one-byte tag (the usual
-            # case for messages of sub-messages and strings).
-            wire = np.full(b.size, 2, dtype=np.int8)
-            field_no = (b >> 3).astype(np.int64)
-            length, vstart = _varints(buf, pos + 1)
-            vend = vstart + length.astype(np.int64)
-        else:
-            wire, field_no, vstart, vend = _fields_at(buf, pos)
-        if _BAD_WIRE[wire].any() or (vend > end).any():
-            raise ValueError("malformed protobuf message (bad wire type or a field past its message)")
-        out.append((owner, field_no, wire, vstart, vend))
-        more = vend < end
-        if more.all():
-            pos = vend
-        else:
-            owner, pos, end = owner[more], vend[more], end[more]
-    if not out:
-        e = np.zeros(0, dtype=np.int64)
-        return _Fields(e, e, e.astype(np.int8), e, e)
-    return _Fields(*(np.concatenate(c) for c in zip(*out, strict=True)))
-
-
-def _sub(buf: np.ndarray, f: _Fields, mask: np.ndarray) -> _Fields:
-    """The fields of the sub-messages selected by ``mask`` (owners carried over)."""
-    return _scan(buf, f.start[mask], f.end[mask], f.owner[mask])
-
-
-def _f64(buf: np.ndarray, pos: np.ndarray) -> np.ndarray:
-    """float64 [n] stored little-endian at byte offsets pos [n] of buf."""
-    if buf.size < 8:
-        raise ValueError("buffer too short for a double")
-    # An overlapping view: element i is the 8 bytes from buf[i] (copied, then seen as float64).
-    every_byte = np.ndarray((buf.size - 7,), dtype="V8", buffer=buf, strides=(1,))
-    return every_byte[pos].view("<f8")
-
-
-def _double_messages(buf: np.ndarray, f: _Fields, mask: np.ndarray, k: int, n: int) -> np.ndarray:
-    """float64 [k, n]: double fields 1..k of the messages selected by mask (Vector3, Point,
-    Quaternion), column = owner; 0 where absent.
-
-    Such a message is a run of 9-byte fields (tag, 8 bytes), any of them omitted when zero: read at
-    a fixed stride; other layouts go through the general scan.
-    """
-    out = np.zeros((k, n))
-    flat = out.reshape(-1)
-    start, end, owner = f.start[mask], f.end[mask], f.owner[mask]
-    length = end - start
-    slots = length // 9
-    ok = (length % 9 == 0) & (slots <= k)
-    for slot in range(k):
-        rows = np.flatnonzero(ok & (slots > slot))
-        if not rows.size:
-            break
-        at = start[rows] + 9 * slot
-        tag = buf[at]
-        good = ((tag & 7) == 1) & (tag >= 8) & (tag < 8 * (k + 1))
-        if not good.all():
-            ok[rows[~good]] = False
-            rows, at, tag = rows[good], at[good], tag[good]
-        flat[((tag >> 3).astype(np.int64) - 1) * n + owner[rows]] = _f64(buf, at + 1)
-    if not ok.all():
-        slow = ~ok
-        g = _scan(buf, start[slow], end[slow], owner[slow])
-        m = (g.wire == 1) & (g.field >= 1) & (g.field <= k)
-        out[g.field[m] - 1, g.owner[m]] = _f64(buf, g.start[m])
-    return out
-
-
-def _windows(buf: np.ndarray, starts: np.ndarray, width: int) -> np.ndarray:
-    """uint8 [n, width]: the ``width`` bytes from each offset starts[i] (past the end: zeros)."""
-    if starts.size and int(starts.max()) + width <= buf.size:
-        every_byte = np.ndarray((buf.size - width + 1,), dtype=f"V{width}", buffer=buf, strides=(1,))
-        return every_byte[starts].view(np.uint8).reshape(-1, width)
-    idx = starts[:, None] + np.arange(width)
-    return np.where(idx < buf.size, buf[np.minimum(idx, buf.size - 1)], 0).astype(np.uint8)
-
-
-_MAX_STRING = 256  # bytes kept of a string (class names, frame ids, ids): bounds the [n, width] work
-
-
-def _strings(buf: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
-    """Byte strings buf[starts[i]:ends[i]] (at most _MAX_STRING bytes) as a fixed-width bytes array [n]."""
-    lengths = np.minimum(ends - starts, _MAX_STRING)
-    width = max(int(lengths.max()) if lengths.size else 1, 1)
-    raw = _windows(buf, starts, width)
-    raw = np.where(np.arange(width)[None, :] < lengths[:, None], raw, 0).astype(np.uint8)
-    return raw.view(f"S{width}").ravel()
-
-
-def _decimal_digits(buf: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> tuple[np.ndarray, ...]:
-    """Plain decimals ``[-]d*[.d*]`` → (mantissa int64, digits after the dot, negative, valid) [n]."""
-    n = starts.size
-    lengths = ends - starts
-    width = min(max(int(lengths.max()) if n else 1, 1), 32)  # longer ones are not plain decimals here
-    raw = _windows(buf, starts, width).T  # [width, n]: row j = the j-th character of every string
-    inside = np.arange(width)[:, None] < lengths[None, :]
-    digit = raw - np.uint8(48)
-    isdig = (digit < 10) & inside
-    isdot = (raw == 46) & inside
-    neg = raw[0] == 45
-    allowed = isdig | isdot
-    allowed[0] |= neg
-    ndig = isdig.sum(axis=0)
-    valid = (allowed | ~inside).all(axis=0) & (isdot.sum(axis=0) <= 1) & (ndig >= 1) & (ndig <= 15)
-    valid &= lengths <= width
-    mantissa = np.zeros(n, dtype=np.int64)
-    frac = np.zeros(n, dtype=np.int64)
-    seen_dot = np.zeros(n, dtype=bool)
-    for j in range(width):
-        d = isdig[j]
-        mantissa = np.where(d, mantissa * 10 + digit[j], mantissa)
-        frac += d & seen_dot
-        seen_dot |= isdot[j]
-    return mantissa, frac, neg, valid
-
-
-def _floats(buf: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
-    """Decimal strings buf[starts[i]:ends[i]] [n] → float64 (correctly rounded; others parsed by numpy)."""
-    mantissa, frac, neg, valid = _decimal_digits(buf, starts, ends)
-    value = mantissa / np.power(10.0, frac)
-    value = np.where(neg, -value, value)
-    if not valid.all():
-        bad = np.flatnonzero(~valid)
-        value[bad] = [float(bytes(buf[starts[i] : ends[i]])) for i in bad.tolist()]
-    return value
-
-
-def _integers(buf: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Decimal integer strings [n] → (int64 values, valid) (invalid: not an integer, or > 15 digits)."""
-    mantissa, frac, neg, valid = _decimal_digits(buf, starts, ends)
-    return np.where(neg, -mantissa, mantissa), valid & (frac == 0) & (
-        buf[np.minimum(ends - 1, buf.size - 1)] != 46
-    )
-
-
-def _key_value_spans(buf: np.ndarray, f: _Fields) -> tuple[np.ndarray, ...]:
-    """KeyValuePair sub-messages (entity field 6) → (entity, key start, key end, value start, value end).
-
-    Fast path for the usual layout (key then value, both shorter than 128 bytes), the general scan
-    for the rest.
-    """
-    m = f.pick(6, 2)
-    entity, s, e = f.owner[m], f.start[m], f.end[m]
-    last = buf.size - 1
-    klen = buf[np.minimum(s + 1, last)].astype(np.int64)
-    vpos = s + 2 + klen
-    vlen = buf[np.minimum(vpos + 1, last)].astype(np.int64)
-    fast = (
-        (e - s >= 4)
-        & (buf[np.minimum(s, last)] == 0x0A)
-        & (klen < 0x80)
-        & (buf[np.minimum(vpos, last)] == 0x12)
-        & (vlen < 0x80)
-        & (vpos + 2 + vlen == e)
-    )
-    ks, ke, vs, ve = s + 2, s + 2 + klen, vpos + 2, vpos + 2 + vlen
-    if not fast.all():
-        slow = np.flatnonzero(~fast)
-        kv = _scan(buf, s[slow], e[slow], slow)
-        ks[slow] = ke[slow] = vs[slow] = ve[slow] = 0
-        for field_no, (a, b) in ((1, (ks, ke)), (2, (vs, ve))):
-            sel = kv.pick(field_no, 2)
-            a[kv.owner[sel]], b[kv.owner[sel]] = kv.start[sel], kv.end[sel]
-    return entity, ks, ke, vs, ve
-
-
-def _key_signatures(buf: np.ndarray, ks: np.ndarray, ke: np.ndarray) -> np.ndarray:
-    """int64 [n]: length and first two bytes of each key buf[ks:ke] (what tells lanecast's keys apart)."""
-    last = buf.size - 1
-    length = ke - ks
-    b0 = np.where(length > 0, buf[np.minimum(ks, last)], 0).astype(np.int64)
-    b1 = np.where(length > 1, buf[np.minimum(ks + 1, last)], 0).astype(np.int64)
-    return (length << 16) | (b0 << 8) | b1
-
-
-def _key_is(buf: np.ndarray, sig: np.ndarray, ks: np.ndarray, key: bytes) -> np.ndarray:
-    """Mask [n] of the keys (signatures ``sig``, starts ``ks``) equal to ``key``."""
-    k = key + b"\0\0"
-    mask = sig == (len(key) << 16) | (k[0] << 8) | k[1]
-    if len(key) > 2 and mask.any():
-        cand = np.flatnonzero(mask)
-        for j in range(2, len(key)):
-            cand = cand[buf[ks[cand] + j] == key[j]]
-        mask[:] = False
-        mask[cand] = True
-    return mask
-
-
-def _times(buf: np.ndarray, f: _Fields, mask: np.ndarray, n: int) -> np.ndarray:
-    """int64 [n] ns of the Timestamp sub-messages (seconds = 1, nanos = 2) selected by mask; 0 if absent.
-
-    Fast path for the usual layout (seconds then nanos, either omitted when zero).
-    """
-    start, end, owner = f.start[mask], f.end[mask], f.owner[mask]
-    out = np.zeros(n, dtype=np.int64)
-    last = buf.size - 1
-    sec = np.zeros(start.size, dtype=np.uint64)
-    nsec = np.zeros(start.size, dtype=np.uint64)
-    pos = start.copy()
-    has = (pos < end) & (buf[np.minimum(pos, last)] == 0x08)
-    i = np.flatnonzero(has)
-    sec[i], pos[i] = _varints(buf, pos[i] + 1)
-    has = (pos < end) & (buf[np.minimum(pos, last)] == 0x10)
-    i = np.flatnonzero(has)
-    nsec[i], pos[i] = _varints(buf, pos[i] + 1)
-    fast = pos == end
-    value = sec.astype(np.int64) * 1_000_000_000 + nsec.astype(np.int64)
-    out[owner[fast]] = value[fast]
-    if not fast.all():
-        g = _scan(buf, start[~fast], end[~fast], owner[~fast])
-        for field_no, scale in ((1, 1_000_000_000), (2, 1)):
-            m = g.pick(field_no, 0)
-            out[g.owner[m]] += _varints(buf, g.start[m])[0].astype(np.int64) * scale
-    return out
-
-
-def _categories(values: np.ndarray) -> tuple[np.ndarray, list[str]]:
-    """Bytes strings [n] → (int32 codes [n], category strings)."""
-    cats, codes = np.unique(values, return_inverse=True)
-    return codes.astype(np.int32), [c.decode(errors="replace") for c in cats.tolist()]
-
-
-def scene_update_block(
-    buf: np.ndarray, starts: np.ndarray, ends: np.ndarray, log_times: np.ndarray
-) -> dict[str, Any]:
-    """Decode protobuf ``foxglove.SceneUpdate`` messages buf[starts[i]:ends[i]] (i < m) at once.
-
-    Returns the columns of their entities that have a cube (arrays [n], NaN = absent, first cube
-    of an entity), as :meth:`ObjectColumns.add_block` takes them.
-    """
-    msgs = _scan(buf, starts, ends, np.arange(starts.size))
-    ent = msgs.pick(2, 2)
-    n = int(ent.sum())
-    e_msg = msgs.owner[ent]
-    f = _scan(buf, msgs.start[ent], msgs.end[ent], np.arange(n))
-    # Timestamp (sec, nsec) of each entity; 0 → the message's log time.
-    time_ns = _times(buf, f, f.pick(1, 2), n)
-    msg_time = log_times[e_msg]
-    time_ns = np.where(time_ns == 0, msg_time, time_ns)
-    # The first cube of each entity.
-    cubes = f.pick(8, 2)
-    has_cube, first = np.unique(f.owner[cubes], return_index=True)
-    cube_sel = np.flatnonzero(cubes)[first]
-    c = _scan(buf, f.start[cube_sel], f.end[cube_sel], f.owner[cube_sel])
-    pose = _sub(buf, c, c.pick(1, 2))
-    position = _double_messages(buf, pose, pose.pick(1, 2), 3, n)
-    quaternion = _double_messages(buf, pose, pose.pick(2, 2), 4, n)
-    size = _double_messages(buf, c, c.pick(2, 2), 3, n)
-    vals = {
-        "x": position[0],
-        "y": position[1],
-        "length": size[0],
-        "width": size[1],
-        "yaw": yaw_of(*quaternion),
-    }
-    # Metadata: class, lane_id and the kinematics lanecast writes.
-    kv_entity, ks, ke, vs, ve = _key_value_spans(buf, f)
-    sig = _key_signatures(buf, ks, ke)
-    for name, key in (("vx", b"vx"), ("vy", b"vy"), ("ax", b"ax"), ("ay", b"ay"), ("lane", b"lane_id")):
-        column = np.full(n, NAN)
-        m = _key_is(buf, sig, ks, key)
-        if m.any():
-            column[kv_entity[m]] = _floats(buf, vs[m], ve[m])
-        vals[name] = column
-    cls_s, cls_e = np.zeros(n, np.int64), np.zeros(n, np.int64)
-    m = _key_is(buf, sig, ks, b"class")
-    cls_s[kv_entity[m]], cls_e[kv_entity[m]] = vs[m], ve[m]
-    # Ids and frame ids (absent = empty string).
-    spans = {}
-    for field_no in (2, 3):
-        st, en = np.zeros(n, np.int64), np.zeros(n, np.int64)
-        m = f.pick(field_no, 2)
-        st[f.owner[m]], en[f.owner[m]] = f.start[m], f.end[m]
-        spans[field_no] = (st[has_cube], en[has_cube])
-    track, numeric = _integers(buf, *spans[3])
-    if not numeric.all():
-        bad = np.flatnonzero(~numeric)
-        uniq, inv = np.unique(_strings(buf, spans[3][0][bad], spans[3][1][bad]), return_inverse=True)
-        track[bad] = np.array(
-            [track_id_of(u.decode(errors="replace")) for u in uniq.tolist()], dtype=np.int64
-        )[inv]
-    cls_codes, cls_names = _categories(_strings(buf, cls_s[has_cube], cls_e[has_cube]))
-    block: dict[str, Any] = {k: v[has_cube] for k, v in vals.items()}
-    block.update(
-        time_ns=time_ns[has_cube],
-        msg_time=msg_time[has_cube],
-        track_id=track,
-        classes=Categorical(cls_codes, [c or "unknown" for c in cls_names]),
-        frame_ids=Categorical(*_categories(_strings(buf, *spans[2]))),
-    )
-    return block

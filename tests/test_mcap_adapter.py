@@ -5,12 +5,14 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
 import pytest
 
 from io_adapters import mcap_reader, mcap_writer, registry, ros_types, track_table
+from io_adapters import scene_update_wire as wire
 from io_adapters import tracked_objects as to
 from io_adapters.errors import FrameError, LogError
 
@@ -210,11 +212,11 @@ def test_foreign_scene_update_velocity_from_differences(tmp_path: Path) -> None:
     from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
     from mcap_protobuf.schema import build_file_descriptor_set
 
-    def build(w: object) -> None:
+    def build(w: Any) -> None:
         sid = w.register_schema(
             "foxglove.SceneUpdate", "protobuf", build_file_descriptor_set(SceneUpdate).SerializeToString()
-        )  # type: ignore[attr-defined]
-        cid = w.register_channel("/perception/scene", "protobuf", sid)  # type: ignore[attr-defined]
+        )
+        cid = w.register_channel("/perception/scene", "protobuf", sid)
         for i in range(5):  # 10 Hz; car "7" at x = 10 + 20 t, y = -2 + 1 t; "ped-a" standing still
             t = 1_000_000_000 + i * 100_000_000
             data = _scene_update(
@@ -235,7 +237,7 @@ def test_foreign_scene_update_velocity_from_differences(tmp_path: Path) -> None:
                     {"id": "bike", "x": 3.0 * i, "y": -3.0 * i, "l": 1.8, "w": 0.6},
                 ]
             )
-            w.add_message(cid, log_time=t, data=data, publish_time=t)  # type: ignore[attr-defined]
+            w.add_message(cid, log_time=t, data=data, publish_time=t)
 
     path = _write_mcap(tmp_path / "drive.mcap", build)
     table = mcap_reader.read(path)
@@ -266,9 +268,9 @@ def test_foreign_scene_update_velocity_from_differences(tmp_path: Path) -> None:
     np.testing.assert_allclose(ped.column("vx").to_numpy(), 0.0)
 
 
-def _ros2_channel(w: object, topic: str, typename: str) -> int:
-    sid = w.register_schema(typename, "ros2msg", ros_types.schema_text(typename).encode())  # type: ignore[attr-defined]
-    return int(w.register_channel(topic, "cdr", sid))  # type: ignore[attr-defined]
+def _ros2_channel(w: Any, topic: str, typename: str) -> int:
+    sid = w.register_schema(typename, "ros2msg", ros_types.schema_text(typename).encode())
+    return int(w.register_channel(topic, "cdr", sid))
 
 
 def _tracked_objects(t: int, frame: str, objects: list[tuple[int, float, float, float, float]]) -> bytes:
@@ -356,7 +358,7 @@ def ego_frame_log(path: Path, ego: str | None) -> Path:
     ``ego``: "tf" (/tf map → base_link), "odom" (nav_msgs/Odometry odom → base_link) or None.
     """
 
-    def build(w: object) -> None:
+    def build(w: Any) -> None:
         objects = _ros2_channel(w, "/perception/objects", ros_types.TRACKED_OBJECTS)
         pose_topic = {"tf": ("/tf", ros_types.TF_MESSAGE), "odom": ("/localization/odom", ros_types.ODOMETRY)}
         poses = _ros2_channel(w, *pose_topic[ego]) if ego else None
@@ -364,10 +366,10 @@ def ego_frame_log(path: Path, ego: str | None) -> Path:
             t = 5_000_000_000 + i * 100_000_000
             if poses is not None:
                 data = _ego_pose_msg(ego, t, 100.0, 50.0 + 1.0 * i, math.pi / 2)  # type: ignore[arg-type]
-                w.add_message(poses, log_time=t, data=data, publish_time=t)  # type: ignore[attr-defined]
+                w.add_message(poses, log_time=t, data=data, publish_time=t)
             # One car 10 m ahead of the ego, same heading, body speed 12 m/s.
             data = _tracked_objects(t, "base_link", [(42, 10.0 + 0.2 * i, 0.0, 0.0, 12.0)])
-            w.add_message(objects, log_time=t, data=data, publish_time=t)  # type: ignore[attr-defined]
+            w.add_message(objects, log_time=t, data=data, publish_time=t)
 
     return _write_mcap(path, build)
 
@@ -395,7 +397,7 @@ def test_ego_frame_without_transform_is_a_clear_error(tmp_path: Path) -> None:
 
 
 def test_topics_found_by_type_and_picked_by_topic(tmp_path: Path) -> None:
-    def build(w: object) -> None:
+    def build(w: Any) -> None:
         a = _ros2_channel(w, "/objects/front", ros_types.TRACKED_OBJECTS)
         b = _ros2_channel(w, "/objects/rear", ros_types.TRACKED_OBJECTS)
         other = _ros2_channel(w, "/chatter", ros_types.STRING)
@@ -404,17 +406,17 @@ def test_topics_found_by_type_and_picked_by_topic(tmp_path: Path) -> None:
             t = 10**9 + i * 50_000_000
             w.add_message(
                 a, log_time=t, data=_tracked_objects(t, "map", [(1, float(i), 0.0, 0.0, 1.0)]), publish_time=t
-            )  # type: ignore[attr-defined]
+            )
             w.add_message(
                 b,
                 log_time=t,
                 data=_tracked_objects(t, "map", [(2, -float(i), 0.0, 0.0, 1.0)]),
                 publish_time=t,
-            )  # type: ignore[attr-defined]
+            )
             s = bytes(
                 store.serialize_cdr(ros_types.make(store, ros_types.STRING, data="hi"), ros_types.STRING)
             )
-            w.add_message(other, log_time=t, data=s, publish_time=t)  # type: ignore[attr-defined]
+            w.add_message(other, log_time=t, data=s, publish_time=t)
 
     path = _write_mcap(tmp_path / "two.mcap", build)
     both = mcap_reader.read(path)
@@ -467,25 +469,25 @@ def test_scene_update_in_ego_frame_with_foxglove_transforms(tmp_path: Path, enco
         p.rotation.z, p.rotation.w = tr["rotation"]["z"], tr["rotation"]["w"]  # type: ignore[index]
         return msg.SerializeToString()
 
-    def build(w: object) -> None:
+    def build(w: Any) -> None:
         if encoding == "json":
-            tf_schema = w.register_schema("foxglove.FrameTransforms", "jsonschema", b"{}")  # type: ignore[attr-defined]
+            tf_schema = w.register_schema("foxglove.FrameTransforms", "jsonschema", b"{}")
         else:
             fds = build_file_descriptor_set(FrameTransforms).SerializeToString()
-            tf_schema = w.register_schema("foxglove.FrameTransforms", "protobuf", fds)  # type: ignore[attr-defined]
+            tf_schema = w.register_schema("foxglove.FrameTransforms", "protobuf", fds)
         scene_fds = build_file_descriptor_set(SceneUpdate).SerializeToString()
-        scene = w.register_channel(  # type: ignore[attr-defined]
+        scene = w.register_channel(
             "/scene",
             "protobuf",
-            w.register_schema("foxglove.SceneUpdate", "protobuf", scene_fds),  # type: ignore[attr-defined]
+            w.register_schema("foxglove.SceneUpdate", "protobuf", scene_fds),
         )
-        tf = w.register_channel("/tf", encoding, tf_schema)  # type: ignore[attr-defined]
+        tf = w.register_channel("/tf", encoding, tf_schema)
         for i in range(4):
             t = 3 * 10**9 + i * 100_000_000
-            w.add_message(tf, log_time=t, data=transforms(t, 50.0 + i), publish_time=t)  # type: ignore[attr-defined]
+            w.add_message(tf, log_time=t, data=transforms(t, 50.0 + i), publish_time=t)
             entity = {"id": 5, "t": t, "x": 10 + 0.2 * i, "y": 0.0, "yaw": 0.0, "l": 4.0, "w": 2.0,
                       "frame": "base_link", "meta": {"vx": "12.0", "vy": "0.0"}}  # fmt: skip
-            w.add_message(scene, log_time=t, data=_scene_update([entity]), publish_time=t)  # type: ignore[attr-defined]
+            w.add_message(scene, log_time=t, data=_scene_update([entity]), publish_time=t)
 
     table = mcap_reader.read(_write_mcap(tmp_path / "fox.mcap", build))
     assert track_table.read_meta(table).recordings["fox"].coordinate_frame == "map"
@@ -533,7 +535,7 @@ def test_vectorised_decoder_matches_protobuf_library_on_odd_layouts() -> None:
     buf = np.frombuffer(b"".join(messages), dtype=np.uint8)
     ends = np.cumsum([len(m) for m in messages])
     starts = ends - [len(m) for m in messages]
-    block = to.scene_update_block(buf, starts, ends, np.arange(6) * 1000)
+    block = wire.scene_update_block(buf, starts, ends, np.arange(6) * 1000)
 
     expected = []
     for data in messages:
@@ -571,9 +573,9 @@ def test_vectorised_decoder_matches_protobuf_library_on_odd_layouts() -> None:
         )
     )
     assert len(got) == len(expected) == 19  # 21 entities, 2 without a cube
-    for g, e in zip(sorted(got, key=lambda r: r[1]), sorted(expected, key=lambda r: r[1]), strict=True):
-        assert g[:2] == e[:2] and g[7] == e[7]
-        np.testing.assert_allclose(g[2:7], e[2:7], rtol=1e-12, atol=1e-12)
+    for g, want in zip(sorted(got, key=lambda r: r[1]), sorted(expected, key=lambda r: r[1]), strict=True):
+        assert g[:2] == want[:2] and g[7] == want[7]
+        np.testing.assert_allclose(g[2:7], want[2:7], rtol=1e-12, atol=1e-12)
     assert np.isnan(block["lane"]).all() and np.isnan(block["ax"]).all()
 
 
@@ -595,6 +597,19 @@ def test_decimal_strings_parse_like_python_float() -> None:
     raw = "".join(texts).encode()
     ends = np.cumsum([len(t) for t in texts])
     starts = ends - [len(t) for t in texts]
-    parsed = to._floats(np.frombuffer(raw, dtype=np.uint8), starts, ends)
+    parsed = wire.parse_floats(np.frombuffer(raw, dtype=np.uint8), starts, ends)
     np.testing.assert_array_equal(parsed, [float(t) for t in texts])
     assert (parsed[: values.size].astype(np.float32) == values).all()
+
+
+def test_entity_ids_parse_like_track_id_of() -> None:
+    """Ids that are plain decimal integers are read digit by digit; any other id (sign, letters,
+    spaces, non-ASCII digits, too long) gets what track_id_of gives it."""
+    ids = ["1", "42", "-5", "007", "-0", "-", "", "12a", "+3", " 7", "\u0663", "9" * 18, "1" * 19, "car-17"]
+    raw = [s.encode() for s in ids]
+    buf = np.frombuffer(b"".join(raw) + bytes(wire.PAD), dtype=np.uint8)
+    ends = np.cumsum([len(r) for r in raw])
+    starts = ends - [len(r) for r in raw]
+    got = wire._track_ids(buf, starts, ends).tolist()
+    assert got[:5] == [1, 42, -5, 7, 0] and got[11] == 999_999_999_999_999_999
+    assert got == [to.track_id_of(s) for s in ids]
