@@ -659,7 +659,7 @@ def _walk(buf: Any, path: Path, dec: _LogDecoder, salvage: bool) -> None:
             elif op == OP_DATA_END:
                 data_end_seen = True
                 (crc,) = struct.unpack_from("<I", buf, body)
-                if crc and zlib.crc32(buf[:pos]) != crc:
+                if crc and _crc32(buf, 0, pos) != crc:
                     skip_to = nxt
                     raise _Damage(pos, "data section CRC mismatch", "an undamaged data section", False)
             elif op == OP_STATISTICS:
@@ -670,7 +670,7 @@ def _walk(buf: Any, path: Path, dec: _LogDecoder, salvage: bool) -> None:
                 if (
                     summary_crc
                     and summary_start
-                    and zlib.crc32(buf[summary_start : body + 16]) != summary_crc
+                    and _crc32(buf, summary_start, body + 16) != summary_crc
                 ):
                     total_expected = None
                     raise _Damage(pos, "summary CRC mismatch", "an undamaged summary section", False)
@@ -718,6 +718,18 @@ def _walk(buf: Any, path: Path, dec: _LogDecoder, salvage: bool) -> None:
             stats.damage.append(f"offset {size}: the file ends without a footer (truncated)")
     if salvage and total_expected is not None and footer_seen:
         stats.messages_lost = max(total_expected - stats.messages, 0)
+
+
+def _crc32(buf: Any, start: int, end: int, block: int = 1 << 24) -> int:
+    """CRC-32 of ``buf[start:end]`` in blocks of views: slicing an mmap would copy the whole range."""
+    crc = 0
+    view = memoryview(buf)
+    try:
+        for lo in range(start, end, block):
+            crc = zlib.crc32(view[lo : min(lo + block, end)], crc)
+    finally:
+        view.release()
+    return crc
 
 
 def read_log(

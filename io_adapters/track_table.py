@@ -163,8 +163,29 @@ def _to_arrow(values: Any, f: pa.Field) -> pa.Array:
     return pa.array(array, type=f.type)
 
 
+def _in_order(rec: np.ndarray, track: np.ndarray, frame: np.ndarray) -> np.ndarray:
+    """bool [n-1]: row i+1 comes after row i in (recording, track_id, frame) order (ties allowed)."""
+    same_rec = rec[1:] == rec[:-1]
+    same_track = same_rec & (track[1:] == track[:-1])
+    return (
+        (rec[1:] > rec[:-1])
+        | (same_rec & (track[1:] > track[:-1]))
+        | (same_track & (frame[1:] >= frame[:-1]))
+    )
+
+
 def sort_rows(table: pa.Table) -> pa.Table:
-    """Sort rows by (recording, track_id, frame), keeping the schema and its metadata."""
+    """Sort rows by (recording, track_id, frame), keeping the schema and its metadata.
+
+    An already sorted table (every adapter that reads sorted sources) is returned as it is.
+    """
+    if (
+        table.num_rows < 2
+        or _in_order(
+            _recording_codes(table), table.column("track_id").to_numpy(), table.column("frame").to_numpy()
+        ).all()
+    ):
+        return table
     order = pc.sort_indices(
         table.select(["recording", "track_id", "frame"]).cast(
             pa.schema([("recording", pa.string()), ("track_id", pa.int64()), ("frame", pa.int64())])
@@ -232,10 +253,7 @@ def validate(table: pa.Table, source: str | Path | None = None) -> None:
     frame = table.column("frame").to_numpy()
     time = table.column("time_ns").to_numpy()
     same_track = (rec_codes[1:] == rec_codes[:-1]) & (track[1:] == track[:-1])
-    order_ok = (rec_codes[1:] > rec_codes[:-1]) | (
-        (rec_codes[1:] == rec_codes[:-1])
-        & ((track[1:] > track[:-1]) | (same_track & (frame[1:] >= frame[:-1])))
-    )
+    order_ok = _in_order(rec_codes, track, frame)
     if not order_ok.all():
         row = int(np.flatnonzero(~order_ok)[0]) + 1
         raise TrackTableError(f"{where}row {row}: rows are not sorted by (recording, track_id, frame)")
