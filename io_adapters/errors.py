@@ -51,7 +51,10 @@ class InputError(LanecastError):
 
     def __reduce__(self) -> tuple[object, ...]:
         # Picklable across worker processes (bulk runs), keyword arguments included.
-        return (_rebuild, (type(self), self.path, self.reason, self.line, self.offset, self.column, self.expected))
+        return (
+            _rebuild,
+            (type(self), self.path, self.reason, self.line, self.offset, self.column, self.expected),
+        )
 
 
 def _rebuild(

@@ -667,11 +667,7 @@ def _walk(buf: Any, path: Path, dec: _LogDecoder, salvage: bool) -> None:
             elif op == OP_FOOTER:
                 footer_seen = True
                 summary_start, _, summary_crc = struct.unpack_from("<QQI", buf, body)
-                if (
-                    summary_crc
-                    and summary_start
-                    and _crc32(buf, summary_start, body + 16) != summary_crc
-                ):
+                if summary_crc and summary_start and _crc32(buf, summary_start, body + 16) != summary_crc:
                     total_expected = None
                     raise _Damage(pos, "summary CRC mismatch", "an undamaged summary section", False)
                 if bytes(buf[nxt : nxt + 8]) != MAGIC:
