@@ -50,6 +50,7 @@ import pyarrow as pa
 import pyarrow.csv as pacsv
 
 from io_adapters.errors import InputError
+from io_adapters.highd import NEIGHBOURS
 from io_adapters.progress import bar
 
 FRAME_RATE = 25.0
@@ -85,16 +86,8 @@ RECORDING_META_COLUMNS = (
 ).split(",")
 # traci.constants.VAR_LEADER / VAR_FOLLOWER (checked by the tests), here to keep traci out of imports.
 VAR_LEADER, VAR_FOLLOWER = 0x68, 0x78
-_NEIGHBOUR_HIGHD = (
-    "precedingId",
-    "followingId",
-    "leftPrecedingId",
-    "leftAlongsideId",
-    "leftFollowingId",
-    "rightPrecedingId",
-    "rightAlongsideId",
-    "rightFollowingId",
-)
+# highD's neighbour columns, in the order of the track table's (one definition: the highD reader's).
+_NEIGHBOUR_HIGHD = tuple(NEIGHBOURS)
 
 
 @dataclass(frozen=True)
