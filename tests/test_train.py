@@ -1,0 +1,185 @@
+"""Training of the ST-CNN on small synthetic windows: losses fall, a few windows are overfitted,
+a seed reproduces the weights, and save → load → predict gives identical outputs."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pyarrow as pa
+import pytest
+import torch
+
+from io_adapters.errors import InputError
+from models.checkpoint import load_checkpoint, resolve, save_checkpoint
+from models.metrics import displacement_errors, rmse
+from models.predict import STCNNForecaster
+from models.stcnn import STCNN, count_parameters
+from models.train import TrainConfig, future_stats, labelled, regressor_loss, train
+from pipeline.windows_data import Windows
+
+LANE = 3.75
+HIST_T = (np.arange(30) - 29) * 0.1  # s, oldest → t0
+FUT_T = np.arange(1.0, 6.0)  # s
+
+
+def _lateral(t: np.ndarray, side: np.ndarray, tc: np.ndarray) -> np.ndarray:
+    """Lateral position [N, T] of a lane change of ``side`` (+1 left, -1 right, 0 none) centred at tc."""
+    s = 1.0 / (1.0 + np.exp(-(t[None, :] - tc[:, None]) / 0.5))
+    s0 = 1.0 / (1.0 + np.exp(tc[:, None] / 0.5))
+    return side[:, None] * LANE * (s - s0)
+
+
+def synthetic_windows(n: int = 600, seed: int = 0, lane_change_share: float = 0.4) -> Windows:
+    """Windows of straight and lane-changing targets at 20–35 m/s with a front vehicle F.
+
+    Lane changers (left or right, crossing the lane boundary 0.5–2.5 s after t0) follow a slower F,
+    straight drivers a faster one. Labels: every step within ±2 s of the crossing is the lane change.
+    Each window is its own track, split 70/10/20 by track id; origins and headings are random.
+    """
+    rng = np.random.default_rng(seed)
+    speed = rng.uniform(20, 35, n)
+    side = np.where(rng.random(n) < lane_change_share, rng.choice([-1.0, 1.0], n), 0.0)
+    tc = rng.uniform(0.5, 2.5, n)
+    inputs = np.zeros((n, 4, 8, 30), np.float32)
+    present = np.zeros((n, 8, 30), bool)
+    inputs[:, 0, 4] = speed[:, None] * HIST_T
+    inputs[:, 1, 4] = _lateral(HIST_T, side, tc)
+    inputs[:, 2, 4] = speed[:, None]
+    present[:, 4] = True
+    f_speed = speed + np.where(side != 0, -6.0, 3.0)
+    gap = rng.uniform(25, 40, n)
+    inputs[:, 0, 1] = gap[:, None] + f_speed[:, None] * HIST_T
+    inputs[:, 2, 1] = f_speed[:, None]
+    present[:, 1] = True
+    future = np.stack([speed[:, None] * FUT_T, _lateral(FUT_T, side, tc)], axis=-1).astype(np.float32)
+    near = np.abs(FUT_T[None, :] - tc[:, None]) <= 2.0
+    maneuver = np.where(near & (side[:, None] > 0), 1, np.where(near & (side[:, None] < 0), 2, 0)).astype(
+        np.int64
+    )
+    ids = np.arange(n)
+    split = np.where(ids % 10 < 7, "train", np.where(ids % 10 < 8, "val", "test"))
+    index = pa.table(
+        {
+            "recording": pa.array(np.where(ids < n // 2, "syn-a", "syn-b")),
+            "track_id": pa.array(ids, pa.int64()),
+            "t0_ns": pa.array(np.full(n, 3_000_000_000), pa.int64()),
+            "split": pa.array(split),
+            "origin_x": pa.array(rng.uniform(-500, 500, n)),
+            "origin_y": pa.array(rng.uniform(-500, 500, n)),
+            "origin_heading": pa.array(rng.uniform(-np.pi, np.pi, n)),
+        }
+    )
+    return Windows(inputs, present, future, maneuver, index, {"sources": ["synthetic"]})
+
+
+@pytest.fixture(scope="module")
+def windows() -> Windows:
+    return synthetic_windows()
+
+
+def test_future_stats_by_hand() -> None:
+    future = np.array([[[1, 0]] * 5, [[3, 2]] * 5], np.float32)  # mean (2, 1); centred entries ±1
+    mean, std = future_stats(future)
+    np.testing.assert_allclose(mean, [[2, 1]] * 5)
+    assert std == pytest.approx(1.0)
+
+
+def test_regressor_loss_is_batch_rmse() -> None:
+    pred = torch.zeros(2, 5, 2)
+    true = torch.zeros(2, 5, 2)
+    true[0, :, 0] = 3.0
+    true[0, :, 1] = 4.0  # error 5 m on all steps of window 0, 0 on window 1
+    assert float(regressor_loss(pred, true)) == pytest.approx(np.sqrt(25 / 2))
+
+
+def test_labelled_skips_unknown_futures(windows: Windows) -> None:
+    w = Windows(
+        windows.inputs, windows.present, windows.future.copy(), windows.maneuver.copy(), windows.index
+    )
+    w.future[0, 3] = np.nan
+    w.maneuver[6, 0] = -1
+    train_idx = labelled(w, ("train",))
+    assert 0 not in train_idx and 6 not in train_idx and 1 in train_idx
+    assert len(train_idx) == 420 - 2
+
+
+def test_training_reduces_both_losses(windows: Windows) -> None:
+    result = train(windows, TrainConfig(epochs=6, batch_size=32, lr=2e-3, seed=1, threads=1))
+    first, last = result.history[0], result.history[-1]
+    assert last["train_nll"] < 0.6 * first["train_nll"]
+    assert last["train_rmse"] < 0.6 * first["train_rmse"]
+    assert last["val_nll"] < first["val_nll"] and last["val_rmse_m"] < first["val_rmse_m"]
+    best = result.card["training"]["best_epoch"]
+    assert best["regressor"] == 1 + int(np.argmin([h["val_rmse"] for h in result.history]))
+    assert best["classifier"] == 1 + int(np.argmin([h["val_nll"] for h in result.history]))
+    assert count_parameters(result.model) == 65_721
+
+
+def test_overfits_a_few_windows(windows: Windows) -> None:
+    few = Windows(
+        windows.inputs[:6],
+        windows.present[:6],
+        windows.future[:6],
+        windows.maneuver[:6],
+        windows.index.slice(0, 6).set_column(3, "split", pa.array(["train"] * 6)),
+    )
+    result = train(few, TrainConfig(epochs=250, batch_size=6, lr=3e-3, seed=0, threads=1))
+    assert result.card["training"]["selected_on"] == "train"  # no val windows: selection on train
+    assert result.history[-1]["train_nll"] < 0.05  # summed over 5 steps
+    assert result.history[0]["train_rmse"] * result.card["normalisation"]["future"]["std"] > 10.0  # m
+    pred = STCNNForecaster(result.model, result.card).predict(few.inputs, few.present)
+    np.testing.assert_array_equal(pred.maneuver, few.maneuver)
+    assert np.all(rmse(displacement_errors(pred.offsets, few.future)) < 0.4)  # m, offsets up to 175 m
+
+
+def test_seed_reproduces_weights(windows: Windows) -> None:
+    cfg = TrainConfig(epochs=2, batch_size=64, seed=7, threads=1)
+    a = train(windows, cfg).model.state_dict()
+    b = train(windows, cfg).model.state_dict()
+    c = train(windows, TrainConfig(epochs=2, batch_size=64, seed=8, threads=1)).model.state_dict()
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    assert not all(torch.equal(a[k], c[k]) for k in a)
+
+
+def test_save_load_predict_identical(windows: Windows, tmp_path) -> None:
+    result = train(windows, TrainConfig(epochs=1, batch_size=128, seed=3, threads=1))
+    card_path = save_checkpoint(result.model, result.card, tmp_path / "model")
+    card = json.loads(card_path.read_text())
+    assert card["architecture"]["parameters"] == {"classifier": 32_863, "regressor": 32_858, "total": 65_721}
+    assert card["format"] == "lanecast-stcnn" and "inputs" in card["normalisation"]
+    before = STCNNForecaster(result.model, result.card).predict(windows.inputs, windows.present, top_k=3)
+    net, loaded_card = load_checkpoint(tmp_path / "model")
+    after = STCNNForecaster(net, loaded_card).predict(windows.inputs, windows.present, top_k=3, batch_size=77)
+    for key in ("offsets", "probs", "maneuver", "top_sequences", "top_probs", "top_offsets"):
+        np.testing.assert_array_equal(getattr(before, key), getattr(after, key), err_msg=key)
+    assert resolve(tmp_path / "model") == (tmp_path / "model/stcnn.safetensors", card_path)
+
+
+def test_load_rejects_bad_files(tmp_path) -> None:
+    (tmp_path / "m").mkdir()
+    (tmp_path / "m/stcnn.json").write_text('{"format": "lanecast-stcnn", "format_version": 1}')
+    (tmp_path / "m/stcnn.safetensors").write_bytes(b"\x80\x04not safetensors")
+    with pytest.raises(InputError, match="architecture"):
+        load_checkpoint(tmp_path / "m")
+    with pytest.raises(InputError, match="expected one model"):
+        load_checkpoint(tmp_path)
+
+
+def test_forecaster_equals_the_plain_networks(windows: Windows) -> None:
+    """The fused, channels-last, batched path gives what classifier → argmax → regressor gives."""
+    from pipeline.normalise import compute_stats, normalise
+
+    torch.manual_seed(5)
+    model = STCNN().eval()
+    stats = compute_stats(windows.inputs, windows.present)
+    mean, std = future_stats(windows.future)
+    card = {"normalisation": {"inputs": stats.to_dict(), "future": {"mean": mean.tolist(), "std": std}}}
+    pred = STCNNForecaster(model, card).predict(windows.inputs, windows.present, top_k=2, batch_size=128)
+    with torch.no_grad():
+        logits, offsets = model(torch.from_numpy(normalise(windows.inputs, windows.present, stats)))
+    np.testing.assert_array_equal(pred.maneuver, logits.argmax(2).numpy())
+    np.testing.assert_allclose(pred.offsets, offsets.numpy() * std + mean, atol=1e-4)
+    assert pred.probs is not None
+    np.testing.assert_allclose(pred.probs, torch.softmax(logits, 2).numpy(), atol=1e-6)
+    np.testing.assert_allclose(pred.top_probs[:, 0], pred.probs.max(axis=2).prod(axis=1), rtol=1e-5)

@@ -1,0 +1,66 @@
+"""Forecasts for a track table (a library for the commands that predict, e.g. annotating drive logs).
+
+track table → windows without requiring a future (``pipeline.make_windows``) → ST-CNN in batches
+(``models.predict``) → one row per (track, t0) with the 5 future points in the source's own frame.
+This module is not a command: it has no ``register``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+
+#: Rate of the windows (Hz); ``every_s`` is converted to a stride in these frames.
+WINDOW_RATE_HZ = 10.0
+
+
+def forecast_windows(
+    windows: Any,
+    model_dir: Path | str | None = None,
+    *,
+    top_k: int = 3,
+    batch_size: int = 4096,
+    forecaster: Any = None,
+) -> pa.Table:
+    """Forecasts table for ready windows (see ``models.predict.forecasts_table`` for the columns)."""
+    from models.predict import STCNNForecaster, forecasts_table
+
+    forecaster = forecaster or STCNNForecaster.load(model_dir)
+    preds = forecaster.predict(windows.inputs, windows.present, top_k=top_k, batch_size=batch_size)
+    return forecasts_table(windows.index, preds)
+
+
+def forecast_table(
+    table: pa.Table,
+    model_dir: Path | str | None = None,
+    *,
+    every_s: float = 1.0,
+    top_k: int = 3,
+    batch_size: int = 4096,
+    t0_ns: np.ndarray | None = None,
+    forecaster: Any = None,
+) -> pa.Table:
+    """Forecast every target with 3 s of history, every ``every_s`` seconds of its track.
+
+    table: a track table (any rate, validated by make_windows). model_dir: a model directory or file
+    (None: the shipped model); ``forecaster`` (an already loaded ``STCNNForecaster`` or baseline)
+    takes precedence. ``t0_ns``: forecast only at these times instead.
+    Returns columns recording, track_id, t0_ns, horizon_s list[5] (s), x, y list[5] (m, source frame),
+    maneuver_probs list[5] of list[3] (straight, left, right), maneuver list[5] (0 straight, 1 left,
+    2 right), alt_probs list[K], alt_maneuvers list[K] of list[5], alt_x, alt_y list[K] of list[5]
+    (the K most probable maneuver sequences and their trajectories, most probable first).
+    An empty table (0 rows, same columns) when no target has 3 s of history.
+    """
+    from io_adapters.errors import InputError
+    from pipeline.make_windows import make_windows
+
+    stride = round(every_s * WINDOW_RATE_HZ)
+    if stride < 1:
+        raise InputError(None, f"every_s={every_s}", expected=f"at least {1 / WINDOW_RATE_HZ:g} s")
+    windows = make_windows(
+        table, stride=stride, require_future=False, split="none", t0_ns=t0_ns, allow_empty=True
+    )
+    return forecast_windows(windows, model_dir, top_k=top_k, batch_size=batch_size, forecaster=forecaster)

@@ -1,0 +1,108 @@
+"""`lanecast train`: train the ST-CNN's classifier and regressor on a windows dataset."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "train",
+        help="train the ST-CNN (classifier and regressor) on a windows dataset",
+        description=(
+            "Train the maneuver classifier (summed NLL) and the trajectory regressor (RMSE, ground-truth "
+            "maneuvers as input) separately with Adam on the 'train' split, validate on 'val' each "
+            "epoch and keep each network's best epoch. Writes MODEL_DIR/stcnn.safetensors and "
+            "stcnn.json (the card, with validation and test metrics). Hyper-parameters default to the "
+            "shipped model's; --config FILE (JSON, keys of models.train.TrainConfig) overrides them."
+        ),
+        epilog=(
+            "example:\n  lanecast train windows/ --out runs/model --epochs 20 --seed 1\n"
+            "  lanecast train windows/ --out runs/regonly --regression-only   # ablation: no maneuver input"
+        ),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument(
+        "windows", type=Path, metavar="WINDOWS", help="windows dataset directory (lanecast windows)"
+    )
+    p.add_argument("--out", type=Path, required=True, metavar="MODEL_DIR", help="where to write the model")
+    p.add_argument("--config", type=Path, metavar="FILE", help="training config, JSON")
+    p.add_argument("--epochs", type=int)
+    p.add_argument("--seed", type=int)
+    p.add_argument("--batch-size", type=int)
+    p.add_argument("--lr", type=float)
+    p.add_argument("--threads", type=int, help="CPU threads (default 2)")
+    p.add_argument("--device", help="auto (GPU when there is one), cpu, cuda, ...")
+    p.add_argument(
+        "--regression-only", action="store_true", help="regressor without maneuver input (ablation)"
+    )
+    p.set_defaults(func=run)
+
+
+def default_config() -> Any:
+    """The shipped model's training config (architecture and hyper-parameters), else the code defaults."""
+    from io_adapters.errors import InputError
+    from models.checkpoint import read_card, resolve
+    from models.train import TrainConfig
+
+    try:
+        card = read_card(resolve(None)[1])
+        return TrainConfig.from_dict(card["training"]["config"])
+    except (InputError, KeyError, ValueError, TypeError):
+        return TrainConfig()
+
+
+def train_and_save(windows_dir: Path, out: Path, config: Any, *, top_k: int = 3) -> dict[str, Any]:
+    """Train, evaluate on val and test (if present), save; return the card."""
+    from io_adapters.errors import InputError
+    from models.checkpoint import save_checkpoint
+    from models.predict import STCNNForecaster
+    from models.train import train
+    from pipeline.windows_data import load_windows
+    from workflows.evaluate import evaluate
+
+    windows = load_windows(windows_dir)
+    data = {
+        "windows": str(windows_dir),
+        "sources": windows.manifest.get("sources"),
+        "counts": windows.manifest.get("counts"),
+    }
+    result = train(windows, config, data_card=data)
+    forecaster = STCNNForecaster(result.model, result.card)
+    metrics: dict[str, Any] = {}
+    for name, splits in (("validation", ("val",)), ("test", ("test",))):
+        try:
+            metrics[name] = evaluate(windows, [forecaster], splits=splits, top_k=top_k)[0]["stcnn"]
+        except InputError:  # no labelled windows in that split
+            metrics[name] = None
+    card = {**result.card, "metrics": metrics}
+    save_checkpoint(result.model, card, out)
+    return card
+
+
+def run(args: argparse.Namespace) -> int:
+    from models.train import TrainConfig
+
+    config = TrainConfig.from_file(args.config) if args.config else default_config()
+    overrides = {k: getattr(args, k) for k in ("epochs", "seed", "batch_size", "lr", "threads", "device")}
+    config = dataclasses.replace(config, **{k: v for k, v in overrides.items() if v is not None})
+    if args.regression_only:
+        config = dataclasses.replace(config, model=dataclasses.replace(config.model, maneuver_input=False))
+    card = train_and_save(args.windows, args.out, config)
+    t = card["training"]
+    print(
+        f"trained {t['data']['train_windows']:,} windows x {config.epochs} epochs in {t['train_seconds']:.0f} s "
+        f"({t['train_samples_per_s']:,.0f} samples/s); best epochs {t['best_epoch']}"
+    )
+    for name, m in card["metrics"].items():
+        if m:
+            rmse = " ".join(f"{v:.2f}" for v in m["rmse"])
+            print(
+                f"  {name}: RMSE 1-5 s {rmse} m, maneuver accuracy {m['maneuver_accuracy']:.3f}, "
+                f"macro-F1 {m['maneuver_macro_f1']:.3f}"
+            )
+    print(f"wrote {args.out}/stcnn.safetensors and stcnn.json")
+    return 0
