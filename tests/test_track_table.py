@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -152,6 +153,12 @@ def test_atomic_path_leaves_nothing_on_failure(tmp_path: Path) -> None:
     with atomic_path(tmp_path / "dir", directory=True) as tmp_dir:
         (tmp_dir / "a").write_text("x")
     assert (tmp_path / "dir" / "a").read_text() == "x"
+    with atomic_path(tmp_path / "new.bin") as tmp:
+        tmp.write_bytes(b"new")
+    mask = os.umask(0)
+    os.umask(mask)
+    assert (tmp_path / "new.bin").stat().st_mode & 0o777 == 0o666 & ~mask
+    assert (tmp_path / "dir").stat().st_mode & 0o777 == 0o777 & ~mask
 
 
 def test_cli_reports_project_errors_as_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
