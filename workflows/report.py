@@ -261,7 +261,8 @@ def example_scenes(parts: list[dict[str, Any]], count: int) -> list[Any]:
             continue
         err5 = np.hypot(*(p["offsets"][:, -1] - p["future"][:, -1]).T)
         changing = np.flatnonzero((p["maneuver_pred"] > 0).any(axis=1) & (p["maneuver"] > 0).any(axis=1))
-        picks = [*changing[:2].tolist(), int(np.argmax(err5))]
+        _, first_of_track = np.unique(p["track_id"][changing], return_index=True)  # distinct vehicles
+        picks = [*changing[np.sort(first_of_track)][:2].tolist(), int(np.argmax(err5))]
         for i in dict.fromkeys(picks):
             cand = p["candidates"][i] if p["candidates"] is not None else p["offsets"][i][None]
             scenes.append(
