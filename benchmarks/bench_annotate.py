@@ -193,6 +193,8 @@ def main() -> None:
     ap.add_argument("--dir", type=Path, default=None, help="working directory (default: a temporary one)")
     ap.add_argument("--model", type=Path, default=None, help="model directory (default: the shipped model)")
     args = ap.parse_args()
+    if args.dir is not None:
+        args.dir.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=args.dir) as tmp:
         src = Path(tmp) / "drive.mcap"
         t = time.perf_counter()

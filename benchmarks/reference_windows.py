@@ -49,11 +49,10 @@ def lane_label(track: pd.DataFrame, frame: int) -> int:
     d = np.abs(frames[idx] - frame)
     i = int(idx[np.argmin(d)])  # ties: the earlier change
     before, after = max(i - 10, 0), min(i + 9, len(frames) - 1)
-    dx = track["x"].iloc[after] - track["x"].iloc[before]
+    # Lateral = +y of the road frame (highD and the simulator are road-aligned), not relative to
+    # the heading at the change, which during a lane change points across the lanes.
     dy = track["y"].iloc[after] - track["y"].iloc[before]
-    h = track["heading"].iloc[i]
-    lateral = -math.sin(h) * dx + math.cos(h) * dy
-    return 1 if lateral > 0 else (2 if lateral < 0 else 0)
+    return 1 if dy > 0 else (2 if dy < 0 else 0)
 
 
 def window(
