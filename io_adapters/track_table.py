@@ -177,22 +177,20 @@ def _in_order(rec: np.ndarray, track: np.ndarray, frame: np.ndarray) -> np.ndarr
 def sort_rows(table: pa.Table) -> pa.Table:
     """Sort rows by (recording, track_id, frame), keeping the schema and its metadata.
 
-    An already sorted table (every adapter that reads sorted sources) is returned as it is.
+    An already sorted table (every adapter that reads sorted sources) is returned as it is; one
+    whose recordings are each sorted but interleaved (highD's two directions) is put in order by a
+    stable sort of the recording codes alone; anything else gets a full sort.
     """
-    if (
-        table.num_rows < 2
-        or _in_order(
-            _recording_codes(table), table.column("track_id").to_numpy(), table.column("frame").to_numpy()
-        ).all()
-    ):
+    if table.num_rows < 2:
         return table
-    order = pc.sort_indices(
-        table.select(["recording", "track_id", "frame"]).cast(
-            pa.schema([("recording", pa.string()), ("track_id", pa.int64()), ("frame", pa.int64())])
-        ),
-        sort_keys=[("recording", "ascending"), ("track_id", "ascending"), ("frame", "ascending")],
-    )
-    return table.take(order)
+    rec = _recording_codes(table)
+    track, frame = table.column("track_id").to_numpy(), table.column("frame").to_numpy()
+    if _in_order(rec, track, frame).all():
+        return table
+    order = np.argsort(rec, kind="stable")
+    if not _in_order(rec[order], track[order], frame[order]).all():
+        order = np.lexsort((frame, track, rec))
+    return table.take(pa.array(order))
 
 
 def read_meta(table: pa.Table | pa.Schema) -> TableMeta:
