@@ -8,7 +8,14 @@
 4. Evaluate on the held-out recordings: ST-CNN, constant velocity, constant acceleration,
    regression-only; write the card (test metrics included), the weights, and a report.
 
-    .venv/bin/python benchmarks/train_shipped.py --work /tmp/lanecast-shipped
+    .venv/bin/python benchmarks/train_shipped.py --work /tmp/lanecast-shipped \
+        --class-weight-power 0.5 --select-classifier macro_f1      # the shipped weights (≈ 12 min)
+
+The shipped classifier goes beyond the paper (stated in the card, ``beyond_the_paper``): its NLL is
+weighted by (1/class frequency)**0.5 and its best epoch is chosen by validation macro-F1. With the
+paper's plain NLL (selected on NLL, or on macro-F1) its lane-change recall stayed at ~25–40 % per
+step, and on lane-change windows the maneuver-conditioned regressor, fed "straight", then did worse
+at 5 s than the regression-only ablation. Without the two flags the script trains the paper's loss.
 
 Simulations and windows are cached in --work (delete it to start from scratch); the same arguments
 give the same recordings and, on the same machine and thread count, the same weights.
@@ -81,6 +88,25 @@ def direction_agreement(windows: Any) -> float:
     return float(np.mean((d > 0) == (label[sel] == 1))) if sel.any() else float("nan")
 
 
+def deviations(config: Any) -> list[str]:
+    """What the shipped training does beyond the paper (for the card)."""
+    out = [
+        f"optimiser: Adam lr {config.lr:g}, batch {config.batch_size}, {config.epochs} epochs "
+        "(the paper: lr 7e-5, 300 epochs)"
+    ]
+    if config.class_weight_power > 0:
+        out.append(
+            f"classifier loss: NLL weighted per step by its true class, (1/frequency)**{config.class_weight_power:g} "
+            "normalised to mean 1 over the training steps (the paper: plain NLL); raises lane-change recall, "
+            "which the ~97 % straight steps otherwise suppress"
+        )
+    if config.select_classifier != "nll":
+        out.append(f"classifier's best epoch chosen by validation {config.select_classifier} (not NLL)")
+    if config.lr_schedule != "constant":
+        out.append(f"learning-rate schedule: {config.lr_schedule} decay to 0 over the run, both networks")
+    return out
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--work", type=Path, default=Path("/tmp/lanecast-shipped"))
@@ -90,6 +116,19 @@ def main() -> int:
     ap.add_argument("--lr", type=float, default=1e-3)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--threads", type=int, default=1, help="1: the 2 cores are shared here")
+    ap.add_argument(
+        "--class-weight-power",
+        type=float,
+        default=0.0,
+        help="classifier NLL weighted by (inverse class frequency)**POWER (0: the paper's plain NLL)",
+    )
+    ap.add_argument(
+        "--select-classifier",
+        choices=("nll", "macro_f1"),
+        default="nll",
+        help="the classifier's best epoch on validation by NLL (the paper) or macro-F1",
+    )
+    ap.add_argument("--lr-schedule", choices=("constant", "cosine"), default="constant")
     ap.add_argument("--jobs", type=int, default=2, help="simulations in parallel")
     args = ap.parse_args()
 
@@ -117,7 +156,14 @@ def main() -> int:
     )
 
     config = TrainConfig(
-        epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, seed=args.seed, threads=args.threads
+        epochs=args.epochs,
+        batch_size=args.batch_size,
+        lr=args.lr,
+        seed=args.seed,
+        threads=args.threads,
+        class_weight_power=args.class_weight_power,
+        select_classifier=args.select_classifier,
+        lr_schedule=args.lr_schedule,
     )
     data = {
         "kind": "SUMO simulated highway (io_adapters.sumo_highway), highD format, 3 lanes per direction",
@@ -162,6 +208,7 @@ def main() -> int:
             "test_always_straight": reference,
             "test_same_recordings": same,
         },
+        "beyond_the_paper": deviations(config),
         "reproduce": "python benchmarks/train_shipped.py " + " ".join(sys.argv[1:]),
     }
     card_path = save_checkpoint(result.model, card, args.out, SHIPPED_STEM)

@@ -1,12 +1,15 @@
 """Training of the two networks, separately as in the paper (no shared weights, one optimiser each).
 
 * classifier: Adam, loss = sum over the 5 steps of the negative log-likelihood (mean over the batch);
+  optionally class-weighted (``class_weight_power`` > 0, beyond the paper, see ``class_weights``);
 * regressor: Adam, loss = batch RMSE sqrt(mean over windows and steps of the squared Euclidean error),
   with the ground-truth maneuvers as its input.
 
 Both walk the same shuffled batches (each batch is read and normalised once for both networks) but
 they never see each other's gradients, so this equals training them one after the other. Each
-network keeps its best epoch on the validation split (classifier: NLL; regressor: RMSE).
+network keeps its best epoch on the validation split (regressor: RMSE; classifier: NLL, or with
+``select_classifier="macro_f1"`` the per-step macro-F1, which rewards lane-change recall that the
+NLL, dominated by the ~97 % straight steps, does not).
 
 Inputs are normalised with statistics from the training split (``pipeline.normalise``). Future
 offsets are normalised per model as (offset − mean[step, axis]) / std, one std for all steps and both
@@ -35,6 +38,36 @@ from io_adapters.progress import bar
 from models.checkpoint import torch_device
 from models.stcnn import STCNN, STCNNConfig
 
+#: classifier selection criterion → (history key, sign): the best epoch minimises sign * value
+SELECTION = {"nll": ("val_nll", 1.0), "macro_f1": ("val_macro_f1", -1.0)}
+
+
+def select_epoch(history: list[dict[str, Any]], criterion: str) -> int:
+    """The classifier's best epoch (1-based) in ``history`` by ``criterion``; the first one on ties."""
+    key, sign = SELECTION[criterion]
+    return 1 + int(np.argmin([sign * row[key] for row in history]))
+
+
+def class_weights(maneuver: np.ndarray, power: float, classes: int = 3) -> np.ndarray:
+    """Loss weight per class: maneuver int [N, 5] training labels → float32 [classes].
+
+    w_c ∝ (1 / frequency_c)**power, scaled so the mean weight over the training steps is 1 (the loss
+    keeps the plain NLL's scale). power 0 → all ones (plain NLL); 1 → fully balanced classes. An absent
+    class gets weight 0 (its count is 0, so it never occurs in the loss anyway).
+    """
+    counts = np.bincount(np.asarray(maneuver).ravel(), minlength=classes)[:classes].astype(np.float64)
+    freq = counts / max(counts.sum(), 1.0)
+    w = np.where(counts > 0, np.power(np.where(counts > 0, freq, 1.0), -power), 0.0)
+    return (w / max(float(np.sum(freq * w)), 1e-12)).astype(np.float32)
+
+
+def lr_factor(schedule: str, step: int, total: int) -> float:
+    """Learning-rate multiplier after ``step`` of ``total`` optimiser steps: 1 ("constant") or the
+    half cosine 0.5·(1 + cos(π·step/total)) from 1 down to 0 ("cosine")."""
+    if schedule == "constant":
+        return 1.0
+    return 0.5 * (1.0 + float(np.cos(np.pi * min(step, total) / max(total, 1))))
+
 
 @dataclass
 class TrainConfig:
@@ -46,7 +79,23 @@ class TrainConfig:
     seed: int = 0
     threads: int = 2
     device: str = "auto"
+    #: classifier loss weights (inverse class frequency)**power; 0 = the paper's plain NLL
+    class_weight_power: float = 0.0
+    #: classifier best-epoch criterion on validation: "nll" (lowest) or "macro_f1" (highest)
+    select_classifier: str = "nll"
+    #: learning rate over the run, both networks: "constant" (the paper) or "cosine" (lr → 0 at the end)
+    lr_schedule: str = "constant"
     model: STCNNConfig = field(default_factory=STCNNConfig)
+
+    def __post_init__(self) -> None:
+        if self.select_classifier not in SELECTION:
+            raise ValueError(
+                f"select_classifier must be one of {sorted(SELECTION)}, not {self.select_classifier!r}"
+            )
+        if self.lr_schedule not in ("constant", "cosine"):
+            raise ValueError(f"lr_schedule must be 'constant' or 'cosine', not {self.lr_schedule!r}")
+        if not self.class_weight_power >= 0:
+            raise ValueError(f"class_weight_power must be >= 0, not {self.class_weight_power}")
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -81,7 +130,7 @@ class TrainResult:
 
     model: STCNN
     card: dict[str, Any]
-    history: list[dict[str, float]]
+    history: list[dict[str, Any]]
 
 
 def labelled(windows: Any, splits: tuple[str, ...]) -> np.ndarray:
@@ -122,11 +171,17 @@ class _Batches:
         )
 
 
-def classifier_loss(logits: torch.Tensor, maneuver: torch.Tensor) -> torch.Tensor:
-    """Sum over steps of the NLL, mean over the batch: logits [B, 5, 3], maneuver [B, 5] → scalar."""
-    return F.cross_entropy(logits.reshape(-1, logits.shape[-1]), maneuver.reshape(-1), reduction="sum") / len(
-        logits
-    )
+def classifier_loss(
+    logits: torch.Tensor, maneuver: torch.Tensor, weight: torch.Tensor | None = None
+) -> torch.Tensor:
+    """Sum over steps of the NLL, mean over the batch: logits [B, 5, 3], maneuver [B, 5] → scalar.
+
+    ``weight`` float [3]: each step's NLL times the weight of its true class (not renormalised per
+    batch, so it is the same per-step criterion in every batch); None = plain NLL.
+    """
+    return F.cross_entropy(
+        logits.reshape(-1, logits.shape[-1]), maneuver.reshape(-1), weight=weight, reduction="sum"
+    ) / len(logits)
 
 
 def regressor_loss(pred: torch.Tensor, true: torch.Tensor) -> torch.Tensor:
@@ -137,21 +192,29 @@ def regressor_loss(pred: torch.Tensor, true: torch.Tensor) -> torch.Tensor:
 @torch.no_grad()
 def _validate(
     model: STCNN, batches: _Batches, idx: np.ndarray, device: torch.device, batch_size: int
-) -> dict[str, float]:
-    """Validation losses over ``idx``: NLL, accuracy, RMSE (normalised and in metres, GT maneuvers)."""
+) -> dict[str, Any]:
+    """Validation figures over ``idx``: plain NLL, accuracy, macro-F1 and recall per class (per step,
+    argmax), RMSE (normalised and in metres, GT maneuvers)."""
+    from models.metrics import confusion_matrix, macro_f1, precision_recall
+
     model.eval()
-    nll = sq = correct = 0.0
+    nll = sq = 0.0
+    classes = model.config.classes
+    conf = np.zeros((classes, classes), np.int64)
     for start in range(0, len(idx), batch_size):
         x, y, m = batches.get(idx[start : start + batch_size], device)
         logits = model.classifier(x)
         nll += float(classifier_loss(logits, m)) * len(x)
-        correct += float((logits.argmax(2) == m).float().sum())
+        conf += confusion_matrix(m.cpu().numpy(), logits.argmax(2).cpu().numpy(), classes)
         sq += float(torch.sum((model.regressor(x, m) - y) ** 2))
     n = max(len(idx), 1)
     rmse = float(np.sqrt(sq / (n * model.config.horizon)))
+    recall = np.nan_to_num(precision_recall(conf)[1])
     return {
         "val_nll": nll / n,
-        "val_accuracy": correct / (n * model.config.horizon),
+        "val_accuracy": float(np.trace(conf)) / (n * model.config.horizon),
+        "val_macro_f1": macro_f1(conf) if conf.sum() else 0.0,
+        "val_recall": [float(r) for r in recall],
         "val_rmse": rmse,
         "val_rmse_m": rmse * batches.std,
     }
@@ -188,6 +251,9 @@ def train(
     input_stats = compute_stats(windows.inputs[train_idx], windows.present[train_idx])
     future_mean, future_std = future_stats(windows.future[train_idx])
     batches = _Batches(windows, input_stats, future_mean, future_std)
+    train_counts = np.bincount(np.asarray(windows.maneuver[train_idx]).ravel(), minlength=3)
+    weights = class_weights(windows.maneuver[train_idx], config.class_weight_power, config.model.classes)
+    weight_t = torch.from_numpy(weights).to(device) if config.class_weight_power > 0 else None
     select_on = "val" if len(val_idx) else "train"
     check_idx = val_idx if len(val_idx) else train_idx
 
@@ -198,9 +264,15 @@ def train(
     train_classifier = classifier_from is None
     opt_c = torch.optim.Adam(model.classifier.parameters(), lr=config.lr)
     opt_r = torch.optim.Adam(model.regressor.parameters(), lr=config.lr)
+    total_steps = config.epochs * -(-len(train_idx) // config.batch_size)
+    schedules = [
+        torch.optim.lr_scheduler.LambdaLR(opt, lambda step: lr_factor(config.lr_schedule, step, total_steps))
+        for opt in ((opt_c, opt_r) if train_classifier else (opt_r,))
+    ]
+    sel_key, sel_sign = SELECTION[config.select_classifier]
     best_c = (float("inf"), 0, copy.deepcopy(model.classifier.state_dict()))
     best_r = (float("inf"), 0, copy.deepcopy(model.regressor.state_dict()))
-    history: list[dict[str, float]] = []
+    history: list[dict[str, Any]] = []
     n_batches = -(-len(train_idx) // config.batch_size)
     train_seconds = 0.0
     progress = bar(desc="train", total=config.epochs * n_batches, unit="batch")
@@ -212,17 +284,19 @@ def train(
         for b in range(n_batches):
             x, y, m = batches.get(perm[b * config.batch_size : (b + 1) * config.batch_size], device)
             if train_classifier:
-                loss_c = classifier_loss(model.classifier(x), m)
+                loss_c = classifier_loss(model.classifier(x), m, weight_t)
                 opt_c.zero_grad(set_to_none=True)
                 loss_c.backward()
                 opt_c.step()
             else:
                 with torch.no_grad():
-                    loss_c = classifier_loss(model.classifier(x), m)
+                    loss_c = classifier_loss(model.classifier(x), m, weight_t)
             loss_r = regressor_loss(model.regressor(x, m), y)
             opt_r.zero_grad(set_to_none=True)
             loss_r.backward()
             opt_r.step()
+            for schedule in schedules:
+                schedule.step()
             sum_c += loss_c.item() * len(x)
             sum_r += loss_r.item() ** 2 * len(x)
             progress.update(1)
@@ -232,7 +306,7 @@ def train(
         val = _validate(model, batches, check_idx, device, 4096)
         row = {
             "epoch": epoch,
-            "train_nll": sum_c / len(train_idx),
+            "train_nll": sum_c / len(train_idx),  # the training loss (weighted when configured)
             "train_rmse": float(np.sqrt(sum_r / len(train_idx))),
             **val,
         }
@@ -240,8 +314,9 @@ def train(
         progress.set_postfix(
             epoch=epoch, val_nll=f"{val['val_nll']:.3f}", val_rmse_m=f"{val['val_rmse_m']:.3f}"
         )
-        if train_classifier and val["val_nll"] < best_c[0]:
-            best_c = (val["val_nll"], epoch, copy.deepcopy(model.classifier.state_dict()))
+        score = sel_sign * float(val[sel_key])
+        if train_classifier and score < best_c[0]:  # strict: the first best epoch, as select_epoch
+            best_c = (score, epoch, copy.deepcopy(model.classifier.state_dict()))
         if val["val_rmse"] < best_r[0]:
             best_r = (val["val_rmse"], epoch, copy.deepcopy(model.regressor.state_dict()))
     progress.close()
@@ -261,11 +336,16 @@ def train(
                 **(data_card or {}),
                 "train_windows": len(train_idx),
                 "val_windows": len(val_idx),
-                "train_maneuver_counts": np.bincount(
-                    np.asarray(windows.maneuver[train_idx]).ravel(), minlength=3
-                ).tolist(),
+                "train_maneuver_counts": train_counts.tolist(),
             },
+            "classifier_loss": (
+                "sum over steps of the NLL (the paper's)"
+                if weight_t is None
+                else f"class-weighted NLL, weights (straight, left, right) {[round(float(w), 4) for w in weights]}"
+                f" = inverse frequency ** {config.class_weight_power:g}, mean 1 over training steps (beyond the paper)"
+            ),
             "selected_on": select_on,
+            "classifier_selected_by": sel_key,
             "best_epoch": {"classifier": best_c[1] if train_classifier else "copied", "regressor": best_r[1]},
             "train_seconds": round(train_seconds, 2),
             "train_samples_per_s": round(len(train_idx) * config.epochs / max(train_seconds, 1e-9), 1),

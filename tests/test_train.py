@@ -15,7 +15,17 @@ from models.checkpoint import load_checkpoint, resolve, save_checkpoint
 from models.metrics import displacement_errors, rmse
 from models.predict import STCNNForecaster
 from models.stcnn import STCNN, count_parameters
-from models.train import TrainConfig, future_stats, labelled, regressor_loss, train
+from models.train import (
+    TrainConfig,
+    class_weights,
+    classifier_loss,
+    future_stats,
+    labelled,
+    lr_factor,
+    regressor_loss,
+    select_epoch,
+    train,
+)
 from pipeline.windows_data import Windows
 
 LANE = 3.75
@@ -93,6 +103,93 @@ def test_regressor_loss_is_batch_rmse() -> None:
     assert float(regressor_loss(pred, true)) == pytest.approx(np.sqrt(25 / 2))
 
 
+def test_class_weights_by_hand() -> None:
+    maneuver = np.array([[0, 0, 0, 1, 1], [0, 0, 0, 1, 2]])  # counts 6, 3, 1 → frequencies .6, .3, .1
+    # power 1: ∝ (1/.6, 1/.3, 1/.1); mean over steps .6·5/3 + .3·10/3 + .1·10 = 3 → divide by 3
+    np.testing.assert_allclose(class_weights(maneuver, 1.0), [5 / 9, 10 / 9, 10 / 3], rtol=1e-6)
+    # power .5: ∝ (.6, .3, .1)**-.5; mean .6**.5 + .3**.5 + .1**.5
+    raw = np.array([0.6, 0.3, 0.1]) ** -0.5
+    np.testing.assert_allclose(
+        class_weights(maneuver, 0.5), raw / (0.6**0.5 + 0.3**0.5 + 0.1**0.5), rtol=1e-6
+    )
+    np.testing.assert_array_equal(class_weights(maneuver, 0.0), [1, 1, 1])
+    np.testing.assert_allclose(class_weights(np.array([[0, 0, 1]]), 1.0), [0.75, 1.5, 0.0])  # no right
+
+
+def test_weighted_nll_by_hand() -> None:
+    logits = torch.zeros(2, 5, 3)
+    logits[0, :, 1] = np.log(2.0)  # window 0: p = (1/4, 1/2, 1/4) on every step
+    maneuver = torch.tensor([[0, 0, 0, 1, 2], [0, 0, 0, 0, 0]])  # window 1: p = 1/3 everywhere
+    weight = torch.tensor([0.5, 2.0, 4.0])
+    w0 = 3 * 0.5 * np.log(4) + 2.0 * np.log(2) + 4.0 * np.log(4)
+    w1 = 5 * 0.5 * np.log(3)
+    assert float(classifier_loss(logits, maneuver, weight)) == pytest.approx((w0 + w1) / 2, rel=1e-6)
+    plain = (4 * np.log(4) + np.log(2) + 5 * np.log(3)) / 2
+    assert float(classifier_loss(logits, maneuver)) == pytest.approx(plain, rel=1e-6)
+    assert float(classifier_loss(logits, maneuver, torch.ones(3))) == pytest.approx(plain, rel=1e-6)
+
+
+def test_select_epoch_on_constructed_history() -> None:
+    history = [
+        {"epoch": 1, "val_nll": 0.70, "val_macro_f1": 0.50},
+        {"epoch": 2, "val_nll": 0.55, "val_macro_f1": 0.58},  # lowest NLL
+        {"epoch": 3, "val_nll": 0.60, "val_macro_f1": 0.66},  # highest macro-F1 (first of the tie)
+        {"epoch": 4, "val_nll": 0.80, "val_macro_f1": 0.66},
+    ]
+    assert select_epoch(history, "nll") == 2
+    assert select_epoch(history, "macro_f1") == 3
+    with pytest.raises(ValueError, match="select_classifier"):
+        TrainConfig(select_classifier="accuracy")
+    with pytest.raises(ValueError, match="class_weight_power"):
+        TrainConfig(class_weight_power=-1.0)
+    old = TrainConfig.from_dict({"epochs": 3})  # cards from before the options: the paper's plain NLL
+    assert old.class_weight_power == 0.0 and old.select_classifier == "nll"
+
+
+def test_weighted_loss_and_macro_f1_selection(windows: Windows) -> None:
+    cfg = TrainConfig(epochs=4, batch_size=32, lr=2e-3, seed=1, threads=1)
+    plain = train(windows, cfg)
+    weighted_cfg = TrainConfig(
+        epochs=4,
+        batch_size=32,
+        lr=2e-3,
+        seed=1,
+        threads=1,
+        class_weight_power=1.0,
+        select_classifier="macro_f1",
+    )
+    weighted = train(windows, weighted_cfg)
+    t = weighted.card["training"]
+    assert t["best_epoch"]["classifier"] == select_epoch(weighted.history, "macro_f1")
+    assert t["classifier_selected_by"] == "val_macro_f1" and "beyond the paper" in t["classifier_loss"]
+    assert plain.card["training"]["classifier_loss"].startswith("sum over steps of the NLL")
+    assert TrainConfig.from_dict(t["config"]) == weighted_cfg
+    # the regressor does not depend on the classifier's loss: same batches, same weights
+    a, b = plain.model.regressor.state_dict(), weighted.model.regressor.state_dict()
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    assert not torch.equal(plain.model.classifier.fc2.weight, weighted.model.classifier.fc2.weight)
+    for row in weighted.history:
+        assert 0.0 <= row["val_macro_f1"] <= 1.0 and len(row["val_recall"]) == 3
+
+
+def test_lr_schedules() -> None:
+    assert [lr_factor("constant", s, 100) for s in (0, 50, 100)] == [1.0, 1.0, 1.0]
+    assert [lr_factor("cosine", s, 100) for s in (0, 50, 100, 120)] == pytest.approx([1.0, 0.5, 0.0, 0.0])
+    assert lr_factor("cosine", 25, 100) == pytest.approx(0.5 * (1 + np.sqrt(0.5)))
+    with pytest.raises(ValueError, match="lr_schedule"):
+        TrainConfig(lr_schedule="step")
+
+
+def test_cosine_schedule_is_applied(windows: Windows) -> None:
+    """Same seed and batches: the cosine run differs from the constant one (only the lr differs)."""
+    cosine = TrainConfig(epochs=2, batch_size=64, seed=2, threads=1, lr_schedule="cosine")
+    a = train(windows, cosine)
+    b = train(windows, TrainConfig(epochs=2, batch_size=64, seed=2, threads=1))
+    assert not torch.equal(a.model.regressor.fc2.weight, b.model.regressor.fc2.weight)
+    assert not torch.equal(a.model.classifier.fc2.weight, b.model.classifier.fc2.weight)
+    assert TrainConfig.from_dict(a.card["training"]["config"]) == cosine
+
+
 def test_labelled_skips_unknown_futures(windows: Windows) -> None:
     w = Windows(
         windows.inputs, windows.present, windows.future.copy(), windows.maneuver.copy(), windows.index
@@ -112,7 +209,7 @@ def test_training_reduces_both_losses(windows: Windows) -> None:
     assert last["val_nll"] < first["val_nll"] and last["val_rmse_m"] < first["val_rmse_m"]
     best = result.card["training"]["best_epoch"]
     assert best["regressor"] == 1 + int(np.argmin([h["val_rmse"] for h in result.history]))
-    assert best["classifier"] == 1 + int(np.argmin([h["val_nll"] for h in result.history]))
+    assert best["classifier"] == 1 + int(np.argmin([h["val_nll"] for h in result.history]))  # default: NLL
     assert count_parameters(result.model) == 65_721
 
 
