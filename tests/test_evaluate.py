@@ -60,6 +60,10 @@ def trained(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, Path]
                 "64",
                 "--lr",
                 "2e-3",
+                "--class-weight-power",
+                "0",
+                "--select-classifier",
+                "nll",
             ]
         )
         == 0
@@ -87,6 +91,15 @@ def test_train_command_writes_a_complete_card(trained: tuple[Path, Path, Path]) 
     _, model_dir, regonly = trained
     card = json.loads((model_dir / "stcnn.json").read_text())
     assert card["training"]["config"]["epochs"] == 3 and card["training"]["config"]["seed"] == 1
+    # The flags select the paper's plain NLL and NLL-based epoch choice over the shipped defaults.
+    assert card["training"]["config"]["class_weight_power"] == 0.0
+    assert card["training"]["config"]["select_classifier"] == "nll"
+    assert (
+        json.loads((model_dir.parent / "regonly" / "stcnn.json").read_text())["training"]["config"][
+            "class_weight_power"
+        ]
+        == 0.5
+    )  # no flag: the shipped model's default
     assert len(card["training"]["history"]) == 3
     assert card["training"]["data"]["train_windows"] == 350  # 70 % of 500 tracks, one window each
     assert card["metrics"]["test"]["n_windows"] == 100 and card["metrics"]["validation"]["n_windows"] == 50
