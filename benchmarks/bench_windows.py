@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import os
 import resource
+import statistics
 import sys
 import tempfile
 import time
@@ -85,6 +86,18 @@ def main() -> int:
                 f"neighbours {t['neighbours_s']:.2f}, labels+tensors {t['windows_s']:.2f}"
             )
             del w
+        # Steady state: repeated calls, each result freed before the next (what a batch job sees).
+        samples, n = [], 0
+        for _ in range(7 if stride == 10 else 3):
+            w, wall, _ = timed(make_windows, table, stride=stride)
+            n = len(w)
+            del w
+            samples.append(wall)
+        mid = statistics.median(samples)
+        print(
+            f"make_windows stride {stride:>2} (steady, median of {len(samples)}): {n:,} windows in {mid:.2f} s "
+            f"= {n / mid:,.0f} windows/s wall (best {n / min(samples):,.0f})"
+        )
     # The tensor stage alone (gather of the stride-1 windows), prepared once.
     cols = nb_mod.columns(resample(table))
     nb_rows = nb_mod.neighbour_rows(resample(table), cols).rows
