@@ -101,27 +101,22 @@ class _IdWriter(Writer):
 
     def put_schema(self, schema: Schema) -> bool:
         """Register ``schema`` under its own id; False if that id is already registered identically."""
-        schemas: dict[int, Schema] = self._private("schemas")
-        if schema.id in schemas:
-            if schemas[schema.id] != schema:
-                raise ValueError(f"schema id {schema.id} is defined twice with different content")
-            return False
-        schemas[schema.id] = schema
-        self._private("statistics").schema_count += 1
-        self._private("chunk_builder").add_schema(schema)
-        self._maybe_finalize()
-        return True
+        return self._put("schema", schema, self._private("chunk_builder").add_schema)
 
     def put_channel(self, channel: Channel) -> bool:
         """Register ``channel`` under its own id; False if that id is already registered identically."""
-        channels: dict[int, Channel] = self._private("channels")
-        if channel.id in channels:
-            if channels[channel.id] != channel:
-                raise ValueError(f"channel id {channel.id} is defined twice with different content")
+        return self._put("channel", channel, self._private("chunk_builder").add_channel)
+
+    def _put(self, kind: str, record: Any, add_to_chunk: Any) -> bool:
+        table: dict[int, Any] = self._private(f"{kind}s")
+        if record.id in table:
+            if table[record.id] != record:
+                raise ValueError(f"{kind} id {record.id} is defined twice with different content")
             return False
-        channels[channel.id] = channel
-        self._private("statistics").channel_count += 1
-        self._private("chunk_builder").add_channel(channel)
+        table[record.id] = record
+        statistics = self._private("statistics")
+        setattr(statistics, f"{kind}_count", getattr(statistics, f"{kind}_count") + 1)
+        add_to_chunk(record)
         self._maybe_finalize()
         return True
 
