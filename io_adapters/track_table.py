@@ -183,7 +183,7 @@ def sort_rows(table: pa.Table) -> pa.Table:
     """
     if table.num_rows < 2:
         return table
-    rec = _recording_codes(table)
+    rec = recording_codes(table)[1]
     track, frame = table.column("track_id").to_numpy(), table.column("frame").to_numpy()
     if _in_order(rec, track, frame).all():
         return table
@@ -246,7 +246,7 @@ def validate(table: pa.Table, source: str | Path | None = None) -> None:
             raise TrackTableError(
                 f"{where}row {row}: column {name!r} is {values[row]}, expected a finite number"
             )
-    rec_codes = _recording_codes(table)
+    rec_codes = recording_codes(table)[1]
     track = table.column("track_id").to_numpy()
     frame = table.column("frame").to_numpy()
     time = table.column("time_ns").to_numpy()
@@ -275,19 +275,24 @@ def _first(mask: pa.ChunkedArray | pa.Array) -> int:
     return int(np.flatnonzero(np.asarray(mask))[0])
 
 
-def _recording_codes(table: pa.Table) -> np.ndarray:
-    """Recording names as integers ordered like the names (for vectorised sort checks).
-
-    Works on the dictionary's indices, so its cost does not depend on the number of rows' strings.
-    """
-    column = table.column("recording").combine_chunks()
-    if not pa.types.is_dictionary(column.type):
-        column = pc.dictionary_encode(column)
-    if len(column.dictionary) == 0:
-        return np.zeros(len(column), dtype=np.int64)
-    # np.unique sorts the names and gives equal names (a non-unified dictionary) equal codes.
-    _, rank = np.unique(np.asarray(column.dictionary.to_pylist(), dtype=object), return_inverse=True)
-    return np.asarray(rank).reshape(-1)[column.indices.to_numpy(zero_copy_only=False)]
+def recording_codes(table: pa.Table) -> tuple[np.ndarray, np.ndarray]:
+    """(sorted names str [R] of the recordings that have rows, code of each row int64 [n]) via the
+    dictionary encoding, without touching a string per row."""
+    col = table.column("recording")
+    if not pa.types.is_dictionary(col.type):
+        col = pc.dictionary_encode(col)
+    chunk_names = [np.asarray(c.dictionary.to_pylist(), dtype=object).astype(str) for c in col.chunks]
+    all_names = np.concatenate(chunk_names) if chunk_names else np.zeros(0, dtype=str)
+    names, inv = np.unique(all_names, return_inverse=True)
+    parts, offset = [], 0
+    for c, dnames in zip(col.chunks, chunk_names, strict=True):
+        parts.append(inv[offset + c.indices.to_numpy(zero_copy_only=False).astype(np.int64)])
+        offset += dnames.size
+    codes = np.concatenate(parts) if parts else np.zeros(0, dtype=np.int64)
+    # only the recordings that have rows (a slice keeps its parent's whole dictionary)
+    used = np.bincount(codes, minlength=names.size) > 0
+    codes = (np.cumsum(used) - 1)[codes]
+    return names[used].astype(str), codes.astype(np.int64)
 
 
 def track_boundaries(table: pa.Table) -> np.ndarray:
@@ -298,7 +303,7 @@ def track_boundaries(table: pa.Table) -> np.ndarray:
     n = table.num_rows
     if n == 0:
         return np.zeros(1, dtype=np.int64)
-    codes = _recording_codes(table)
+    codes = recording_codes(table)[1]
     track = table.column("track_id").to_numpy()
     change = np.flatnonzero((codes[1:] != codes[:-1]) | (track[1:] != track[:-1])) + 1
     return np.concatenate([[0], change, [n]]).astype(np.int64)

@@ -116,7 +116,7 @@ def make_windows(
         for k, v in p.timings.items():
             timings[k] += v
     # Splits are per track of the whole input, then inherited by every window of the track.
-    all_names, all_codes = nb_mod.recording_codes(table)
+    all_names, all_codes = track_table.recording_codes(table)
     inputs = _concat(batch_inputs, (0, 4, len(ROWS), HISTORY), np.float32)  # no copy for one batch
     present = _concat(batch_present, (0, len(ROWS), HISTORY), np.bool_)
     future = _concat([p.arrays.future for p in parts], (0, HORIZONS, 2), np.float32)
@@ -199,7 +199,7 @@ class _Part:
 def recording_groups(table: pa.Table, max_rows: int) -> list[tuple[int, int]]:
     """Contiguous row ranges [lo, hi) of whole recordings, each at most ``max_rows`` rows unless
     one recording alone is larger. The table is sorted by recording."""
-    _, codes = nb_mod.recording_codes(table)
+    _, codes = track_table.recording_codes(table)
     if codes.size == 0:
         return []
     bounds = np.r_[0, np.flatnonzero(codes[1:] != codes[:-1]) + 1, codes.size]

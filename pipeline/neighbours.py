@@ -78,30 +78,10 @@ class Columns:
         return int(self.track.size)
 
 
-def recording_codes(table: pa.Table) -> tuple[np.ndarray, np.ndarray]:
-    """(sorted names str [R] of the recordings that have rows, code of each row int64 [n]) via the
-    dictionary encoding, without touching a string per row."""
-    col = table.column("recording")
-    if not pa.types.is_dictionary(col.type):
-        col = pc.dictionary_encode(col)
-    chunk_names = [np.asarray(c.dictionary.to_pylist(), dtype=object).astype(str) for c in col.chunks]
-    all_names = np.concatenate(chunk_names) if chunk_names else np.zeros(0, dtype=str)
-    names, inv = np.unique(all_names, return_inverse=True)
-    parts, offset = [], 0
-    for c, dnames in zip(col.chunks, chunk_names, strict=True):
-        parts.append(inv[offset + c.indices.to_numpy(zero_copy_only=False).astype(np.int64)])
-        offset += dnames.size
-    codes = np.concatenate(parts) if parts else np.zeros(0, dtype=np.int64)
-    # only the recordings that have rows (a slice keeps its parent's whole dictionary)
-    used = np.bincount(codes, minlength=names.size) > 0
-    codes = (np.cumsum(used) - 1)[codes]
-    return names[used].astype(str), codes.astype(np.int64)
-
-
 def columns(table: pa.Table) -> Columns:
     """Pull the stage columns out of a (sorted, validated) track table."""
     meta = track_table.read_meta(table)
-    names, rec = recording_codes(table)
+    names, rec = track_table.recording_codes(table)
     lane_col = table.column("lane_id")
 
     def f64(name: str) -> np.ndarray:

@@ -19,7 +19,6 @@ import pyarrow as pa
 
 from io_adapters import track_table
 from io_adapters.errors import TrackTableError
-from pipeline.neighbours import recording_codes
 
 RATE_HZ = 10.0
 GAP_FACTOR = 1.5
@@ -94,7 +93,7 @@ def resample(table: pa.Table, rate_hz: float = RATE_HZ, gap_factor: float = GAP_
     """
     meta = track_table.read_meta(table)
     step = step_ns(rate_hz)
-    uniq, rec_code = recording_codes(table)
+    uniq, rec_code = track_table.recording_codes(table)
     missing = [name for name in uniq if name not in meta.recordings]
     if missing:
         raise TrackTableError(f"recordings {missing} have no entry in the table metadata")
