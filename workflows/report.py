@@ -156,14 +156,14 @@ def match(fc: LogForecasts, index: pa.Table) -> tuple[np.ndarray, np.ndarray]:
     """Pairs (forecast row, window row) with the same recording, track and 10 Hz forecast time."""
     win_rec = index.column("recording").to_numpy(zero_copy_only=False).astype(str)
     fc_rec = fc.recording.astype(str)
-    if not set(fc_rec) <= set(win_rec) and len(set(fc_rec)) == len(set(win_rec)) == 1:
-        fc_rec = np.full(fc_rec.size, win_rec[0])  # one recording, named after another file stem
-    names = {n: i for i, n in enumerate(sorted(set(win_rec) | set(fc_rec)))}
+    fc_names, win_names = np.unique(fc_rec), np.unique(win_rec)
+    if not np.isin(fc_names, win_names).all() and fc_names.size == win_names.size == 1:
+        fc_rec = np.full(fc_rec.size, win_names[0])  # one recording, named after another file stem
+    names = np.union1d(fc_names, win_names)
 
     def keys(rec: np.ndarray, track: np.ndarray, t0: np.ndarray) -> np.ndarray:
-        code = np.array([names[r] for r in rec], dtype=np.int64) if rec.size else np.zeros(0, np.int64)
         frame = (t0 + STEP_NS // 2) // STEP_NS
-        return np.stack([code, track, frame], axis=1)
+        return np.stack([np.searchsorted(names, rec).astype(np.int64), track, frame], axis=1)
 
     a = keys(fc_rec, fc.track_id, fc.t0_ns)
     b = keys(win_rec, index.column("track_id").to_numpy(), index.column("t0_ns").to_numpy())
