@@ -56,10 +56,10 @@ def run(args: argparse.Namespace) -> int:
         options["topic"] = args.topic
     if args.salvage:
         options["salvage"] = True
-    table = registry.read_any(args.inputs, fmt=args.format, **options)
-    fmt = output_format(args.out, args.to)
     if args.out.resolve() in {Path(p).resolve() for p in args.inputs}:
         raise InputError(args.out, "the output would overwrite an input", expected="a new output path")
+    table = registry.read_any(args.inputs, fmt=args.format, **options)
+    fmt = output_format(args.out, args.to)
     path = registry.write_any(table, args.out, fmt)
     n_tracks = len(track_table.track_boundaries(table)) - 1
     print(
