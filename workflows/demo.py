@@ -83,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
     from workflows import report
 
     report_dir = out / "report"
-    status = report.run(argparse.Namespace(paths=[annotated_dir], out=report_dir, topic=None, examples=4))
+    status = report.report_logs([annotated_dir], report_dir)
     step(
         f"done. Open {annotated[0] if annotated else annotated_dir} in Foxglove; the report is {report_dir / 'report.html'}"
     )

@@ -296,13 +296,21 @@ def write(directory: Path, metrics: dict[str, Any], meta: dict[str, Any], scenes
 
 
 def run(args: argparse.Namespace) -> int:
+    return report_logs(args.paths, args.out, topic=args.topic, examples=args.examples)
+
+
+def report_logs(paths: list[Path], out: Path, *, topic: str | None = None, examples: int = 4) -> int:
+    """Score every annotated log in ``paths`` and write the reports into ``out``; print a summary.
+
+    Returns 0, or 1 when some log could not be scored (it is named; the others are reported).
+    """
     from io_adapters.progress import progress
 
-    logs = annotated_logs(args.paths)
+    logs = annotated_logs(paths)
     parts, failed = [], []
     for log in progress(logs, desc="report", total=len(logs), unit="log"):
         try:
-            part = score_log(log, args.topic)
+            part = score_log(log, topic)
         except InputError as exc:
             failed.append(f"{log}: {exc}")
             continue
@@ -311,13 +319,11 @@ def run(args: argparse.Namespace) -> int:
             continue
         parts.append(part)
         meta = {"log": str(log), "forecasts": part["n_forecasts"], "scored": len(part["future"])}
-        write(args.out / "logs" / log.stem, metrics_of([part]), meta, [])
+        write(out / "logs" / log.stem, metrics_of([part]), meta, [])
     for line in failed:
         print(f"skipped {line}")
     if not parts:
-        raise InputError(
-            args.paths[0], "no log could be scored", expected="annotated logs with recorded futures"
-        )
+        raise InputError(paths[0], "no log could be scored", expected="annotated logs with recorded futures")
     metrics = metrics_of(parts)
     meta = {
         "logs": len(parts),
@@ -326,7 +332,7 @@ def run(args: argparse.Namespace) -> int:
         "ground_truth": "each target's recorded position at t0 + 1..5 s, in its window frame",
         "rmse": "per forecast (window); rmse_per_vehicle averages each vehicle's squared errors first",
     }
-    html = write(args.out, metrics, meta, example_scenes(parts, args.examples))
+    html = write(out, metrics, meta, example_scenes(parts, examples))
     m = metrics["stcnn"]
     rmse = " ".join(f"{v:.2f}" if v is not None else "-" for v in m["rmse"])
     cv = " ".join(f"{v:.2f}" if v is not None else "-" for v in metrics["cv"]["rmse"])
