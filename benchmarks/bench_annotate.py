@@ -2,11 +2,11 @@
 
 Builds a synthetic drive log of about ``--size-mb`` MB: highway traffic as a SceneUpdate tracks topic
 (written by ``registry.write_any(..., "mcap")``) plus a camera-like topic of incompressible
-``--frame-kb`` KB payloads at 10 Hz (merged in with ``io_adapters.mcap_copy``). Then, each in its own
+``--frame-kb`` KB payloads at 10 Hz (merged in with ``lanecast.io_adapters.annotations.mcap_copy``). Then, each in its own
 process (so that peak RSS is per task):
 
 - plain copy: every record streamed into a new MCAP (``copy_mcap`` with nothing to merge);
-- annotate: ``workflows.annotate.annotate_log`` (pass 1 tracks, the model, pass 2 copy + merge).
+- annotate: ``lanecast.workflows.annotate.annotate_log`` (pass 1 tracks, the model, pass 2 copy + merge).
 
 Printed: MB of log per second for both, annotation excluding model time, the model's share, and
 peak RSS. Goals: annotate (excluding model) >= 0.5 x plain copy; peak RSS < 1.5 GB for a 1 GB log.
@@ -36,7 +36,7 @@ S = 1_000_000_000
 
 def synthetic_tracks(duration_s: float, vehicles: int, rate: float = 10.0, seed: int = 0) -> pa.Table:
     """``vehicles`` highway vehicles at a time on 3 lanes; each drives 60 s, a third change lane once."""
-    from io_adapters.track_table import RecordingMeta, TableMeta, build_table
+    from lanecast.io_adapters.contracts.track_table import RecordingMeta, TableMeta, build_table
 
     rng = np.random.default_rng(seed)
     life = 60.0
@@ -78,9 +78,9 @@ def synthetic_tracks(duration_s: float, vehicles: int, rate: float = 10.0, seed:
 
 def build_log(path: Path, size_mb: float, frame_kb: float, vehicles: int) -> float:
     """Write the benchmark log; return its duration (s)."""
-    from io_adapters import registry
-    from io_adapters.forecast_messages import ChannelSpec
-    from io_adapters.mcap_copy import copy_mcap
+    from lanecast.io_adapters import registry
+    from lanecast.io_adapters.annotations.forecast_messages import ChannelSpec
+    from lanecast.io_adapters.annotations.mcap_copy import copy_mcap
 
     frames = int(size_mb * 1024 / frame_kb)
     duration = frames / 10.0
@@ -104,7 +104,7 @@ def _peak_mb() -> float:
 
 
 def _plain(src: str, out: str) -> dict[str, Any]:
-    from io_adapters.mcap_copy import copy_mcap
+    from lanecast.io_adapters.annotations.mcap_copy import copy_mcap
 
     t = time.perf_counter()
     with open(out, "wb") as f:
@@ -115,7 +115,7 @@ def _plain(src: str, out: str) -> dict[str, Any]:
 def _annotate(
     src: str, out: str, synthetic: bool, duration: float, vehicles: int, model: str | None
 ) -> dict[str, Any]:
-    from workflows.annotate import AnnotateOptions, annotate_log
+    from lanecast.workflows.annotate import AnnotateOptions, annotate_log
 
     forecasts = None
     if synthetic:
@@ -159,13 +159,13 @@ def synthetic_forecasts(duration: float, vehicles: int) -> pa.Table:
 
 def model_for_timing(directory: Path) -> Path | None:
     """The shipped model if there is one, else an untrained seeded ST-CNN (same cost per window)."""
-    from models.checkpoint import SHIPPED_STEM, WEIGHTS_DIR, save_checkpoint
+    from lanecast.models.checkpoint import SHIPPED_STEM, WEIGHTS_DIR, save_checkpoint
 
     if (WEIGHTS_DIR / f"{SHIPPED_STEM}.safetensors").exists():
         return None
     import torch
 
-    from models.stcnn import STCNN
+    from lanecast.models.stcnn import STCNN
 
     torch.manual_seed(0)
     norm = {

@@ -22,8 +22,9 @@ from pathlib import Path
 
 import pyarrow.csv as pacsv
 
-from io_adapters import registry, sumo_highway
-from workflows import cli
+from lanecast.io_adapters import registry
+from lanecast.io_adapters.sim import sumo_highway
+from lanecast.workflows import cli
 
 WORK = Path(__file__).resolve().parent / "_work"
 

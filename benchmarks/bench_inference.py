@@ -3,7 +3,7 @@
 Compares, in the same run and on the same weights:
 
 * ``eager``: plain eager PyTorch, the two networks one after the other (classifier, argmax, regressor);
-* ``fused``: ``models.predict.FusedSTCNN`` (conv1 of both stacked, conv2-4 grouped) + the regressor head;
+* ``fused``: ``lanecast.models.predict.FusedSTCNN`` (conv1 of both stacked, conv2-4 grouped) + the regressor head;
 * ``fused+channels_last``: the same in channels-last memory format;
 * ``fused+jit-frozen``: TorchScript trace of the fused module, frozen and optimised for inference;
 * ``fused+compile``: ``torch.compile`` (inductor) of the fused module (compile time printed apart);
@@ -30,9 +30,9 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from models.predict import FusedSTCNN, STCNNForecaster
-from models.stcnn import STCNN
-from models.train import classifier_loss, regressor_loss
+from lanecast.models.predict import FusedSTCNN, STCNNForecaster
+from lanecast.models.stcnn import STCNN
+from lanecast.models.train import classifier_loss, regressor_loss
 
 
 def rate(fn: Callable[[], object], batch: int, seconds: float) -> float:
@@ -154,7 +154,7 @@ def main() -> int:
     for name, row in table.items():
         print(f"{name:<22}" + "".join(f"{r:>14,.0f}" for r in row), flush=True)
 
-    # training: one step of each network (forward, backward, Adam), as models.train does
+    # training: one step of each network (forward, backward, Adam), as lanecast.models.train does
     train_model = STCNN()
     opt_c = torch.optim.Adam(train_model.classifier.parameters(), 1e-3)
     opt_r = torch.optim.Adam(train_model.regressor.parameters(), 1e-3)

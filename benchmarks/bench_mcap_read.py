@@ -18,7 +18,8 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from io_adapters import mcap_reader, mcap_writer, track_table
+from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.logs import mcap_reader, mcap_writer
 
 
 def synthetic_table(

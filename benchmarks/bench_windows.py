@@ -29,13 +29,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import reference_windows
 
-from io_adapters import highd, sumo_highway
-from pipeline import labels as labels_mod
-from pipeline import neighbours as nb_mod
-from pipeline import window_tensors
-from pipeline.make_windows import make_windows
-from pipeline.resample import resample
-from pipeline.windows_data import save_windows
+from lanecast.io_adapters.contracts.windows import save_windows
+from lanecast.io_adapters.datasets import highd
+from lanecast.io_adapters.sim import sumo_highway
+from lanecast.pipeline import labels as labels_mod
+from lanecast.pipeline import neighbours as nb_mod
+from lanecast.pipeline import window_tensors
+from lanecast.pipeline.make_windows import make_windows
+from lanecast.pipeline.resample import resample
 
 T = TypeVar("T")
 

@@ -47,7 +47,7 @@ TEST_RECORDINGS = ((51, 901, "medium", 10.0), (52, 902, "high", 10.0))
 
 
 def simulate_one(work: Path, rec_id: int, seed: int, density: str, minutes: float) -> Path:
-    from io_adapters import sumo_highway
+    from lanecast.io_adapters.sim import sumo_highway
 
     out = work / "sim" / f"{rec_id:02d}-seed{seed}-{density}-{minutes:g}min"
     if not (out / f"{rec_id:02d}_tracks.csv").is_file():
@@ -58,9 +58,9 @@ def simulate_one(work: Path, rec_id: int, seed: int, density: str, minutes: floa
 
 
 def windows_for(dirs: list[Path], out: Path, split: str) -> Path:
-    from io_adapters import highd
-    from pipeline.make_windows import make_windows
-    from pipeline.windows_data import concat_windows, save_windows
+    from lanecast.io_adapters.contracts.windows import concat_windows, save_windows
+    from lanecast.io_adapters.datasets import highd
+    from lanecast.pipeline.make_windows import make_windows
 
     if not (out / "manifest.json").is_file():
         parts = [make_windows(highd.read([d]), split=split, seed=0) for d in dirs]
@@ -110,7 +110,7 @@ def deviations(config: Any) -> list[str]:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--work", type=Path, default=Path("/tmp/lanecast-shipped"))
-    ap.add_argument("--out", type=Path, default=ROOT / "models" / "weights")
+    ap.add_argument("--out", type=Path, default=ROOT / "lanecast.models" / "weights")
     ap.add_argument("--epochs", type=int, default=30)
     ap.add_argument("--batch-size", type=int, default=256)
     ap.add_argument("--lr", type=float, default=1e-3)
@@ -132,14 +132,14 @@ def main() -> int:
     ap.add_argument("--jobs", type=int, default=2, help="simulations in parallel")
     args = ap.parse_args()
 
-    from models.baselines import constant_acceleration, constant_velocity
-    from models.checkpoint import SHIPPED_STEM, save_checkpoint
-    from models.predict import STCNNForecaster
-    from models.report import write_report
-    from models.stcnn import STCNNConfig
-    from models.train import TrainConfig, train
-    from pipeline.windows_data import load_windows
-    from workflows.evaluate import always_straight, evaluate, example_scenes, write_metrics
+    from lanecast.io_adapters.contracts.windows import load_windows
+    from lanecast.models.baselines import constant_acceleration, constant_velocity
+    from lanecast.models.checkpoint import SHIPPED_STEM, save_checkpoint
+    from lanecast.models.predict import STCNNForecaster
+    from lanecast.models.report import write_report
+    from lanecast.models.stcnn import STCNNConfig
+    from lanecast.models.train import TrainConfig, train
+    from lanecast.workflows.evaluate import always_straight, evaluate, example_scenes, write_metrics
 
     t_start = time.perf_counter()
     args.work.mkdir(parents=True, exist_ok=True)
@@ -166,7 +166,7 @@ def main() -> int:
         lr_schedule=args.lr_schedule,
     )
     data = {
-        "kind": "SUMO simulated highway (io_adapters.sumo_highway), highD format, 3 lanes per direction",
+        "kind": "SUMO simulated highway (lanecast.io_adapters.sim.sumo_highway), highD format, 3 lanes per direction",
         "train_recordings": [
             dict(zip(("recording_id", "seed", "density", "minutes"), r, strict=True))
             for r in TRAIN_RECORDINGS

@@ -74,7 +74,7 @@ class FormatNotRecognisedError(InputError):
 
 
 class TrackTableError(LanecastError):
-    """A track table that breaks the contract of DESIGN.md §1 (see io_adapters.track_table)."""
+    """A track table that breaks the contract of DESIGN.md §1 (see lanecast.io_adapters.contracts.track_table)."""
 
 
 class LogError(InputError):

@@ -16,21 +16,21 @@ from typing import Any
 
 import pyarrow as pa
 
-from io_adapters import track_table
-from io_adapters.errors import FormatNotRecognisedError, InputError
+from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.errors import FormatNotRecognisedError, InputError
 
 READERS: dict[str, str] = {
-    "parquet": "io_adapters.parquet",
-    "highd": "io_adapters.highd",
-    "ngsim": "io_adapters.ngsim",
-    "mcap": "io_adapters.mcap_reader",
-    "rosbag": "io_adapters.rosbag_reader",
+    "parquet": "lanecast.io_adapters.datasets.parquet",
+    "highd": "lanecast.io_adapters.datasets.highd",
+    "ngsim": "lanecast.io_adapters.datasets.ngsim",
+    "mcap": "lanecast.io_adapters.logs.mcap_reader",
+    "rosbag": "lanecast.io_adapters.logs.rosbag_reader",
 }
 WRITERS: dict[str, str] = {
-    "parquet": "io_adapters.parquet",
-    "mcap": "io_adapters.mcap_writer",
-    "ros2": "io_adapters.rosbag_writer",
-    "ros1": "io_adapters.rosbag_writer",
+    "parquet": "lanecast.io_adapters.datasets.parquet",
+    "mcap": "lanecast.io_adapters.logs.mcap_writer",
+    "ros2": "lanecast.io_adapters.logs.rosbag_writer",
+    "ros1": "lanecast.io_adapters.logs.rosbag_writer",
 }
 
 

@@ -18,9 +18,9 @@ import torch
 from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
-from io_adapters.atomic import atomic_path
-from io_adapters.errors import InputError
-from models.stcnn import STCNN, STCNNConfig, count_parameters
+from lanecast.io_adapters.errors import InputError
+from lanecast.io_adapters.files import atomic_path
+from lanecast.models.stcnn import STCNN, STCNNConfig, count_parameters
 
 FORMAT = "lanecast-stcnn"
 FORMAT_VERSION = 1

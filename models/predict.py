@@ -20,7 +20,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from models.stcnn import STCNN
+from lanecast.models.stcnn import STCNN
 
 #: Horizons of the 5 future steps (s).
 HORIZON_S = (1.0, 2.0, 3.0, 4.0, 5.0)
@@ -116,7 +116,7 @@ class STCNNForecaster:
     ) -> None:
         """``compile``: run the fused networks through ``torch.compile`` (a one-off cost of seconds; pays
         for itself from about a million windows; every batch is padded to ``batch_size``)."""
-        from pipeline.normalise import NormStats
+        from lanecast.io_adapters.contracts.windows import NormStats
 
         self.name = name
         self.model = model.eval()
@@ -138,7 +138,7 @@ class STCNNForecaster:
         cls, model_dir: Path | str | None = None, name: str = "stcnn", *, compile: bool = False
     ) -> STCNNForecaster:
         """Load a checkpoint (None: the shipped model)."""
-        from models.checkpoint import load_checkpoint
+        from lanecast.models.checkpoint import load_checkpoint
 
         net, card = load_checkpoint(model_dir)
         return cls(net, card, name, compile=compile)
@@ -171,7 +171,7 @@ class STCNNForecaster:
 
         ``top_k`` = 0 still regresses the argmax sequence but returns no alternatives (K = 1 kept).
         """
-        from pipeline.normalise import normalise
+        from lanecast.io_adapters.contracts.windows import normalise
 
         n = inputs.shape[0]
         k = max(top_k, 1)
@@ -206,7 +206,7 @@ def forecasts_table(index: pa.Table, preds: Predictions) -> pa.Table:
     (null for baselines), and the K alternatives: alt_probs list[K], alt_maneuvers list[K] of
     list[5], alt_x, alt_y list[K] of list[5].
     """
-    from pipeline.windows_data import to_source_frame
+    from lanecast.io_adapters.contracts.windows import to_source_frame
 
     n = index.num_rows
     ox, oy, heading = (index.column(c).to_numpy() for c in ("origin_x", "origin_y", "origin_heading"))

@@ -20,8 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from io_adapters.atomic import atomic_path
-from models.stcnn import MANEUVERS, TARGET_ROW, VEHICLE_ROWS
+from lanecast.io_adapters.files import atomic_path
+from lanecast.models.stcnn import MANEUVERS, TARGET_ROW, VEHICLE_ROWS
 
 MANEUVER_COLOURS = ("black", "tab:blue", "tab:orange")
 RMSE_CONVENTIONS = (
@@ -228,7 +228,7 @@ def write_report(
 ) -> tuple[Path, Path]:
     """Write report.md (+ PNGs) and self-contained report.html into ``directory``; return their paths.
 
-    ``metrics``: model name → ``models.metrics.summary`` dict; ``meta``: what was evaluated (shown).
+    ``metrics``: model name → ``lanecast.models.metrics.summary`` dict; ``meta``: what was evaluated (shown).
     """
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)

@@ -11,7 +11,7 @@ network keeps its best epoch on the validation split (regressor: RMSE; classifie
 ``select_classifier="macro_f1"`` the per-step macro-F1, which rewards lane-change recall that the
 NLL, dominated by the ~97 % straight steps, does not).
 
-Inputs are normalised with statistics from the training split (``pipeline.normalise``). Future
+Inputs are normalised with statistics from the training split (``lanecast.io_adapters.contracts.windows``). Future
 offsets are normalised per model as (offset − mean[step, axis]) / std, one std for all steps and both
 axes, so the regressor's loss stays proportional to the RMSE in metres (the paper's criterion);
 both are stored in the card.
@@ -33,10 +33,10 @@ import numpy as np
 import torch
 from torch.nn import functional as F
 
-from io_adapters.errors import InputError
-from io_adapters.progress import bar
-from models.checkpoint import torch_device
-from models.stcnn import STCNN, STCNNConfig
+from lanecast.io_adapters.errors import InputError
+from lanecast.io_adapters.files import bar
+from lanecast.models.checkpoint import torch_device
+from lanecast.models.stcnn import STCNN, STCNNConfig
 
 #: classifier selection criterion → (history key, sign): the best epoch minimises sign * value
 SELECTION = {"nll": ("val_nll", 1.0), "macro_f1": ("val_macro_f1", -1.0)}
@@ -154,7 +154,7 @@ class _Batches:
     """Gathers and normalises batches from (possibly memory-mapped) windows."""
 
     def __init__(self, windows: Any, input_stats: Any, future_mean: np.ndarray, future_std: float) -> None:
-        from pipeline.normalise import normalise
+        from lanecast.io_adapters.contracts.windows import normalise
 
         self.w, self.stats, self.normalise = windows, input_stats, normalise
         self.mean, self.std = future_mean, future_std
@@ -195,7 +195,7 @@ def _validate(
 ) -> dict[str, Any]:
     """Validation figures over ``idx``: plain NLL, accuracy, macro-F1 and recall per class (per step,
     argmax), RMSE (normalised and in metres, GT maneuvers)."""
-    from models.metrics import confusion_matrix, macro_f1, precision_recall
+    from lanecast.models.metrics import confusion_matrix, macro_f1, precision_recall
 
     model.eval()
     nll = sq = 0.0
@@ -229,12 +229,12 @@ def train(
 ) -> TrainResult:
     """Train both networks on the ``train`` split, validating on ``val`` each epoch; keep the best epochs.
 
-    windows: a ``pipeline.windows_data.Windows`` (memory-mapped is fine). ``classifier_from``: copy
+    windows: a ``lanecast.io_adapters.contracts.windows.Windows`` (memory-mapped is fine). ``classifier_from``: copy
     that model's (trained) classifier and train only the regressor (e.g. for the regression-only
     ablation, whose classifier is the same network). Reproducible for a seed on a given machine and
     thread count. Raises InputError when there is nothing to train on.
     """
-    from pipeline.normalise import compute_stats
+    from lanecast.io_adapters.contracts.windows import compute_stats
 
     config = config or TrainConfig()
     torch.set_num_threads(config.threads)

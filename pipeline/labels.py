@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.neighbours import Columns
+from lanecast.pipeline.neighbours import Columns
 
 STRAIGHT, LEFT, RIGHT, UNKNOWN = 0, 1, 2, -1
 WINDOW_S = 2.0

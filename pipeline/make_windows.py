@@ -15,21 +15,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from io_adapters import track_table
-from io_adapters.errors import InputError
-from pipeline import labels as labels_mod
-from pipeline import neighbours as nb_mod
-from pipeline import window_tensors as wt
-from pipeline.normalise import compute_stats
-from pipeline.resample import GAP_FACTOR, RATE_HZ, resample, step_ns
-from pipeline.splits import (
-    SPLIT_METHODS,
-    hash_unit_codes,
-    pip_split_by_max,
-    split_from_unit,
-    track_splits,
-)
-from pipeline.windows_data import (
+from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.contracts.windows import (
     CHANNEL_UNITS,
     CHANNELS,
     HISTORY,
@@ -39,6 +26,19 @@ from pipeline.windows_data import (
     ROWS,
     SPLITS,
     Windows,
+    compute_stats,
+)
+from lanecast.io_adapters.errors import InputError
+from lanecast.pipeline import labels as labels_mod
+from lanecast.pipeline import neighbours as nb_mod
+from lanecast.pipeline import window_tensors as wt
+from lanecast.pipeline.resample import GAP_FACTOR, RATE_HZ, resample, step_ns
+from lanecast.pipeline.splits import (
+    SPLIT_METHODS,
+    hash_unit_codes,
+    pip_split_by_max,
+    split_from_unit,
+    track_splits,
 )
 
 MAX_ROWS = 4_000_000  # input rows per group of recordings processed together

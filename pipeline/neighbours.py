@@ -32,8 +32,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from io_adapters import track_table
-from io_adapters.errors import TrackTableError
+from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.errors import TrackTableError
 
 SLOTS: tuple[str, ...] = ("FL", "F", "FR", "L", "R", "RL", "RR")
 SOURCE_COLUMNS: dict[str, str] = {

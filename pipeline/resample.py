@@ -17,8 +17,8 @@ from dataclasses import replace
 import numpy as np
 import pyarrow as pa
 
-from io_adapters import track_table
-from io_adapters.errors import TrackTableError
+from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.errors import TrackTableError
 
 RATE_HZ = 10.0
 GAP_FACTOR = 1.5

@@ -15,7 +15,7 @@ import hashlib
 
 import numpy as np
 
-from io_adapters.errors import InputError
+from lanecast.io_adapters.errors import InputError
 
 SPLIT_METHODS = ("pip", "hash", "none")
 FRACTIONS = (0.7, 0.1, 0.2)

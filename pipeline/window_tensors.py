@@ -16,8 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.neighbours import SLOTS, Columns
-from pipeline.windows_data import HISTORY, HORIZONS, ROWS
+from lanecast.io_adapters.contracts.windows import HISTORY, HORIZONS, ROWS
+from lanecast.pipeline.neighbours import SLOTS, Columns
 
 FUTURE = 50  # frames at 10 Hz after t0 that the targets need
 HORIZON_STEP = 10  # frames between future steps (1 s)
@@ -76,7 +76,7 @@ def window_rows(
 
 @dataclass
 class WindowArrays:
-    """Gathered windows: see pipeline.windows_data.Windows for the meaning of each array."""
+    """Gathered windows: see lanecast.io_adapters.contracts.windows.Windows for the meaning of each array."""
 
     inputs: np.ndarray  # float32 [W, 4, 8, 30]
     present: np.ndarray  # bool [W, 8, 30]

@@ -25,9 +25,9 @@ def sim_recording_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
     highD format at 25 Hz, 3 lanes per direction (highD laneIds 2, 3, 4 upper and 6, 7, 8 lower),
     cars and trucks, lane changes with continuous lateral motion, neighbour ids from SUMO.
-    Read it with ``io_adapters.highd.read([sim_recording_dir])``; treat it as read-only.
+    Read it with ``lanecast.io_adapters.datasets.highd.read([sim_recording_dir])``; treat it as read-only.
     """
-    from io_adapters import sumo_highway
+    from lanecast.io_adapters.sim import sumo_highway
 
     out = tmp_path_factory.mktemp("sim") / "highd-sim"
     return sumo_highway.simulate(out, show_progress=False, **SIM_RECORDING)  # type: ignore[arg-type]

@@ -1,7 +1,7 @@
 """Annotating one drive log: byte-for-byte copy, forecasts merged in log time, decodable everywhere.
 
 Logs are real MCAP files / ROS bags written here with the ``mcap`` and ``rosbags`` libraries; the
-forecasts are a table built by hand with the columns ``workflows.forecast.forecast_table`` returns.
+forecasts are a table built by hand with the columns ``lanecast.workflows.forecast.forecast_table`` returns.
 """
 
 from __future__ import annotations
@@ -19,10 +19,16 @@ from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import Writer
 
-from io_adapters import forecast_messages as fm
-from io_adapters.errors import LogError
-from io_adapters.track_table import RecordingMeta, TableMeta, build_table
-from workflows.annotate import AnnotateOptions, annotate_log, choose_encoding, forecast_times, log_kind
+from lanecast.io_adapters.annotations import forecast_messages as fm
+from lanecast.io_adapters.contracts.track_table import RecordingMeta, TableMeta, build_table
+from lanecast.io_adapters.errors import LogError
+from lanecast.workflows.annotate import (
+    AnnotateOptions,
+    annotate_log,
+    choose_encoding,
+    forecast_times,
+    log_kind,
+)
 
 S = 1_000_000_000
 
@@ -428,8 +434,8 @@ def _seeded_model(directory: Path) -> Path:
     """A real (untrained, seeded) ST-CNN checkpoint: the test needs a model, not a good one."""
     import torch
 
-    from models.checkpoint import save_checkpoint
-    from models.stcnn import STCNN
+    from lanecast.models.checkpoint import save_checkpoint
+    from lanecast.models.stcnn import STCNN
 
     torch.manual_seed(7)
     norm = {
@@ -443,8 +449,8 @@ def _seeded_model(directory: Path) -> Path:
 def test_forecast_in_annotated_log_matches_batch_prediction(tmp_path: Path) -> None:
     """The forecast written for a vehicle equals what batch prediction gives for the same window,
     and reading the annotated log back gives the original tracks (forecasts are not objects)."""
-    forecast = pytest.importorskip("workflows.forecast")
-    from io_adapters import registry
+    forecast = pytest.importorskip("lanecast.workflows.forecast")
+    from lanecast.io_adapters import registry
 
     model = _seeded_model(tmp_path / "model")
     n_frames, rate = 120, 10.0  # 12 s at 10 Hz, two vehicles side by side
@@ -502,10 +508,10 @@ def test_forecast_in_annotated_log_matches_batch_prediction(tmp_path: Path) -> N
 @pytest.mark.parametrize("fmt", ["ros2", "ros1"])
 def test_bags_written_by_lanecast_are_annotated_end_to_end(tmp_path: Path, fmt: str) -> None:
     """Pass 1 through the registry's bag reader, the model, pass 2 into a ROS 2 bag / an MCAP."""
-    pytest.importorskip("workflows.forecast")
+    pytest.importorskip("lanecast.workflows.forecast")
     from rosbags.highlevel import AnyReader
 
-    from io_adapters import registry
+    from lanecast.io_adapters import registry
 
     model = _seeded_model(tmp_path / "model")
     n_frames, rate = 80, 10.0

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from models.baselines import constant_acceleration, constant_velocity, extrapolate
+from lanecast.models.baselines import constant_acceleration, constant_velocity, extrapolate
 
 T_HIST = (np.arange(30) - 29) * 0.1
 

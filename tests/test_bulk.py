@@ -19,8 +19,8 @@ import pytest
 from mcap.reader import make_reader
 from test_annotate import assert_all_original_records_equal, forecasts_for, make_mcap
 
-from workflows.annotate import AnnotateOptions
-from workflows.bulk import Manifest, checksum, clean_temporaries, discover, plan_outputs, run_bulk
+from lanecast.workflows.annotate import AnnotateOptions
+from lanecast.workflows.bulk import Manifest, checksum, clean_temporaries, discover, plan_outputs, run_bulk
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -128,7 +128,7 @@ def test_two_worker_processes_annotate_every_log_once(tmp_path: Path) -> None:
 
 
 def _cli(*args: str) -> list[str]:
-    return [sys.executable, "-m", "workflows.cli", "annotate", *args]
+    return [sys.executable, "-m", "lanecast.workflows.cli", "annotate", *args]
 
 
 def test_sigkill_mid_run_then_rerun_annotates_every_log_exactly_once(tmp_path: Path) -> None:

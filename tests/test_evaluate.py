@@ -11,15 +11,15 @@ import numpy as np
 import pytest
 from test_train import synthetic_windows
 
-from io_adapters.track_table import RecordingMeta, TableMeta, build_table
-from models.baselines import constant_velocity
-from models.checkpoint import load_checkpoint
-from models.metrics import displacement_errors, rmse
-from models.predict import STCNNForecaster
-from pipeline.make_windows import make_windows
-from pipeline.windows_data import save_windows, to_source_frame
-from workflows.cli import main
-from workflows.forecast import forecast_table
+from lanecast.io_adapters.contracts.track_table import RecordingMeta, TableMeta, build_table
+from lanecast.io_adapters.contracts.windows import save_windows, to_source_frame
+from lanecast.models.baselines import constant_velocity
+from lanecast.models.checkpoint import load_checkpoint
+from lanecast.models.metrics import displacement_errors, rmse
+from lanecast.models.predict import STCNNForecaster
+from lanecast.pipeline.make_windows import make_windows
+from lanecast.workflows.cli import main
+from lanecast.workflows.forecast import forecast_table
 
 MODEL_KEYS = {
     "rmse",

@@ -18,9 +18,11 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
-from io_adapters import highd, registry, track_table
-from io_adapters.errors import InputError
-from workflows import cli
+from lanecast.io_adapters import registry
+from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.datasets import highd
+from lanecast.io_adapters.errors import InputError
+from lanecast.workflows import cli
 
 DATA = Path(__file__).parent / "data" / "highd"
 FILES = ("01_tracks.csv", "01_tracksMeta.csv", "01_recordingMeta.csv")

@@ -7,10 +7,10 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
-from io_adapters.track_table import RecordingMeta, TableMeta, build_table, validate
-from pipeline.labels import lane_changes, row_labels
-from pipeline.make_windows import make_windows
-from pipeline.neighbours import columns
+from lanecast.io_adapters.contracts.track_table import RecordingMeta, TableMeta, build_table, validate
+from lanecast.pipeline.labels import lane_changes, row_labels
+from lanecast.pipeline.make_windows import make_windows
+from lanecast.pipeline.neighbours import columns
 
 
 def track_table(

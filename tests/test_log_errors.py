@@ -10,8 +10,9 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pytest
 
-from io_adapters import mcap_reader, mcap_writer, rosbag_reader, track_table
-from io_adapters.errors import LogError
+from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.errors import LogError
+from lanecast.io_adapters.logs import mcap_reader, mcap_writer, rosbag_reader
 
 RATE = 25.0
 
@@ -239,7 +240,7 @@ def test_undecodable_message_names_topic(tmp_path: Path) -> None:
 def test_convert_cli_reports_damage_and_salvages(
     log: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from workflows.cli import main
+    from lanecast.workflows.cli import main
 
     chunks = chunk_layout(log)
     data = bytearray(log.read_bytes())

@@ -11,10 +11,12 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
-from io_adapters import mcap_reader, mcap_writer, registry, ros_types, track_table
-from io_adapters import scene_update_wire as wire
-from io_adapters import tracked_objects as to
-from io_adapters.errors import FrameError, LogError
+from lanecast.io_adapters import registry
+from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.errors import FrameError, LogError
+from lanecast.io_adapters.logs import mcap_reader, mcap_writer, ros_types
+from lanecast.io_adapters.logs import scene_update_wire as wire
+from lanecast.io_adapters.logs import tracked_objects as to
 
 RATE = 25.0
 EPOCH = 1_700_000_000_000_000_000  # ns, a log-like absolute time for the second recording
@@ -433,7 +435,7 @@ def test_topics_found_by_type_and_picked_by_topic(tmp_path: Path) -> None:
 
 
 def test_convert_cli_round_trip(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from workflows.cli import main
+    from lanecast.workflows.cli import main
 
     table = make_table()
     src = track_table.write_parquet(table, tmp_path / "tracks.parquet")

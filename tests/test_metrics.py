@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from models import metrics as M
+from lanecast.models import metrics as M
 
 
 def _errors_as_offsets(errors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -10,9 +10,9 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
-from io_adapters.errors import TrackTableError
-from io_adapters.track_table import RecordingMeta, TableMeta, build_table, validate
-from pipeline import neighbours as nbm
+from lanecast.io_adapters.contracts.track_table import RecordingMeta, TableMeta, build_table, validate
+from lanecast.io_adapters.errors import TrackTableError
+from lanecast.pipeline import neighbours as nbm
 
 LANE = 3.75
 
@@ -251,8 +251,8 @@ def test_row_index_lookup_with_gaps(big_ids: bool) -> None:
 @pytest.mark.slow
 def test_agreement_with_sumo_neighbours(sim_recording_dir: Path) -> None:
     """lanecast's lane-based neighbours vs the ones SUMO wrote (highD columns), at 10 Hz."""
-    from io_adapters import highd
-    from pipeline.resample import resample
+    from lanecast.io_adapters.datasets import highd
+    from lanecast.pipeline.resample import resample
 
     table = resample(highd.read([sim_recording_dir]))
     cols = nbm.columns(table)

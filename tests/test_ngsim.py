@@ -12,9 +12,11 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
-from io_adapters import ngsim, registry, track_table
-from io_adapters.errors import InputError
-from workflows import cli, info
+from lanecast.io_adapters import registry
+from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.datasets import ngsim
+from lanecast.io_adapters.errors import InputError
+from lanecast.workflows import cli, info
 
 DATA = Path(__file__).parent / "data" / "ngsim"
 SAMPLE = DATA / "peachtree_sample.csv"

@@ -8,8 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from io_adapters import highd, registry
-from workflows.cli import main
+from lanecast.io_adapters import registry
+from lanecast.io_adapters.datasets import highd
+from lanecast.workflows.cli import main
 
 
 @pytest.fixture(scope="module")
@@ -26,10 +27,10 @@ def test_report_scores_logged_forecasts_like_batch_prediction(
     annotated: tuple[Path, Path], tmp_path: Path
 ) -> None:
     """The report's metrics equal those of batch prediction on the same windows, without the log."""
-    from models.metrics import summary
-    from models.predict import STCNNForecaster
-    from pipeline.make_windows import make_windows
-    from workflows import report
+    from lanecast.models.metrics import summary
+    from lanecast.models.predict import STCNNForecaster
+    from lanecast.pipeline.make_windows import make_windows
+    from lanecast.workflows import report
 
     log, out_dir = annotated
     assert main(["report", str(out_dir), "--out", str(tmp_path / "r")]) == 0
@@ -38,7 +39,7 @@ def test_report_scores_logged_forecasts_like_batch_prediction(
     assert (tmp_path / "r" / "report.html").read_text().count("data:image/png;base64,") >= 2
     assert (tmp_path / "r" / "logs" / "drive" / "metrics.json").is_file()
 
-    # Independent computation: windows at the forecast times, the shipped model, models.metrics.
+    # Independent computation: windows at the forecast times, the shipped model, lanecast.models.metrics.
     docs = report.prediction_documents(out_dir / "drive.mcap")
     t0 = np.unique([d["t0_ns"] for d in docs])
     windows = make_windows(registry.read_any([log]), split="none", t0_ns=t0, allow_empty=True)

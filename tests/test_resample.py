@@ -7,8 +7,14 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
-from io_adapters.track_table import RecordingMeta, TableMeta, build_table, read_meta, validate
-from pipeline.resample import resample
+from lanecast.io_adapters.contracts.track_table import (
+    RecordingMeta,
+    TableMeta,
+    build_table,
+    read_meta,
+    validate,
+)
+from lanecast.pipeline.resample import resample
 
 COLUMNS = ("x", "y", "heading", "vx", "vy", "ax", "ay", "length", "width")
 

@@ -9,9 +9,11 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
-from io_adapters import registry, ros_types, rosbag_reader, rosbag_writer, track_table
-from io_adapters import tracked_objects as to
-from io_adapters.errors import FrameError, LogError
+from lanecast.io_adapters import registry
+from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.errors import FrameError, LogError
+from lanecast.io_adapters.logs import ros_types, rosbag_reader, rosbag_writer
+from lanecast.io_adapters.logs import tracked_objects as to
 
 RATE = 10.0
 

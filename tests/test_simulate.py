@@ -12,9 +12,11 @@ import pyarrow as pa
 import pyarrow.csv as pacsv
 import pytest
 
-from io_adapters import highd, sumo_highway, track_table
-from io_adapters.errors import InputError
-from workflows import cli
+from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.datasets import highd
+from lanecast.io_adapters.errors import InputError
+from lanecast.io_adapters.sim import sumo_highway
+from lanecast.workflows import cli
 
 FILES = ("01_tracks.csv", "01_tracksMeta.csv", "01_recordingMeta.csv")
 
@@ -259,7 +261,8 @@ def test_libsumo_imported_before_pyarrow_works(tmp_path: Path) -> None:
         "import libsumo, sys\n"
         "import pyarrow.parquet as pq\n"
         "from pathlib import Path\n"
-        "from io_adapters import highd, sumo_highway\n"
+        "from lanecast.io_adapters.datasets import highd\n"
+        "from lanecast.io_adapters.sim import sumo_highway\n"
         "out = sumo_highway.simulate(Path(sys.argv[1]), minutes=0.05, seed=1, section_length_m=100.0,\n"
         "                            approach_length_m=150.0, show_progress=False)\n"
         "table = highd.read([out])\n"

@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from io_adapters.errors import InputError
-from io_adapters.track_table import RecordingMeta, TableMeta, build_table
-from pipeline.make_windows import make_windows
-from pipeline.splits import hash_split, hash_unit, pip_split, track_splits
+from lanecast.io_adapters.contracts.track_table import RecordingMeta, TableMeta, build_table
+from lanecast.io_adapters.errors import InputError
+from lanecast.pipeline.make_windows import make_windows
+from lanecast.pipeline.splits import hash_split, hash_unit, pip_split, track_splits
 
 
 def test_pip_split_by_hand() -> None:

@@ -7,8 +7,8 @@ import pytest
 import torch
 from torch import nn
 
-from models.predict import FusedSTCNN, all_sequences, top_k_sequences
-from models.stcnn import STCNN, STCNNConfig, count_parameters, feature_size, layer_shapes
+from lanecast.models.predict import FusedSTCNN, all_sequences, top_k_sequences
+from lanecast.models.stcnn import STCNN, STCNNConfig, count_parameters, feature_size, layer_shapes
 
 PAPER_SHAPES = [(24, 4, 12), (40, 2, 8), (56, 1, 4), (24, 1, 4)]
 

@@ -10,10 +10,10 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from io_adapters import track_table
-from io_adapters.atomic import atomic_path
-from io_adapters.errors import InputError, TrackTableError
-from io_adapters.track_table import RecordingMeta, TableMeta
+from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.contracts.track_table import RecordingMeta, TableMeta
+from lanecast.io_adapters.errors import InputError, TrackTableError
+from lanecast.io_adapters.files import atomic_path
 
 
 def _columns(n_tracks: int = 2, n_frames: int = 4, recording: str = "rec-a") -> dict[str, np.ndarray]:
@@ -162,7 +162,7 @@ def test_atomic_path_leaves_nothing_on_failure(tmp_path: Path) -> None:
 
 
 def test_cli_reports_project_errors_as_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from workflows.cli import main
+    from lanecast.workflows.cli import main
 
     missing = tmp_path / "nope.csv"
     assert main(["info", str(missing)]) == 2
@@ -171,7 +171,7 @@ def test_cli_reports_project_errors_as_one_line(tmp_path: Path, capsys: pytest.C
 
 
 def test_convert_and_info_on_a_track_table(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from workflows.cli import main
+    from lanecast.workflows.cli import main
 
     table = track_table.build_table(_columns(), _meta("rec-a"))
     src = track_table.write_parquet(table, tmp_path / "in.parquet")
@@ -187,7 +187,7 @@ def test_convert_and_info_on_a_track_table(tmp_path: Path, capsys: pytest.Captur
 def test_input_errors_survive_pickling_between_processes() -> None:
     import pickle
 
-    from io_adapters.errors import LogError
+    from lanecast.io_adapters.errors import LogError
 
     err = LogError("a.mcap", "truncated", offset=1234, expected="a complete chunk")
     back = pickle.loads(pickle.dumps(err))

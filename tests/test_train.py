@@ -10,12 +10,13 @@ import pyarrow as pa
 import pytest
 import torch
 
-from io_adapters.errors import InputError
-from models.checkpoint import load_checkpoint, resolve, save_checkpoint
-from models.metrics import displacement_errors, rmse
-from models.predict import STCNNForecaster
-from models.stcnn import STCNN, count_parameters
-from models.train import (
+from lanecast.io_adapters.contracts.windows import Windows
+from lanecast.io_adapters.errors import InputError
+from lanecast.models.checkpoint import load_checkpoint, resolve, save_checkpoint
+from lanecast.models.metrics import displacement_errors, rmse
+from lanecast.models.predict import STCNNForecaster
+from lanecast.models.stcnn import STCNN, count_parameters
+from lanecast.models.train import (
     TrainConfig,
     class_weights,
     classifier_loss,
@@ -26,7 +27,6 @@ from models.train import (
     select_epoch,
     train,
 )
-from pipeline.windows_data import Windows
 
 LANE = 3.75
 HIST_T = (np.arange(30) - 29) * 0.1  # s, oldest → t0
@@ -265,7 +265,7 @@ def test_load_rejects_bad_files(tmp_path) -> None:
 
 def test_forecaster_equals_the_plain_networks(windows: Windows) -> None:
     """The fused, channels-last, batched path gives what classifier → argmax → regressor gives."""
-    from pipeline.normalise import compute_stats, normalise
+    from lanecast.io_adapters.contracts.windows import compute_stats, normalise
 
     torch.manual_seed(5)
     model = STCNN().eval()

@@ -11,12 +11,29 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
-from io_adapters.errors import InputError, TrackTableError
-from io_adapters.track_table import RecordingMeta, TableMeta, build_table, concat, validate, write_parquet
-from pipeline.make_windows import make_windows
-from pipeline.normalise import NormStats, compute_stats, denormalise, normalise
-from pipeline.windows_data import ROWS, Windows, load_windows, save_windows, subset, to_source_frame
-from workflows.cli import main as cli_main
+from lanecast.io_adapters.contracts.track_table import (
+    RecordingMeta,
+    TableMeta,
+    build_table,
+    concat,
+    validate,
+    write_parquet,
+)
+from lanecast.io_adapters.contracts.windows import (
+    ROWS,
+    NormStats,
+    Windows,
+    compute_stats,
+    denormalise,
+    load_windows,
+    normalise,
+    save_windows,
+    subset,
+    to_source_frame,
+)
+from lanecast.io_adapters.errors import InputError, TrackTableError
+from lanecast.pipeline.make_windows import make_windows
+from lanecast.workflows.cli import main as cli_main
 
 LANE = 3.75
 
@@ -283,7 +300,7 @@ def write_highd(directory: Path) -> Path:
 
 
 def test_highd_directions_give_mirror_consistent_windows(tmp_path: Path) -> None:
-    from io_adapters import highd
+    from lanecast.io_adapters.datasets import highd
 
     table = highd.read([write_highd(tmp_path)])
     w = make_windows(table, split="none", stride=1)

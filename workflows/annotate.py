@@ -3,10 +3,10 @@
 One log is annotated in two passes: pass 1 reads its tracks (``registry.read_any``) and the model
 forecasts every vehicle with 3 s of history every ``--every`` seconds; pass 2 streams every original
 record byte for byte into a new log, merging ``/lanecast/forecast`` (``foxglove.SceneUpdate``) and
-``/lanecast/prediction`` (JSON) in log-time order (see ``io_adapters.mcap_copy``). The output is
+``/lanecast/prediction`` (JSON) in log-time order (see ``lanecast.io_adapters.annotations.mcap_copy``). The output is
 written under a temporary name and renamed when complete; the input is only read. Many logs — a
 directory, several paths, ``--workers N`` processes or ``--engine ray`` — go through
-``workflows.bulk``, which keeps a manifest in OUT_DIR and resumes where a run stopped.
+``lanecast.workflows.bulk``, which keeps a manifest in OUT_DIR and resumes where a run stopped.
 """
 
 from __future__ import annotations
@@ -22,8 +22,8 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from io_adapters.atomic import atomic_path
-from io_adapters.errors import InputError, LogError
+from lanecast.io_adapters.errors import InputError, LogError
+from lanecast.io_adapters.files import atomic_path
 
 LOG_KINDS = ("mcap", "ros2", "ros1")
 MCAP_MAGIC = b"\x89MCAP0\r\n"
@@ -80,7 +80,7 @@ def choose_encoding(kind: str, src: Path, requested: str = "auto") -> str:
     if kind == "ros2":
         return "cdr"
     if kind == "mcap":
-        from io_adapters.mcap_copy import summary_info
+        from lanecast.io_adapters.annotations.mcap_copy import summary_info
 
         info = summary_info(src)
         if info.profile == "ros2":
@@ -97,7 +97,7 @@ def choose_encoding(kind: str, src: Path, requested: str = "auto") -> str:
 def log_topics(src: Path, kind: str) -> frozenset[str]:
     """The topics of a log, from its summary (MCAP) or its connections (bags), without reading messages."""
     if kind == "mcap":
-        from io_adapters.mcap_copy import summary_info
+        from lanecast.io_adapters.annotations.mcap_copy import summary_info
 
         return summary_info(src).topics
     try:
@@ -116,7 +116,7 @@ def log_topics(src: Path, kind: str) -> frozenset[str]:
 
 def refuse_annotated(src: Path, kind: str) -> None:
     """An already annotated log is refused before any work: annotate the original instead."""
-    from io_adapters.forecast_messages import FORECAST_TOPIC, PREDICTION_TOPIC
+    from lanecast.io_adapters.annotations.forecast_messages import FORECAST_TOPIC, PREDICTION_TOPIC
 
     clash = sorted(log_topics(src, kind) & {FORECAST_TOPIC, PREDICTION_TOPIC})
     if clash:
@@ -127,7 +127,7 @@ def refuse_annotated(src: Path, kind: str) -> None:
 
 def read_tracks(src: Path, topic: str | None = None) -> pa.Table:
     """Pass 1: the log's track table (through the registry's MCAP / bag readers)."""
-    from io_adapters import registry
+    from lanecast.io_adapters import registry
 
     options = {"topic": topic} if topic else {}
     return registry.read_any([src], **options)
@@ -147,8 +147,8 @@ def forecast_times(tracks: pa.Table, every_s: float) -> np.ndarray:
 
 
 def predict(tracks: pa.Table, options: AnnotateOptions) -> pa.Table:
-    """Forecasts for every vehicle with 3 s of history at every forecast time (workflows.forecast)."""
-    from workflows.forecast import forecast_table
+    """Forecasts for every vehicle with 3 s of history at every forecast time (lanecast.workflows.forecast)."""
+    from lanecast.workflows.forecast import forecast_table
 
     return forecast_table(
         tracks,
@@ -191,8 +191,8 @@ def annotate_log(
     predicts. Counts: messages copied, forecast messages added, forecast frames and targets, bytes
     in/out, and the seconds spent reading tracks, predicting and writing.
     """
-    from io_adapters import forecast_messages as fm
-    from io_adapters import mcap_copy
+    from lanecast.io_adapters.annotations import forecast_messages as fm
+    from lanecast.io_adapters.annotations import mcap_copy
 
     src, out = Path(src), Path(out)
     options = options or AnnotateOptions()
@@ -214,7 +214,7 @@ def annotate_log(
 
     frame_ids: str | dict[str, str] = options.frame_id
     if tracks is not None:
-        from io_adapters.track_table import read_meta
+        from lanecast.io_adapters.contracts.track_table import read_meta
 
         frame_ids = {name: rec.coordinate_frame for name, rec in read_meta(tracks).recordings.items()}
     encoding = choose_encoding(kind, src, options.encoding)
@@ -325,7 +325,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from workflows import bulk
+    from lanecast.workflows import bulk
 
     if args.every <= 0:
         raise InputError(None, f"--every must be positive, got {args.every}", expected="seconds > 0")

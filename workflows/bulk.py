@@ -35,9 +35,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from io_adapters.errors import InputError, LanecastError
-from io_adapters.progress import bar
-from workflows.annotate import AnnotateOptions, annotate_log, output_name
+from lanecast.io_adapters.errors import InputError, LanecastError
+from lanecast.io_adapters.files import bar
+from lanecast.workflows.annotate import AnnotateOptions, annotate_log, output_name
 
 MANIFEST = "manifest.jsonl"
 LOCK = ".lanecast-annotate.lock"

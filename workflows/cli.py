@@ -12,7 +12,7 @@ import importlib
 import sys
 from collections.abc import Sequence
 
-from io_adapters.errors import LanecastError
+from lanecast.io_adapters.errors import LanecastError
 
 COMMANDS = ("demo", "simulate", "convert", "info", "windows", "train", "evaluate", "annotate", "report")
 
@@ -26,9 +26,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in COMMANDS:
         try:
-            module = importlib.import_module(f"workflows.{name}")
+            module = importlib.import_module(f"lanecast.workflows.{name}")
         except ModuleNotFoundError as exc:
-            if exc.name == f"workflows.{name}":
+            if exc.name == f"lanecast.workflows.{name}":
                 continue
             raise
         module.register(sub)

@@ -6,8 +6,9 @@ import argparse
 import time
 from pathlib import Path
 
-from io_adapters import registry, track_table
-from io_adapters.errors import InputError
+from lanecast.io_adapters import registry
+from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.errors import InputError
 
 _SUFFIX_TO_FORMAT = {".parquet": "parquet", ".pq": "parquet", ".mcap": "mcap", ".bag": "ros1"}
 

@@ -42,11 +42,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from io_adapters import highd, registry, track_table
-    from io_adapters.sumo_highway import simulate
-    from workflows.annotate import AnnotateOptions
-    from workflows.bulk import run_bulk
-    from workflows.info import summarise
+    from lanecast.io_adapters import registry
+    from lanecast.io_adapters.contracts import track_table
+    from lanecast.io_adapters.datasets import highd
+    from lanecast.io_adapters.sim.sumo_highway import simulate
+    from lanecast.workflows.annotate import AnnotateOptions
+    from lanecast.workflows.bulk import run_bulk
+    from lanecast.workflows.info import summarise
 
     out: Path = args.out
     started = time.perf_counter()
@@ -80,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
     annotated = sorted(annotated_dir.glob("*.mcap"))
     step(f"annotated log with /lanecast/forecast and /lanecast/prediction: {', '.join(map(str, annotated))}")
 
-    from workflows import report
+    from lanecast.workflows import report
 
     report_dir = out / "report"
     status = report.report_logs([annotated_dir], report_dir)

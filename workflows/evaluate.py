@@ -65,11 +65,11 @@ def evaluate(
 ) -> tuple[dict[str, Any], dict[str, Any], np.ndarray]:
     """Metrics of every forecaster on the labelled windows of ``splits``.
 
-    Returns (model name → ``models.metrics.summary``, model name → Predictions, window indices [M]).
+    Returns (model name → ``lanecast.models.metrics.summary``, model name → Predictions, window indices [M]).
     """
-    from io_adapters.errors import InputError
-    from models.metrics import summary
-    from models.train import labelled
+    from lanecast.io_adapters.errors import InputError
+    from lanecast.models.metrics import summary
+    from lanecast.models.train import labelled
 
     idx = labelled(windows, splits)
     if len(idx) == 0:
@@ -94,7 +94,7 @@ def evaluate(
 def example_scenes(windows: Any, idx: np.ndarray, pred: Any, count: int) -> list[Any]:
     """Up to ``count`` scenes: a correctly predicted left and right lane change, a straight window,
     and the largest 5 s error (deterministic choices)."""
-    from models.report import Scene
+    from lanecast.models.report import Scene
 
     if count <= 0 or pred.maneuver is None:
         return []
@@ -133,7 +133,7 @@ def example_scenes(windows: Any, idx: np.ndarray, pred: Any, count: int) -> list
 
 def write_metrics(path: Path, metrics: dict[str, Any], meta: dict[str, Any]) -> Path:
     """metrics.json: one key per model name plus ``meta``."""
-    from io_adapters.atomic import atomic_path
+    from lanecast.io_adapters.files import atomic_path
 
     with atomic_path(path) as tmp:
         tmp.write_text(json.dumps({**metrics, "meta": meta}, indent=2, allow_nan=False) + "\n")
@@ -142,7 +142,7 @@ def write_metrics(path: Path, metrics: dict[str, Any], meta: dict[str, Any]) -> 
 
 def always_straight(windows: Any, idx: np.ndarray) -> dict[str, Any]:
     """Maneuver accuracy and macro-F1 of always predicting straight (the reference a classifier must beat)."""
-    from models.metrics import accuracy, confusion_matrix, macro_f1
+    from lanecast.models.metrics import accuracy, confusion_matrix, macro_f1
 
     true = np.asarray(windows.maneuver[idx])
     conf = confusion_matrix(true, np.zeros_like(true))
@@ -152,11 +152,11 @@ def always_straight(windows: Any, idx: np.ndarray) -> dict[str, Any]:
 def run(args: argparse.Namespace) -> int:
     import torch
 
-    from models.baselines import constant_acceleration, constant_velocity
-    from models.checkpoint import resolve
-    from models.predict import STCNNForecaster
-    from models.report import write_report
-    from pipeline.windows_data import load_windows
+    from lanecast.io_adapters.contracts.windows import load_windows
+    from lanecast.models.baselines import constant_acceleration, constant_velocity
+    from lanecast.models.checkpoint import resolve
+    from lanecast.models.predict import STCNNForecaster
+    from lanecast.models.report import write_report
 
     torch.set_num_threads(max(1, min(2, torch.get_num_threads())))
     windows = load_windows(args.windows)

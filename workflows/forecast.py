@@ -1,7 +1,7 @@
 """Forecasts for a track table (a library for the commands that predict, e.g. annotating drive logs).
 
-track table → windows without requiring a future (``pipeline.make_windows``) → ST-CNN in batches
-(``models.predict``) → one row per (track, t0) with the 5 future points in the source's own frame.
+track table → windows without requiring a future (``lanecast.pipeline.make_windows``) → ST-CNN in batches
+(``lanecast.models.predict``) → one row per (track, t0) with the 5 future points in the source's own frame.
 This module is not a command: it has no ``register``.
 """
 
@@ -25,8 +25,8 @@ def forecast_windows(
     batch_size: int = 4096,
     forecaster: Any = None,
 ) -> pa.Table:
-    """Forecasts table for ready windows (see ``models.predict.forecasts_table`` for the columns)."""
-    from models.predict import STCNNForecaster, forecasts_table
+    """Forecasts table for ready windows (see ``lanecast.models.predict.forecasts_table`` for the columns)."""
+    from lanecast.models.predict import STCNNForecaster, forecasts_table
 
     forecaster = forecaster or STCNNForecaster.load(model_dir)
     preds = forecaster.predict(windows.inputs, windows.present, top_k=top_k, batch_size=batch_size)
@@ -54,8 +54,8 @@ def forecast_table(
     (the K most probable maneuver sequences and their trajectories, most probable first).
     An empty table (0 rows, same columns) when no target has 3 s of history.
     """
-    from io_adapters.errors import InputError
-    from pipeline.make_windows import make_windows
+    from lanecast.io_adapters.errors import InputError
+    from lanecast.pipeline.make_windows import make_windows
 
     stride = round(every_s * WINDOW_RATE_HZ)
     if stride < 1:

@@ -9,7 +9,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from io_adapters import registry, track_table
+from lanecast.io_adapters import registry
+from lanecast.io_adapters.contracts import track_table
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from io_adapters.errors import InputError
+from lanecast.io_adapters.errors import InputError
 
 STEP_NS = 100_000_000  # windows live on the 10 Hz grid; forecast times are matched on it
 
@@ -62,7 +62,7 @@ class LogForecasts:
 
 def annotated_logs(paths: list[Path]) -> list[Path]:
     """The annotated logs named by ``paths``: files, directories, or a bulk run's output directory."""
-    from workflows.bulk import Manifest, discover
+    from lanecast.workflows.bulk import Manifest, discover
 
     found: list[Path] = []
     for path in paths:
@@ -85,7 +85,7 @@ def annotated_logs(paths: list[Path]) -> list[Path]:
 
 def prediction_documents(log: Path) -> list[dict[str, Any]]:
     """Every JSON document on /lanecast/prediction of an annotated MCAP or ROS 2 bag, in log order."""
-    from io_adapters.forecast_messages import PREDICTION_TOPIC
+    from lanecast.io_adapters.annotations.forecast_messages import PREDICTION_TOPIC
 
     docs: list[dict[str, Any]] = []
     if log.is_dir():  # a ROS 2 bag: std_msgs/msg/String holding the JSON
@@ -179,9 +179,9 @@ def match(fc: LogForecasts, index: pa.Table) -> tuple[np.ndarray, np.ndarray]:
 
 def score_log(log: Path, topic: str | None) -> dict[str, Any]:
     """Arrays needed for the metrics of one annotated log (model forecasts, baselines, ground truth)."""
-    from io_adapters import registry
-    from models.baselines import constant_acceleration, constant_velocity
-    from pipeline.make_windows import make_windows
+    from lanecast.io_adapters import registry
+    from lanecast.models.baselines import constant_acceleration, constant_velocity
+    from lanecast.pipeline.make_windows import make_windows
 
     fc = log_forecasts(prediction_documents(log))
     tracks = registry.read_any([log], topic=topic) if topic else registry.read_any([log])
@@ -222,8 +222,8 @@ def score_log(log: Path, topic: str | None) -> dict[str, Any]:
 
 
 def metrics_of(parts: list[dict[str, Any]]) -> dict[str, Any]:
-    """models.metrics.summary for the logged forecasts (``stcnn``) and the baselines over ``parts``."""
-    from models.metrics import summary
+    """lanecast.models.metrics.summary for the logged forecasts (``stcnn``) and the baselines over ``parts``."""
+    from lanecast.models.metrics import summary
 
     def cat(key: str) -> np.ndarray:
         return np.concatenate([p[key] for p in parts])
@@ -253,7 +253,7 @@ def metrics_of(parts: list[dict[str, Any]]) -> dict[str, Any]:
 
 def example_scenes(parts: list[dict[str, Any]], count: int) -> list[Any]:
     """Up to ``count`` scenes: predicted lane changes first, then the largest error at 5 s."""
-    from models.report import Scene
+    from lanecast.models.report import Scene
 
     scenes: list[Any] = []
     for p in parts:
@@ -286,8 +286,8 @@ def example_scenes(parts: list[dict[str, Any]], count: int) -> list[Any]:
 
 
 def write(directory: Path, metrics: dict[str, Any], meta: dict[str, Any], scenes: list[Any]) -> Path:
-    from models.report import write_report
-    from workflows.evaluate import write_metrics
+    from lanecast.models.report import write_report
+    from lanecast.workflows.evaluate import write_metrics
 
     directory.mkdir(parents=True, exist_ok=True)
     write_metrics(directory / "metrics.json", metrics, meta)
@@ -304,7 +304,7 @@ def report_logs(paths: list[Path], out: Path, *, topic: str | None = None, examp
 
     Returns 0, or 1 when some log could not be scored (it is named; the others are reported).
     """
-    from io_adapters.progress import progress
+    from lanecast.io_adapters.files import progress
 
     logs = annotated_logs(paths)
     parts, failed = [], []

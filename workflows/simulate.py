@@ -60,7 +60,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from io_adapters import sumo_highway
+    from lanecast.io_adapters.sim import sumo_highway
 
     started = time.perf_counter()
     out = sumo_highway.simulate(

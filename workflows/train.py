@@ -20,7 +20,7 @@ def register(sub: argparse._SubParsersAction) -> None:
             "Hyper-parameters default to the shipped model's, which go beyond the paper in two ways: the "
             "NLL is weighted by (1/class frequency)^0.5 and the classifier's epoch is chosen by validation "
             "macro-F1; --class-weight-power 0 --select-classifier nll gives the paper's plain NLL. "
-            "--config FILE (JSON, keys of models.train.TrainConfig) overrides the defaults."
+            "--config FILE (JSON, keys of lanecast.models.train.TrainConfig) overrides the defaults."
         ),
         epilog=(
             "example:\n  lanecast train windows/ --out runs/model --epochs 20 --seed 1\n"
@@ -57,9 +57,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def default_config() -> Any:
     """The shipped model's training config (architecture and hyper-parameters), else the code defaults."""
-    from io_adapters.errors import InputError
-    from models.checkpoint import read_card, resolve
-    from models.train import TrainConfig
+    from lanecast.io_adapters.errors import InputError
+    from lanecast.models.checkpoint import read_card, resolve
+    from lanecast.models.train import TrainConfig
 
     try:
         card = read_card(resolve(None)[1])
@@ -70,12 +70,12 @@ def default_config() -> Any:
 
 def train_and_save(windows_dir: Path, out: Path, config: Any, *, top_k: int = 3) -> dict[str, Any]:
     """Train, evaluate on val and test (if present), save; return the card."""
-    from io_adapters.errors import InputError
-    from models.checkpoint import save_checkpoint
-    from models.predict import STCNNForecaster
-    from models.train import train
-    from pipeline.windows_data import load_windows
-    from workflows.evaluate import evaluate
+    from lanecast.io_adapters.contracts.windows import load_windows
+    from lanecast.io_adapters.errors import InputError
+    from lanecast.models.checkpoint import save_checkpoint
+    from lanecast.models.predict import STCNNForecaster
+    from lanecast.models.train import train
+    from lanecast.workflows.evaluate import evaluate
 
     windows = load_windows(windows_dir)
     data = {
@@ -97,7 +97,7 @@ def train_and_save(windows_dir: Path, out: Path, config: Any, *, top_k: int = 3)
 
 
 def run(args: argparse.Namespace) -> int:
-    from models.train import TrainConfig
+    from lanecast.models.train import TrainConfig
 
     config = TrainConfig.from_file(args.config) if args.config else default_config()
     names = (

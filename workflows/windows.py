@@ -6,8 +6,8 @@ import argparse
 import time
 from pathlib import Path
 
-from io_adapters import registry
-from io_adapters.errors import InputError
+from lanecast.io_adapters import registry
+from lanecast.io_adapters.errors import InputError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -52,8 +52,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pipeline.make_windows import make_windows
-    from pipeline.windows_data import save_windows
+    from lanecast.io_adapters.contracts.windows import save_windows
+    from lanecast.pipeline.make_windows import make_windows
 
     started = time.perf_counter()
     if args.out.exists() and not args.out.is_dir():

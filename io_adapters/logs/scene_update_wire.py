@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from io_adapters.tracked_objects import NAN, Categorical, track_id_of, yaw_of
+from lanecast.io_adapters.logs.tracked_objects import NAN, Categorical, track_id_of, yaw_of
 
 # Bytes a fixed-width field's value takes, by wire type (VARINT and LEN are measured).
 _FIXED_WIDTH = np.array([0, 8, 0, 0, 0, 4, 0, 0], dtype=np.int64)

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-MSG_DIR = Path(__file__).parent / "data" / "ros_msgs"
+MSG_DIR = Path(__file__).parents[1] / "data" / "ros_msgs"
 
 TRACKED_OBJECTS = "autoware_perception_msgs/msg/TrackedObjects"
 MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"

@@ -1,7 +1,9 @@
-"""Write files and directories so that a reader never sees half of one.
+"""Files lanecast writes and the progress it shows while working.
 
-Outputs are written under a temporary name beside the target and renamed into place only when
+Atomic outputs: a reader never sees half of one. Outputs are written under a temporary name beside the target and renamed into place only when
 complete; on any error the temporary is removed and an existing target is left untouched.
+
+Progress bars: tqdm on stderr, shown on a terminal, silent in pipes and CI.
 """
 
 from __future__ import annotations
@@ -10,8 +12,13 @@ import contextlib
 import os
 import shutil
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
+from typing import TypeVar
+
+from tqdm.auto import tqdm
+
+T = TypeVar("T")
 
 
 def _umask() -> int:
@@ -45,3 +52,15 @@ def atomic_path(target: str | Path, *, directory: bool = False) -> Iterator[Path
         else:
             tmp.unlink(missing_ok=True)
         raise
+
+
+def progress(iterable: Iterable[T], *, desc: str, total: int | None = None, unit: str = "it") -> Iterator[T]:
+    """Wrap ``iterable`` in a progress bar (disabled when stderr is not a terminal)."""
+    yield from tqdm(
+        iterable, desc=desc, total=total, unit=unit, disable=None, dynamic_ncols=True, leave=False
+    )
+
+
+def bar(*, desc: str, total: int | float | None = None, unit: str = "it") -> tqdm:
+    """A manual progress bar (``update(n)``), disabled when stderr is not a terminal."""
+    return tqdm(desc=desc, total=total, unit=unit, disable=None, dynamic_ncols=True, leave=False)

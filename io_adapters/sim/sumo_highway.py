@@ -49,9 +49,9 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.csv as pacsv
 
-from io_adapters.errors import InputError
-from io_adapters.highd import NEIGHBOURS
-from io_adapters.progress import bar
+from lanecast.io_adapters.datasets.highd import NEIGHBOURS
+from lanecast.io_adapters.errors import InputError
+from lanecast.io_adapters.files import bar
 
 FRAME_RATE = 25.0
 STEP_S = 1.0 / FRAME_RATE

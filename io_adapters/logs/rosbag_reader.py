@@ -2,9 +2,9 @@
 
 Through rosbags' ``AnyReader``: the bag's own message definitions where it stores them, else
 lanecast's typestore (ROS 2 Humble / ROS 1 Noetic plus the Autoware types from their ``.msg``
-files, :mod:`io_adapters.ros_types`). Same message types and frame handling as the MCAP adapter:
+files, :mod:`lanecast.io_adapters.logs.ros_types`). Same message types and frame handling as the MCAP adapter:
 ``autoware_perception_msgs/msg/TrackedObjects``, ``visualization_msgs/msg/MarkerArray``, ``/tf``
-and odometry (see :mod:`io_adapters.tracked_objects`).
+and odometry (see :mod:`lanecast.io_adapters.logs.tracked_objects`).
 """
 
 from __future__ import annotations
@@ -15,9 +15,10 @@ from typing import Any
 
 import pyarrow as pa
 
-from io_adapters import ros_types, track_table
-from io_adapters import tracked_objects as to
-from io_adapters.errors import LogError
+from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.errors import LogError
+from lanecast.io_adapters.logs import ros_types
+from lanecast.io_adapters.logs import tracked_objects as to
 
 FORMAT = "rosbag"
 ROS1_MAGIC = b"#ROSBAG V2.0\n"

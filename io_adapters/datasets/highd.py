@@ -30,9 +30,9 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.csv as pacsv
 
-from io_adapters import track_table
-from io_adapters.errors import InputError
-from io_adapters.progress import progress
+from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.errors import InputError
+from lanecast.io_adapters.files import progress
 
 FORMAT = "highd"
 

@@ -5,7 +5,7 @@ track id) and, in ROS 2 logs (CDR), ``autoware_perception_msgs/msg/TrackedObject
 ``visualization_msgs/msg/MarkerArray`` (cube markers, id = track id). Transforms from
 ``tf2_msgs/msg/TFMessage`` (``/tf``, ``/tf_static``), ``foxglove.FrameTransform(s)`` and
 ``nav_msgs/msg/Odometry`` move objects in moving frames into a fixed one (see
-:mod:`io_adapters.tracked_objects`).
+:mod:`lanecast.io_adapters.logs.tracked_objects`).
 
 The file is walked record by record with every CRC checked (chunks, data section, summary); a
 truncated file, a corrupt chunk or an unknown schema raises :class:`LogError` with the byte offset.
@@ -28,10 +28,11 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from io_adapters import ros_types, track_table
-from io_adapters import scene_update_wire as wire
-from io_adapters import tracked_objects as to
-from io_adapters.errors import LogError
+from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.errors import LogError
+from lanecast.io_adapters.logs import ros_types
+from lanecast.io_adapters.logs import scene_update_wire as wire
+from lanecast.io_adapters.logs import tracked_objects as to
 
 FORMAT = "mcap"
 MAGIC = b"\x89MCAP0\r\n"

@@ -3,7 +3,7 @@
 One message per frame of each recording at the recording's own rate (log time = publish time =
 the frame's earliest ``time_ns``), protobuf (default; the schema is SceneUpdate's file descriptor
 set) or JSON (``encoding="json"``; schema encoding ``jsonschema``). Entities follow the conventions
-of :mod:`io_adapters.tracked_objects` (cube, id = track id, metadata class, lane_id (absent for
+of :mod:`lanecast.io_adapters.logs.tracked_objects` (cube, id = track id, metadata class, lane_id (absent for
 null), vx, vy), so reading the log back gives the same table; accelerations are not written (they
 come back as differences of the velocities). Chunked with zstd, CRCs on, with summary
 and indexes; written atomically. The log's metadata record ``lanecast`` holds the recording
@@ -20,13 +20,12 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from io_adapters import track_table
-from io_adapters import tracked_objects as to
-from io_adapters.atomic import atomic_path
-from io_adapters.errors import InputError
-from io_adapters.progress import bar
+from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.errors import InputError
+from lanecast.io_adapters.files import atomic_path, bar
+from lanecast.io_adapters.logs import tracked_objects as to
 
-SCHEMA_JSON = Path(__file__).parent / "data" / "foxglove" / "SceneUpdate.json"
+SCHEMA_JSON = Path(__file__).parents[1] / "data" / "foxglove" / "SceneUpdate.json"
 LIBRARY = "lanecast"
 ENCODINGS = ("protobuf", "json")
 
@@ -128,7 +127,7 @@ def _json_encoder(frame_id: str, rs: RowStrings) -> Callable[[np.ndarray], bytes
             "lines": [],
             "triangles": [],
             "texts": [],
-            "models": [],
+            "lanecast.models": [],
         }
 
     def encode(rows: np.ndarray) -> bytes:

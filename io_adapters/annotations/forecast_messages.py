@@ -1,6 +1,6 @@
 """Forecasts as log messages: ``foxglove.SceneUpdate`` on /lanecast/forecast and JSON on /lanecast/prediction.
 
-A forecasts table (``workflows.forecast.forecast_table``: one row per target and forecast time t0:
+A forecasts table (``lanecast.workflows.forecast.forecast_table``: one row per target and forecast time t0:
 ``recording``, ``track_id``, ``t0_ns``, ``x``, ``y`` (5 predicted positions, source frame, m),
 ``maneuver_probs`` (5×3, null for baselines), ``maneuver`` (5, null for baselines), optionally
 ``horizon_s`` (5), ``origin_x``/``origin_y`` (the target's centre at t0; else interpolated from the
@@ -34,7 +34,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from io_adapters.errors import InputError
+from lanecast.io_adapters.errors import InputError
 
 FORECAST_TOPIC = "/lanecast/forecast"
 PREDICTION_TOPIC = "/lanecast/prediction"
@@ -476,7 +476,7 @@ def scene_update_dict(frame: ForecastFrame) -> dict[str, Any]:
                 ],
                 "triangles": [],
                 "texts": [],
-                "models": [],
+                "lanecast.models": [],
             }
         )
     return {"deletions": [], "entities": entities}
@@ -486,7 +486,7 @@ def scene_update_dict(frame: ForecastFrame) -> dict[str, Any]:
 def scene_update_jsonschema() -> bytes:
     """Foxglove's published JSON schema of ``foxglove.SceneUpdate`` (shipped in io_adapters/data)."""
     return (
-        resources.files("io_adapters") / "data" / "foxglove" / "jsonschema" / "SceneUpdate.json"
+        resources.files("lanecast.io_adapters") / "data" / "foxglove" / "jsonschema" / "SceneUpdate.json"
     ).read_bytes()
 
 
@@ -540,7 +540,7 @@ def ros2_typestore() -> Any:
 
     store = get_typestore(Stores.ROS2_HUMBLE)
     types: dict[str, Any] = {}
-    folder = resources.files("io_adapters") / "data" / "foxglove" / "ros2"
+    folder = resources.files("lanecast.io_adapters") / "data" / "foxglove" / "ros2"
     for entry in sorted(folder.iterdir(), key=lambda p: p.name):
         if entry.name.endswith(".msg"):
             types.update(get_types_from_msg(entry.read_text(), f"foxglove_msgs/msg/{entry.name[:-4]}"))

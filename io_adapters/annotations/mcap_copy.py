@@ -28,8 +28,8 @@ from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
 from mcap.stream_reader import CRCValidationError, StreamReader
 from mcap.writer import CompressionType, IndexType, Writer
 
-from io_adapters.errors import LogError
-from io_adapters.forecast_messages import ChannelSpec
+from lanecast.io_adapters.annotations.forecast_messages import ChannelSpec
+from lanecast.io_adapters.errors import LogError
 
 ExtraMessage = tuple[int, int, bytes]  # (log_time_ns, index into the extra channels, payload)
 Progress = Callable[[int, int], None]  # (messages copied since last call, input bytes since last call)

@@ -8,7 +8,7 @@ from typing import Any
 
 import pyarrow as pa
 
-from io_adapters import track_table
+from lanecast.io_adapters.contracts import track_table
 
 FORMAT = "parquet"
 _MAGIC = b"PAR1"

@@ -2,7 +2,7 @@
 
 Per recording, one ``autoware_perception_msgs/msg/TrackedObjects`` message per frame on its topic
 and a ``visualization_msgs/msg/MarkerArray`` companion on ``<topic>/markers`` (cube per object,
-``ns`` = class, ``text`` = ``lane_id=<n>``), as fixed in :mod:`io_adapters.tracked_objects`. The
+``ns`` = class, ``text`` = ``lane_id=<n>``), as fixed in :mod:`lanecast.io_adapters.logs.tracked_objects`. The
 recording metadata (source, frame rate, units, recordings) is a ``std_msgs/msg/String`` (JSON) on
 ``/lanecast/metadata`` at the first message time, and in ROS 2 also rosbag2 ``custom_data``.
 Written through rosbags' writers into a temporary path, renamed when complete.
@@ -18,11 +18,11 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from io_adapters import ros_types, track_table
-from io_adapters import tracked_objects as to
-from io_adapters.atomic import atomic_path
-from io_adapters.errors import InputError
-from io_adapters.progress import bar
+from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.errors import InputError
+from lanecast.io_adapters.files import atomic_path, bar
+from lanecast.io_adapters.logs import ros_types
+from lanecast.io_adapters.logs import tracked_objects as to
 
 STORAGES = ("sqlite3", "mcap")
 

@@ -2,7 +2,7 @@
 
 Reading: a decoder appends every object of a message to an :class:`ObjectColumns` (flat Python
 lists, no message kept; protobuf SceneUpdates are decoded many messages at a time straight from the
-wire format by :mod:`io_adapters.scene_update_wire`), transforms (``/tf``, foxglove
+wire format by :mod:`lanecast.io_adapters.logs.scene_update_wire`), transforms (``/tf``, foxglove
 FrameTransforms, odometry) go into :class:`Transforms`, and :func:`assemble` turns everything into
 one track table: objects in moving frames moved into the fixed frame their transform chain reaches
 (map, odom, world, road, or a frame named in lanecast's metadata), heading from the quaternion yaw
@@ -45,8 +45,8 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from io_adapters import track_table
-from io_adapters.errors import FrameError, LogError
+from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.errors import FrameError, LogError
 
 FIXED_FRAMES: frozenset[str] = frozenset({"map", "odom", "world", "road"})
 META_NAME = "lanecast"

@@ -19,8 +19,8 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from io_adapters.atomic import atomic_path
-from io_adapters.errors import TrackTableError
+from lanecast.io_adapters.errors import TrackTableError
+from lanecast.io_adapters.files import atomic_path
 
 SCHEMA_VERSION = 1
 META_KEY = b"lanecast"
@@ -353,7 +353,7 @@ def write_parquet(table: pa.Table, path: str | Path) -> Path:
 
 def read_parquet(path: str | Path) -> pa.Table:
     """Read a track table written by :func:`write_parquet` and validate it."""
-    from io_adapters.errors import InputError
+    from lanecast.io_adapters.errors import InputError
 
     try:
         table = pq.read_table(path)

@@ -1,0 +1,1 @@
+"""The contracts every part relies on, each defined once: track table, windows, forecasts."""

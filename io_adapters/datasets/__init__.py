@@ -1,0 +1,1 @@
+"""Dataset readers: highD, NGSIM, lanecast's own Parquet track tables."""

@@ -1,0 +1,1 @@
+"""The SUMO highway simulator, written as highD-format recordings."""
