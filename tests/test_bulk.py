@@ -21,6 +21,7 @@ from test_annotate import assert_all_original_records_equal, forecasts_for, make
 
 from lanecast.workflows.annotate import AnnotateOptions
 from lanecast.workflows.bulk import Manifest, checksum, clean_temporaries, discover, plan_outputs, run_bulk
+from lanecast.workflows.report import annotated_logs
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -78,7 +79,7 @@ def test_rerun_skips_done_retries_failed_and_redoes_changed_inputs(tmp_path: Pat
     done = next(e for e in entries if e["input"].endswith("log00.mcap"))
     assert done["sha256"] == checksum(logs / "log00.mcap")
     assert done["counts"]["added"] == 6 and done["counts"]["messages"] == 50 + 5 + 8
-    assert Path(done["output"]) == out / "log00.mcap" and forecast_count(out / "log00.mcap") == 3
+    assert done["output"] == "log00.mcap" and forecast_count(out / "log00.mcap") == 3
 
     second = run_bulk([logs], out, opts)  # done logs skipped, the bad one retried (and fails again)
     assert (len(second.done), len(second.failed), len(second.skipped)) == (0, 1, 3)
@@ -93,6 +94,28 @@ def test_rerun_skips_done_retries_failed_and_redoes_changed_inputs(tmp_path: Pat
         ["broken.mcap", "log00.mcap", "log01.mcap", "log02.mcap"], "done"
     )
     assert_all_original_records_equal(logs / "log00.mcap", out / "log00.mcap")
+
+
+def test_relative_out_resumes_and_reports_from_another_working_directory(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The manifest's paths resolve the same from anywhere: a rerun of the same relative command from
+    another directory redoes nothing, and `report` finds the outputs the manifest names."""
+    _, fc = make_fleet(tmp_path, 2, messages=30)
+    (tmp_path / "a" / "b").mkdir(parents=True)
+    monkeypatch.chdir(tmp_path / "a")
+    first = run_bulk([Path("../logs")], Path("out"), AnnotateOptions(forecasts=fc))
+    assert len(first.done) == 2 and (tmp_path / "a" / "out" / "log00.mcap").is_file()
+    assert {e["output"] for e in Manifest(tmp_path / "a" / "out").entries()} == {"log00.mcap", "log01.mcap"}
+
+    monkeypatch.chdir(tmp_path / "a" / "b")
+    again = run_bulk([Path("../../logs")], Path("../out"), AnnotateOptions(forecasts=fc))
+    assert len(again.skipped) == 2 and not again.entries
+    assert len(Manifest(tmp_path / "a" / "out").entries()) == 2  # no second entry per log
+
+    monkeypatch.chdir(tmp_path)
+    found = annotated_logs([Path("a/out")])
+    assert found == [Path("a/out/log00.mcap"), Path("a/out/log01.mcap")] and all(p.is_file() for p in found)
 
 
 def test_manifest_survives_a_line_cut_short_and_temporaries_are_cleaned(tmp_path: Path) -> None:

@@ -69,8 +69,12 @@ def test_report_refuses_a_log_without_forecasts(annotated: tuple[Path, Path], tm
     assert not (tmp_path / "r" / "metrics.json").exists()
 
 
-def test_demo_runs_the_whole_pipeline(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    out = tmp_path / "demo"
+def test_demo_runs_the_whole_pipeline(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """With a relative --out, as the README's first command runs it."""
+    monkeypatch.chdir(tmp_path)
+    out = Path("demo")
     assert main(["demo", "--out", str(out), "--minutes", "2", "--density", "low"]) == 0
     printed = capsys.readouterr().out
     assert f"{out / 'annotated' / 'highway.mcap'}" in printed

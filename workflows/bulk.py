@@ -2,7 +2,8 @@
 
 ``OUT_DIR/manifest.jsonl`` is append-only JSON lines (each line fsync'ed): one entry per finished
 attempt with the log's status (``done``/``failed``), the sha256 of the input, the output path, the
-counts, the error and the duration. An entry is appended only after the output has been renamed
+counts, the error and the duration. Paths resolve the same from any working directory: the input is
+absolute, the output relative to the manifest's own directory. An entry is appended only after the output has been renamed
 into place, so at any moment of a kill:
 
 - a log whose latest entry is ``done`` with the input's current checksum and whose output exists is
@@ -274,6 +275,16 @@ def annotate_task(task: Task, options: AnnotateOptions, catch_all: bool = True) 
 # ------------------------------------------------------------------------------------------ runner
 
 
+def relative_to_manifest(output: Path, out_dir: Path) -> str:
+    """``output`` as the manifest records it: relative to ``out_dir`` (the manifest's directory) when
+    inside it, else absolute; either way it resolves the same from any working directory."""
+    output = output.absolute()
+    try:
+        return output.relative_to(out_dir.absolute()).as_posix()
+    except ValueError:
+        return str(output)
+
+
 def plan(inputs: Sequence[Path], out_dir: Path, manifest: Manifest) -> tuple[list[Task], list[Path]]:
     """(tasks to run, inputs skipped as done): done = latest entry done, output exists, same input.
 
@@ -286,7 +297,7 @@ def plan(inputs: Sequence[Path], out_dir: Path, manifest: Manifest) -> tuple[lis
         if (
             last is not None
             and last.get("status") == "done"
-            and Path(last["output"]).exists()
+            and (out_dir / last["output"]).exists()
             and (last.get("stat") == stat_signature(task.input) or last.get("sha256") == checksum(task.input))
         ):
             skipped.append(task.input)
@@ -305,12 +316,16 @@ def run_bulk(
     address: str | None = None,
     retries: int = 2,
 ) -> BulkResult:
-    """Annotate every log named by ``paths`` into ``out_dir``; resume from its manifest."""
-    out_dir = Path(out_dir)
+    """Annotate every log named by ``paths`` into ``out_dir``; resume from its manifest.
+
+    ``out_dir`` is made absolute here, so that workers (other processes, Ray nodes with another
+    working directory) write where the caller asked.
+    """
+    out_dir = Path(out_dir).absolute()
     options = options or AnnotateOptions()
     if workers < 1:
         raise InputError(None, f"--workers must be at least 1, got {workers}")
-    inputs = discover(paths, exclude=out_dir)
+    inputs = [p.absolute() for p in discover(paths, exclude=out_dir)]
     if not inputs:
         raise InputError(
             None, f"no logs found in {', '.join(map(str, paths))}", expected="*.mcap, *.bag or ROS 2 bags"
@@ -330,6 +345,7 @@ def run_bulk(
             progress.set_postfix_str(f"{messages:,} msgs")
 
         def on_entry(entry: dict[str, Any]) -> None:
+            entry["output"] = relative_to_manifest(Path(entry["output"]), out_dir)
             manifest.append(entry)
             result.entries.append(entry)
             progress.update(1)
