@@ -169,7 +169,7 @@ def scene_plot(scene: Scene) -> bytes:
     half = max(7.5, float(np.abs(ys).max()) + 2.5)
     ax.set_xlim(x_lo, x_hi)  # the target's history and future; far neighbours fall outside
     ax.set_ylim(-half, half)  # lanes stay visible: the y scale is stretched against x, as in the paper
-    ax.set_xlabel("x (m, along the target's heading at t0)")
+    ax.set_xlabel("x (m, along the road at t0)")
     ax.set_ylabel("y (m, left)")
     ax.set_title(scene.title, fontsize=9)
     ax.grid(alpha=0.2)

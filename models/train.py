@@ -324,7 +324,13 @@ def train(
     model.regressor.load_state_dict(best_r[2])
     model.to("cpu").eval()
 
+    params = (getattr(windows, "manifest", None) or {}).get("parameters", {})
     card = {
+        "windows": {  # how inference must cut windows to match the training data
+            "neighbour_range_m": params.get("neighbour_range_m"),
+            "lane_width_m": params.get("lane_width_m"),
+            "window_frame": "road (translation only in road frames; history chord elsewhere)",
+        },
         "normalisation": {
             "inputs": input_stats.to_dict(),
             "future": {"mean": future_mean.tolist(), "std": future_std, "units": "m"},

@@ -61,6 +61,7 @@ def make_windows(
     t0_ns: np.ndarray | None = None,
     neighbours: str = "auto",
     lane_width: float = nb_mod.LANE_WIDTH,
+    neighbour_range: float = nb_mod.NEIGHBOUR_RANGE_M,
     allow_empty: bool = False,
     max_rows: int = MAX_ROWS,
     workers: int = wt.WORKERS,
@@ -70,7 +71,8 @@ def make_windows(
     ``stride``: frames at 10 Hz between window starts of a track; ``require_future``: windows need
     T's 5 s of future (else future NaN / maneuver -1 where it is missing); ``split``: pip, hash or
     none (seeded by ``seed``); ``t0_ns``: only windows at these times (rounded to 10 Hz frames),
-    instead of every ``stride`` frames; ``neighbours``: auto, source, lanes or bands.
+    instead of every ``stride`` frames; ``neighbours``: auto, source, lanes or bands;
+    ``neighbour_range``: metres ahead or behind beyond which a vehicle is no neighbour.
     Recordings are processed in groups of at most ``max_rows`` input rows (a loop over
     recordings, so that memory stays bounded on whole datasets), on ``workers`` threads; each
     group is vectorised. The stage times in the manifest are summed over groups (CPU-like).
@@ -78,6 +80,8 @@ def make_windows(
     """
     if stride < 1:
         raise InputError(None, f"stride {stride}", expected="a stride of at least 1 frame")
+    if not neighbour_range > 0:
+        raise InputError(None, f"neighbour range {neighbour_range}", expected="a positive range in metres")
     if split not in SPLIT_METHODS:
         raise InputError(None, f"unknown split method {split!r}", expected=f"one of {SPLIT_METHODS}")
     timings = {"resample_s": 0.0, "neighbours_s": 0.0, "windows_s": 0.0}
@@ -100,7 +104,15 @@ def make_windows(
 
     def prepare(group: tuple[int, int]) -> _Prep:
         lo, hi = group
-        return _prepare(table.slice(lo, hi - lo), stride, require_future, t0_frames, neighbours, lane_width)
+        return _prepare(
+            table.slice(lo, hi - lo),
+            stride,
+            require_future,
+            t0_frames,
+            neighbours,
+            lane_width,
+            neighbour_range,
+        )
 
     with ThreadPoolExecutor(max_workers=max(workers, 1)) as pool:
         # Batches of `workers` groups: prepared in parallel (resampling and neighbours are CPU
@@ -160,6 +172,7 @@ def make_windows(
             "t0_ns_given": t0_ns is not None,
             "neighbours": neighbours,
             "lane_width_m": lane_width,
+            "neighbour_range_m": neighbour_range,
             "rate_hz": RATE_HZ,
             "gap_factor": GAP_FACTOR,
             "history_frames": HISTORY,
@@ -235,6 +248,7 @@ def _prepare(
     t0_frames: np.ndarray | None,
     neighbours: str,
     lane_width: float,
+    neighbour_range: float,
 ) -> _Prep:
     """resample -> neighbours -> labels -> window rows for one group of recordings."""
     timings: dict[str, float] = {}
@@ -243,7 +257,9 @@ def _prepare(
     timings["resample_s"] = time.perf_counter() - t
     t = time.perf_counter()
     cols = nb_mod.columns(table10)
-    nb = nb_mod.neighbour_rows(table10, cols, method=neighbours, lane_width=lane_width)
+    nb = nb_mod.neighbour_rows(
+        table10, cols, method=neighbours, lane_width=lane_width, max_range_m=neighbour_range
+    )
     timings["neighbours_s"] = time.perf_counter() - t
     t = time.perf_counter()
     row_labels = labels_mod.row_labels(cols, RATE_HZ)
@@ -418,7 +434,8 @@ def build_manifest(
             "t0_ns": "ns",
             "origin_heading": "rad",
         },
-        "window_frame": "origin at the target centre at t0, x along its heading, y to its left; "
+        "window_frame": "origin at the target centre at t0, x along the road (road-frame recordings: "
+        "the recording's x axis; others: the target's direction of travel over its history), y to its left; "
         "source_xy = origin + R(origin_heading) @ window_xy",
         "horizons": HORIZONS,
         "timings": timings or {},

@@ -46,6 +46,11 @@ SOURCE_COLUMNS: dict[str, str] = {
     "RR": "right_following_id",
 }
 LANE_WIDTH = 3.75
+# Longitudinal range of a neighbour (m). 100 m: at 130 km/h (36 m/s) a vehicle 100 m away is 2.8 s
+# away, beyond the time gaps at which drivers interact (car-following gaps are ~1-2 s), and it
+# stays well inside highD's ~420 m field of view from anywhere in its central part, so that a
+# neighbour slot means the same in highD, simulations and logs (whose trackers may see 3 km).
+NEIGHBOUR_RANGE_M = 100.0
 METHODS = ("auto", "source", "lanes", "bands")
 _CANDIDATES = np.arange(-4, 4)  # positions around the insertion point searched in an adjacent lane
 _MAX_PAIRS = 4_000_000  # pairs per chunk in the band method
@@ -427,6 +432,21 @@ def _bands_chunk(
         out[ti[first], SLOTS.index(slot)] = nj[first]
 
 
+def limit_range(cols: Columns, rows: np.ndarray, max_range_m: float) -> np.ndarray:
+    """Neighbour rows [n, 7] with -1 where the neighbour is more than ``max_range_m`` ahead or behind.
+
+    The distance is longitudinal: along x in road frames, else along the target's heading.
+    """
+    got = rows >= 0
+    j = np.where(got, rows, np.arange(cols.n)[:, None])
+    dx = cols.x[j] - cols.x[:, None]
+    dy = cols.y[j] - cols.y[:, None]
+    road = cols.road_frame[cols.rec][:, None]
+    h = cols.heading[:, None]
+    lon = np.where(road, dx, np.cos(h) * dx + np.sin(h) * dy)
+    return np.where(got & (np.abs(lon) <= max_range_m), rows, -1)
+
+
 @dataclass
 class Neighbours:
     """Neighbour rows [n, 7] (slot order SLOTS, -1 none) and the method used per recording."""
@@ -468,8 +488,10 @@ def neighbour_rows(
     *,
     method: str = "auto",
     lane_width: float = LANE_WIDTH,
+    max_range_m: float = NEIGHBOUR_RANGE_M,
 ) -> Neighbours:
-    """The neighbours of every row of ``table`` (see the module docstring for the methods)."""
+    """The neighbours of every row of ``table`` (see the module docstring for the methods), none
+    farther than ``max_range_m`` ahead or behind (:func:`limit_range`)."""
     cols = columns(table) if cols is None else cols
     methods = recording_methods(table, cols, method)
     rows = np.full((cols.n, len(SLOTS)), -1, dtype=np.int64)
@@ -487,11 +509,17 @@ def neighbour_rows(
         else:
             got = from_bands(cols, part, lane_width)
         rows[part] = got[part]
-    return Neighbours(rows, methods)
+    return Neighbours(limit_range(cols, rows, max_range_m), methods)
 
 
-def neighbour_ids(table: pa.Table, *, method: str = "auto", lane_width: float = LANE_WIDTH) -> np.ndarray:
+def neighbour_ids(
+    table: pa.Table,
+    *,
+    method: str = "auto",
+    lane_width: float = LANE_WIDTH,
+    max_range_m: float = NEIGHBOUR_RANGE_M,
+) -> np.ndarray:
     """Neighbour track ids [n, 7] of every row (slot order SLOTS, -1 none)."""
     cols = columns(table)
-    rows = neighbour_rows(table, cols, method=method, lane_width=lane_width).rows
+    rows = neighbour_rows(table, cols, method=method, lane_width=lane_width, max_range_m=max_range_m).rows
     return np.where(rows >= 0, cols.track[np.maximum(rows, 0)], -1)

@@ -2,7 +2,7 @@
 
 A window at t0 of target T takes T's 30 history frames (t0-2.9 s … t0) and, at every history
 frame k, whoever occupies each neighbour slot at that frame, with its state at that frame. All in
-the window frame: origin T's centre at t0, x along T's heading at t0, y to its left. Channels
+the window frame (:func:`frame_heading`): origin T's centre at t0, x along the road, y to its left. Channels
 x, y, speed |v| and longitudinal acceleration (a projected on the vehicle's own heading). Absent
 neighbours are 0 with ``present`` False. Everything is fancy indexing into row arrays: rows of a
 track are consecutive and sorted by frame, so T's frame t0+d is row r0+d inside a gap-free run.
@@ -25,6 +25,8 @@ SLOT_ROWS = np.array([ROWS.index(s) for s in SLOTS])  # tensor row of each neigh
 TARGET_ROW = ROWS.index("T")
 CHUNK = 512  # windows per gather chunk (temporaries of ~1 MB stay in cache)
 WORKERS = min(2, os.cpu_count() or 1)  # threads for the CPU-bound stages (see make_windows)
+MIN_CHORD_M = 3.0  # a shorter displacement gives no reliable direction (tracker noise ~0.1-0.3 m)
+LONG_CHORD_FRAMES = 100  # 10 s: the fallback chord for a target that barely moved in its history
 
 
 def runs(cols: Columns) -> tuple[np.ndarray, np.ndarray]:
@@ -115,6 +117,39 @@ def per_row_features(cols: Columns, neighbour_rows: np.ndarray) -> tuple[np.ndar
     return features, present
 
 
+def frame_heading(cols: Columns, t0_rows: np.ndarray) -> np.ndarray:
+    """Rotation of each window frame in its source frame, float64 [W] rad (docs/design.md §2).
+
+    The frame's x axis is the direction of the road, never T's instantaneous heading (a few
+    degrees off the road during a lane change, which swings a 5 s future by metres):
+    - road-frame recordings (highD, US-101, I-80, simulations): 0, a translation only;
+    - world-frame logs and arterials: T's direction of travel over its history, the chord from
+      t0-2.9 s to t0; where T moved less than ``MIN_CHORD_M`` in it (queues), the chord over up to
+      10 s of gap-free past; where even that is short (T stood still), the circular mean of its
+      heading over the history. Causal: only the history decides, as at inference.
+    ``t0_rows`` int64 [W] must have 30 gap-free history rows (see :func:`window_rows`).
+    """
+    t0 = np.asarray(t0_rows, dtype=np.int64)
+    out = np.zeros(t0.size, dtype=np.float64)
+    world = ~cols.road_frame[cols.rec[t0]]
+    if not world.any():
+        return out
+    t = t0[world]
+    first = t - (HISTORY - 1)
+    dx, dy = cols.x[t] - cols.x[first], cols.y[t] - cols.y[first]
+    short = np.hypot(dx, dy) < MIN_CHORD_M
+    if short.any():
+        back, _ = runs(cols)
+        far = t - np.minimum(back[t] - 1, LONG_CHORD_FRAMES)
+        dx = np.where(short, cols.x[t] - cols.x[far], dx)
+        dy = np.where(short, cols.y[t] - cols.y[far], dy)
+    still = np.hypot(dx, dy) < MIN_CHORD_M
+    hist = first[:, None] + np.arange(HISTORY)[None, :]  # [w, 30]
+    mean_heading = np.arctan2(np.sin(cols.heading[hist]).sum(1), np.cos(cols.heading[hist]).sum(1))
+    out[world] = np.where(still, mean_heading, np.arctan2(dy, dx))
+    return out
+
+
 def gather(
     cols: Columns,
     neighbour_rows: np.ndarray,
@@ -131,14 +166,14 @@ def gather(
     :func:`runs`). A window's history is the 30 consecutive rows t0-29 … t0 of its target, so it
     reads 30 consecutive values of every per-row feature (a sliding-window view); a neighbour's
     position in the window frame is (its offset from T at that frame) + (T's displacement since
-    t0), rotated by T's heading at t0. Works ``chunk`` windows at a time so that the temporaries
+    t0), rotated into the window frame (:func:`frame_heading`). Works ``chunk`` windows at a time so that the temporaries
     stay in cache, on ``workers`` threads (default 1: the stage is bound by faulting in its output
     memory, which threads contend for). ``out``: preallocated (inputs, present) to fill.
     """
     features, row_present = per_row_features(cols, neighbour_rows)
     t0 = np.asarray(t0_rows, dtype=np.int64)
     w = t0.size
-    h0 = cols.heading[t0]
+    h0 = frame_heading(cols, t0)
     cos0, sin0 = np.cos(h0), np.sin(h0)
     if out is None:
         inputs = np.empty((w, 4, len(ROWS), HISTORY), dtype=np.float32)

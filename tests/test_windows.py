@@ -219,11 +219,97 @@ def test_speed_and_longitudinal_acceleration_use_the_vehicles_own_heading() -> N
     t = ROWS.index("T")
     np.testing.assert_allclose(w.inputs[0, 2, t], 5.0, atol=1e-5)
     np.testing.assert_allclose(w.inputs[0, 3, t], np.cos(0.5) + 2 * np.sin(0.5), atol=1e-5)
-    # positions in the window frame (x along heading 0.5 at t0): T at t0 is the origin
+    # positions in the window frame (a road frame: translated, not rotated by the heading)
     assert w.inputs[0, 0, t, -1] == 0.0 and w.inputs[0, 1, t, -1] == 0.0
     dx = -3.0 * np.arange(29, -1, -1)
-    np.testing.assert_allclose(w.inputs[0, 0, t], np.cos(0.5) * dx, atol=1e-4)
-    np.testing.assert_allclose(w.inputs[0, 1, t], -np.sin(0.5) * dx, atol=1e-4)
+    np.testing.assert_allclose(w.inputs[0, 0, t], dx, atol=1e-4)
+    np.testing.assert_allclose(w.inputs[0, 1, t], 0.0, atol=1e-4)
+    np.testing.assert_allclose(w.origin()[2], 0.0)
+
+
+def left_change(frames: np.ndarray, t_mid: float) -> dict[int, dict[str, Any]]:
+    """T at 30 m/s changing from lane 2 to lane 3 (+y) with a smooth lateral profile over 4 s
+    centred on frame ``t_mid``; its heading follows its motion (up to ~3° off the road)."""
+    u = np.clip((frames - t_mid) / 40.0 + 0.5, 0.0, 1.0)
+    y = LANE * (3 * u**2 - 2 * u**3)
+    vy = LANE * (6 * u - 6 * u**2) / 4.0
+    lane = np.where(y < LANE / 2, 2, 3)
+    return {
+        1: {
+            "frame": frames,
+            "x": 3.0 * frames,
+            "y": y,
+            "lane": lane,
+            "vy": vy,
+            "heading": np.arctan2(vy, 30.0),
+        }
+    }
+
+
+def test_left_lane_change_under_way_ends_on_the_left() -> None:
+    """Road frame, a left change under way at t0 (heading ~3° to the left): the future ends one
+    lane to the left. Rotating by the instantaneous heading would end it ~5 m to the right."""
+    frames = np.arange(100)
+    w = make_windows(table_of(left_change(frames, 39.0)), split="none", t0_ns=[3.9e9])
+    assert len(w) == 1
+    assert w.maneuver[0, 0] == 1  # labelled left
+    np.testing.assert_allclose(w.future[0, -1], [150.0, LANE / 2], atol=0.25)
+    assert w.future[0, :, 1].min() > 0.0  # every future step on the left of t0's position
+    np.testing.assert_allclose(w.inputs[0, 1, ROWS.index("T"), 0], -LANE / 2, atol=0.25)
+    assert w.origin()[2][0] == 0.0
+
+
+def test_left_lane_change_in_a_world_frame_ends_on_the_left() -> None:
+    """World frame rotated by 0.7 rad, a left change starting at t0: the frame is the road's
+    direction (the history's chord), so the future ends one lane to the left (+y)."""
+    frames = np.arange(100)
+    w = make_windows(table_of(left_change(frames, 59.0), rotate=0.7), split="none", t0_ns=[3.9e9])
+    assert w.maneuver[0].tolist() == [1, 1, 1, 1, 0]
+    np.testing.assert_allclose(w.future[0, -1], [150.0, LANE], atol=0.05)
+    assert w.origin()[2][0] == pytest.approx(0.7, abs=1e-6)
+
+
+def test_world_frame_follows_the_history_chord_not_a_noisy_heading() -> None:
+    """Straight driving whose heading column is noisy (±10°): the frame is the history's chord."""
+    frames = np.arange(100)
+    rng = np.random.default_rng(0)
+    tracks = {1: {"frame": frames, "x": 3.0 * frames, "y": np.zeros(100), "lane": np.full(100, 2),
+                  "heading": rng.uniform(-0.17, 0.17, 100)}}  # fmt: skip
+    w = make_windows(table_of(tracks, rotate=-2.0), split="none")
+    np.testing.assert_allclose(w.origin()[2], -2.0, atol=1e-6)
+    np.testing.assert_allclose(w.future[..., 1], 0.0, atol=1e-3)
+
+
+def test_standing_target_falls_back_to_longer_chord_then_heading() -> None:
+    """A target that moved 40 m along the world direction 1.0 rad, then stood for 3 s: its frame
+    is the 10 s chord (1.0); one that never moved takes its mean heading."""
+    frames = np.arange(120)
+    x = np.minimum(frames, 40) * 1.0
+    tracks = {
+        1: {"frame": frames, "x": x, "y": np.zeros(120), "lane": np.full(120, 2), "vx": 0.0},
+        2: {"frame": frames, "x": np.full(120, -50.0), "y": np.zeros(120), "lane": np.full(120, 2),
+            "vx": 0.0, "heading": 0.3},
+    }  # fmt: skip
+    w = make_windows(table_of(tracks, rotate=1.0), split="none", t0_ns=[6.9e9])
+    ids = w.index.column("track_id").to_numpy()
+    heading = w.origin()[2]
+    assert heading[ids == 1][0] == pytest.approx(1.0, abs=1e-6)
+    assert heading[ids == 2][0] == pytest.approx(1.3, abs=1e-6)
+
+
+def test_neighbour_range_drops_far_vehicles() -> None:
+    """A vehicle 2,960 m ahead in T's lane is no neighbour (default 100 m); at 50 m it is F; the
+    range is recorded in the manifest."""
+    frames = np.arange(90)
+    far = make_windows(table_of(straight({1: (2, 0.0), 2: (2, 2960.0)}, frames)), split="none")
+    assert not far.present[:, ROWS.index("F")].any()
+    assert far.manifest["parameters"]["neighbour_range_m"] == 100.0
+    near = make_windows(table_of(straight({1: (2, 0.0), 2: (2, 50.0)}, frames)), split="none")
+    assert near.present[near.index.column("track_id").to_numpy() == 1][:, ROWS.index("F")].all()
+    wide = make_windows(
+        table_of(straight({1: (2, 0.0), 2: (2, 2960.0)}, frames)), split="none", neighbour_range=3000.0
+    )
+    assert wide.present[wide.index.column("track_id").to_numpy() == 1][:, ROWS.index("F")].all()
 
 
 def t0_of(w: Windows) -> list[int]:

@@ -55,12 +55,23 @@ def forecast_table(
     An empty table (0 rows, same columns) when no target has 3 s of history.
     """
     from lanecast.io_adapters.errors import InputError
+    from lanecast.models.predict import STCNNForecaster
     from lanecast.pipeline.make_windows import make_windows
+    from lanecast.pipeline.neighbours import NEIGHBOUR_RANGE_M
 
     stride = round(every_s * WINDOW_RATE_HZ)
     if stride < 1:
         raise InputError(None, f"every_s={every_s}", expected=f"at least {1 / WINDOW_RATE_HZ:g} s")
+    forecaster = forecaster or STCNNForecaster.load(model_dir)
+    card = getattr(forecaster, "card", None) or {}
+    neighbour_range = (card.get("windows") or {}).get("neighbour_range_m") or NEIGHBOUR_RANGE_M
     windows = make_windows(
-        table, stride=stride, require_future=False, split="none", t0_ns=t0_ns, allow_empty=True
+        table,
+        stride=stride,
+        require_future=False,
+        split="none",
+        t0_ns=t0_ns,
+        allow_empty=True,
+        neighbour_range=float(neighbour_range),
     )
     return forecast_windows(windows, model_dir, top_k=top_k, batch_size=batch_size, forecaster=forecaster)

@@ -44,6 +44,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="neighbour selection (default: the source's ids, else lanes, else lateral bands)",
     )
     p.add_argument(
+        "--neighbour-range",
+        type=float,
+        default=100.0,
+        metavar="M",
+        help="a vehicle farther ahead or behind is no neighbour, in metres (default: 100)",
+    )
+    p.add_argument(
         "--no-future",
         action="store_true",
         help="also cut windows without 5 s of future (future NaN, maneuver -1 where unknown)",
@@ -68,6 +75,7 @@ def run(args: argparse.Namespace) -> int:
         split=args.split,
         seed=args.seed,
         neighbours=args.neighbours,
+        neighbour_range=args.neighbour_range,
     )
     windows.manifest["sources"]["inputs"] = [str(Path(p)) for p in args.table]
     path = save_windows(windows, args.out)
