@@ -6,7 +6,7 @@ Builds a synthetic drive log of about ``--size-mb`` MB: highway traffic as a Sce
 process (so that peak RSS is per task):
 
 - plain copy: every record streamed into a new MCAP (``copy_mcap`` with nothing to merge);
-- annotate: ``lanecast.workflows.annotate.annotate_log`` (pass 1 tracks, the model, pass 2 copy + merge).
+- annotate: ``lanecast.workflows.annotate_log.annotate_log`` (pass 1 tracks, the model, pass 2 copy + merge).
 
 Printed: MB of log per second for both, annotation excluding model time, the model's share, and
 peak RSS. Goals: annotate (excluding model) >= 0.5 x plain copy; peak RSS < 1.5 GB for a 1 GB log.
@@ -115,7 +115,7 @@ def _plain(src: str, out: str) -> dict[str, Any]:
 def _annotate(
     src: str, out: str, synthetic: bool, duration: float, vehicles: int, model: str | None
 ) -> dict[str, Any]:
-    from lanecast.workflows.annotate import AnnotateOptions, annotate_log
+    from lanecast.workflows.annotate_log import AnnotateOptions, annotate_log
 
     forecasts = None
     if synthetic:

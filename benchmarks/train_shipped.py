@@ -135,11 +135,11 @@ def main() -> int:
     from lanecast.io_adapters.contracts.windows import load_windows
     from lanecast.models.baselines import constant_acceleration, constant_velocity
     from lanecast.models.checkpoint import SHIPPED_STEM, save_checkpoint
+    from lanecast.models.evaluation import always_straight, evaluate, example_scenes, write_metrics
     from lanecast.models.predict import STCNNForecaster
     from lanecast.models.report import write_report
     from lanecast.models.stcnn import STCNNConfig
     from lanecast.models.train import TrainConfig, train
-    from lanecast.workflows.evaluate import always_straight, evaluate, example_scenes, write_metrics
 
     t_start = time.perf_counter()
     args.work.mkdir(parents=True, exist_ok=True)

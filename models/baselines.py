@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lanecast.models.predict import HORIZON_S, Predictions
-from lanecast.models.stcnn import TARGET_ROW
+from lanecast.io_adapters.contracts.windows import HORIZON_S, TARGET_ROW
+from lanecast.models.forecaster import Predictions
 
 #: Sampling interval of the window history (10 Hz).
 DT_S = 0.1

@@ -140,15 +140,6 @@ def load_checkpoint(model: Path | str | None = None) -> tuple[STCNN, dict[str, A
     return net, card
 
 
-def set_card_section(card_path: Path, key: str, value: Any) -> None:
-    """Replace one top-level section of an existing card (atomically), e.g. ``metrics`` after a test run."""
-    card = read_card(card_path)
-    card[key] = value
-    with atomic_path(card_path) as tmp:
-        tmp.write_text(json.dumps(card, indent=2, allow_nan=False, default=_json_default) + "\n")
-        tmp.chmod(0o644)
-
-
 def torch_device(name: str = "auto") -> torch.device:
     """``auto`` = the GPU when there is one, else the CPU."""
     if name == "auto":

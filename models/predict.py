@@ -10,9 +10,8 @@ frame. For speed both networks run as one fused module (see ``FusedSTCNN``).
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -20,32 +19,10 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from lanecast.io_adapters.contracts.windows import HORIZON_S, NormStats, normalise, to_source_frame
+from lanecast.models.checkpoint import load_checkpoint
+from lanecast.models.forecaster import Predictions
 from lanecast.models.stcnn import STCNN
-
-#: Horizons of the 5 future steps (s).
-HORIZON_S = (1.0, 2.0, 3.0, 4.0, 5.0)
-
-
-@dataclass
-class Predictions:
-    """What a forecaster says about N windows (window frame, metres)."""
-
-    offsets: np.ndarray  # float32 [N, 5, 2]: trajectory for the most probable maneuvers
-    probs: np.ndarray | None  # float32 [N, 5, 3]: per-step maneuver probabilities (None: no classifier)
-    maneuver: np.ndarray | None  # int64 [N, 5]: per-step argmax
-    top_sequences: np.ndarray | None  # int64 [N, K, 5]: K most probable maneuver sequences
-    top_probs: np.ndarray  # float32 [N, K]: their probabilities (product of per-step probabilities)
-    top_offsets: np.ndarray  # float32 [N, K, 5, 2]: trajectory regressed for each sequence
-
-
-class Forecaster(Protocol):
-    """Anything that predicts windows: the ST-CNN and the kinematic baselines."""
-
-    name: str
-
-    def predict(
-        self, inputs: np.ndarray, present: np.ndarray, *, top_k: int = 3, batch_size: int = 4096
-    ) -> Predictions: ...
 
 
 def all_sequences(horizon: int = 5, classes: int = 3) -> torch.Tensor:
@@ -116,8 +93,6 @@ class STCNNForecaster:
     ) -> None:
         """``compile``: run the fused networks through ``torch.compile`` (a one-off cost of seconds; pays
         for itself from about a million windows; every batch is padded to ``batch_size``)."""
-        from lanecast.io_adapters.contracts.windows import NormStats
-
         self.name = name
         self.model = model.eval()
         self.card = card
@@ -138,8 +113,6 @@ class STCNNForecaster:
         cls, model_dir: Path | str | None = None, name: str = "stcnn", *, compile: bool = False
     ) -> STCNNForecaster:
         """Load a checkpoint (None: the shipped model)."""
-        from lanecast.models.checkpoint import load_checkpoint
-
         net, card = load_checkpoint(model_dir)
         return cls(net, card, name, compile=compile)
 
@@ -171,8 +144,6 @@ class STCNNForecaster:
 
         ``top_k`` = 0 still regresses the argmax sequence but returns no alternatives (K = 1 kept).
         """
-        from lanecast.io_adapters.contracts.windows import normalise
-
         n = inputs.shape[0]
         k = max(top_k, 1)
         self._batch = batch_size
@@ -206,8 +177,6 @@ def forecasts_table(index: pa.Table, preds: Predictions) -> pa.Table:
     (null for baselines), and the K alternatives: alt_probs list[K], alt_maneuvers list[K] of
     list[5], alt_x, alt_y list[K] of list[5].
     """
-    from lanecast.io_adapters.contracts.windows import to_source_frame
-
     n = index.num_rows
     ox, oy, heading = (index.column(c).to_numpy() for c in ("origin_x", "origin_y", "origin_heading"))
     xy = to_source_frame(preds.offsets, ox, oy, heading)  # [N, 5, 2]

@@ -20,8 +20,8 @@ from typing import Any
 
 import numpy as np
 
+from lanecast.io_adapters.contracts.windows import MANEUVERS, ROWS, TARGET_ROW
 from lanecast.io_adapters.files import atomic_path
-from lanecast.models.stcnn import MANEUVERS, TARGET_ROW, VEHICLE_ROWS
 
 MANEUVER_COLOURS = ("black", "tab:blue", "tab:orange")
 RMSE_CONVENTIONS = (
@@ -110,7 +110,7 @@ def scene_plot(scene: Scene) -> bytes:
     plt = _plt()
     fig, ax = plt.subplots(figsize=(10, 3.2))
     x, y, v = scene.inputs[0], scene.inputs[1], scene.inputs[2]
-    for row, label in enumerate(VEHICLE_ROWS):
+    for row, label in enumerate(ROWS):
         if not scene.present[row, -1]:
             continue
         target = row == TARGET_ROW

@@ -34,13 +34,6 @@ from typing import Any
 import torch
 from torch import nn
 
-#: Vehicle rows of the window tensor, in order.
-VEHICLE_ROWS = ("FL", "F", "FR", "L", "T", "R", "RL", "RR")
-#: Row of the target vehicle.
-TARGET_ROW = 4
-#: Maneuver classes.
-MANEUVERS = ("straight", "left", "right")
-
 
 @dataclass(frozen=True)
 class STCNNConfig:

@@ -33,9 +33,11 @@ import numpy as np
 import torch
 from torch.nn import functional as F
 
+from lanecast.io_adapters.contracts.windows import NormStats, Windows, compute_stats, labelled, normalise
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import bar
 from lanecast.models.checkpoint import torch_device
+from lanecast.models.metrics import confusion_matrix, macro_f1, precision_recall
 from lanecast.models.stcnn import STCNN, STCNNConfig
 
 #: classifier selection criterion → (history key, sign): the best epoch minimises sign * value
@@ -133,15 +135,6 @@ class TrainResult:
     history: list[dict[str, Any]]
 
 
-def labelled(windows: Any, splits: tuple[str, ...]) -> np.ndarray:
-    """Indices [M] of windows in ``splits`` whose future and maneuvers are all known."""
-    split = windows.index.column("split").to_numpy(zero_copy_only=False)
-    ok = np.isin(split, list(splits))
-    ok &= np.all(np.isfinite(np.asarray(windows.future)), axis=(1, 2))
-    ok &= np.all(np.asarray(windows.maneuver) >= 0, axis=1)
-    return np.flatnonzero(ok)
-
-
 def future_stats(future: np.ndarray) -> tuple[np.ndarray, float]:
     """Offset normalisation: future [N, 5, 2] → (mean float32 [5, 2], one std over all centred entries)."""
     f = np.asarray(future, np.float64)
@@ -153,15 +146,15 @@ def future_stats(future: np.ndarray) -> tuple[np.ndarray, float]:
 class _Batches:
     """Gathers and normalises batches from (possibly memory-mapped) windows."""
 
-    def __init__(self, windows: Any, input_stats: Any, future_mean: np.ndarray, future_std: float) -> None:
-        from lanecast.io_adapters.contracts.windows import normalise
-
-        self.w, self.stats, self.normalise = windows, input_stats, normalise
+    def __init__(
+        self, windows: Windows, input_stats: NormStats, future_mean: np.ndarray, future_std: float
+    ) -> None:
+        self.w, self.stats = windows, input_stats
         self.mean, self.std = future_mean, future_std
 
     def get(self, idx: np.ndarray, device: torch.device) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         idx = np.sort(idx)  # sequential reads of the memory map; order inside a batch is irrelevant
-        x = self.normalise(self.w.inputs[idx], self.w.present[idx], self.stats)
+        x = normalise(self.w.inputs[idx], self.w.present[idx], self.stats)
         y = (np.asarray(self.w.future[idx]) - self.mean) / self.std
         m = np.asarray(self.w.maneuver[idx])
         return (
@@ -195,8 +188,6 @@ def _validate(
 ) -> dict[str, Any]:
     """Validation figures over ``idx``: plain NLL, accuracy, macro-F1 and recall per class (per step,
     argmax), RMSE (normalised and in metres, GT maneuvers)."""
-    from lanecast.models.metrics import confusion_matrix, macro_f1, precision_recall
-
     model.eval()
     nll = sq = 0.0
     classes = model.config.classes
@@ -221,7 +212,7 @@ def _validate(
 
 
 def train(
-    windows: Any,
+    windows: Windows,
     config: TrainConfig | None = None,
     *,
     data_card: dict[str, Any] | None = None,
@@ -234,8 +225,6 @@ def train(
     ablation, whose classifier is the same network). Reproducible for a seed on a given machine and
     thread count. Raises InputError when there is nothing to train on.
     """
-    from lanecast.io_adapters.contracts.windows import compute_stats
-
     config = config or TrainConfig()
     torch.set_num_threads(config.threads)
     torch.manual_seed(config.seed)

@@ -26,7 +26,6 @@ from lanecast.io_adapters.contracts.windows import (
     ROWS,
     SPLITS,
     Windows,
-    compute_stats,
 )
 from lanecast.io_adapters.errors import InputError
 from lanecast.pipeline import labels as labels_mod
@@ -390,10 +389,6 @@ def build_manifest(
                 order = np.lexsort((tid[m], rec[m]))
                 r, t = rec[m][order], tid[m][order]
                 tracks_by_split[s] = int(1 + np.count_nonzero((r[1:] != r[:-1]) | (t[1:] != t[:-1])))
-    train = split_col == "train"
-    norm = None
-    if train.any():
-        norm = compute_stats(windows.inputs, windows.present & train[:, None, None]).to_dict()
     return {
         "format": "lanecast-windows",
         "format_version": 1,
@@ -417,7 +412,6 @@ def build_manifest(
         "tracks": tracks_by_split,
         "label_distribution": label_distribution(windows.maneuver),
         "label_distribution_by_split": labels_by_split,
-        "norm_train": norm,
         "skipped_recordings": skipped,
         "arrays": {
             "inputs": "float32 [N, 4, 8, 30]",

@@ -16,13 +16,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lanecast.io_adapters.contracts.windows import HISTORY, HORIZONS, ROWS
+from lanecast.io_adapters.contracts.windows import HISTORY, HORIZONS, ROWS, TARGET_ROW
 from lanecast.pipeline.neighbours import SLOTS, Columns
 
 FUTURE = 50  # frames at 10 Hz after t0 that the targets need
 HORIZON_STEP = 10  # frames between future steps (1 s)
 SLOT_ROWS = np.array([ROWS.index(s) for s in SLOTS])  # tensor row of each neighbour slot
-TARGET_ROW = ROWS.index("T")
 CHUNK = 512  # windows per gather chunk (temporaries of ~1 MB stay in cache)
 WORKERS = min(2, os.cpu_count() or 1)  # threads for the CPU-bound stages (see make_windows)
 MIN_CHORD_M = 3.0  # a shorter displacement gives no reliable direction (tracker noise ~0.1-0.3 m)

@@ -22,7 +22,7 @@ from mcap.writer import Writer
 from lanecast.io_adapters.annotations import forecast_messages as fm
 from lanecast.io_adapters.contracts.track_table import RecordingMeta, TableMeta, build_table
 from lanecast.io_adapters.errors import LogError
-from lanecast.workflows.annotate import (
+from lanecast.workflows.annotate_log import (
     AnnotateOptions,
     annotate_log,
     choose_encoding,

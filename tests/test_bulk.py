@@ -19,7 +19,7 @@ import pytest
 from mcap.reader import make_reader
 from test_annotate import assert_all_original_records_equal, forecasts_for, make_mcap
 
-from lanecast.workflows.annotate import AnnotateOptions
+from lanecast.workflows.annotate_log import AnnotateOptions
 from lanecast.workflows.bulk import Manifest, checksum, clean_temporaries, discover, plan_outputs, run_bulk
 from lanecast.workflows.report import annotated_logs
 

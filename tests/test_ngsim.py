@@ -16,7 +16,8 @@ from lanecast.io_adapters import registry
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.datasets import ngsim
 from lanecast.io_adapters.errors import InputError
-from lanecast.workflows import cli, info
+from lanecast.workflows import cli
+from lanecast.workflows.table_summary import summarise
 
 DATA = Path(__file__).parent / "data" / "ngsim"
 SAMPLE = DATA / "peachtree_sample.csv"
@@ -241,7 +242,7 @@ def test_cli_convert_and_info(tmp_path: Path, capsys: pytest.CaptureFixture[str]
     assert cli.main(["info", str(TXT)]) == 0
     text = capsys.readouterr().out
     assert "ngsim-us-101-trajectories-fixture" in text and "format: ngsim" in text
-    (summary,) = info.summarise(ngsim.read([TXT]))
+    (summary,) = summarise(ngsim.read([TXT]))
     assert (summary["tracks"], summary["rows"], summary["lane_changes"]) == (3, 13, 1)
     bad = tmp_path / "bad.txt"
     bad.write_text("1 2 3\n")

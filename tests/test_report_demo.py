@@ -30,7 +30,7 @@ def test_report_scores_logged_forecasts_like_batch_prediction(
     from lanecast.models.metrics import summary
     from lanecast.models.predict import STCNNForecaster
     from lanecast.pipeline.make_windows import make_windows
-    from lanecast.workflows import report
+    from lanecast.workflows import log_report as report
 
     log, out_dir = annotated
     assert main(["report", str(out_dir), "--out", str(tmp_path / "r")]) == 0

@@ -477,14 +477,6 @@ def test_normalisation_over_present_entries() -> None:
         NormStats.from_dict({"mean": [0, 0, 0, 0], "std": [1, 0, 1, 1]})
 
 
-def test_manifest_has_train_normalisation() -> None:
-    table = table_of(straight(SEVEN, np.arange(150)))
-    w = make_windows(table, split="pip")
-    train = np.asarray(w.index.column("split").to_pylist()) == "train"
-    expected = compute_stats(w.inputs[train], w.present[train]).to_dict()
-    assert w.manifest["norm_train"] == expected
-
-
 def test_cli_windows(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     path = write_parquet(table_of(straight(SEVEN, np.arange(150))), tmp_path / "t.parquet")
     assert (

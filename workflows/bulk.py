@@ -38,7 +38,7 @@ from typing import Any
 
 from lanecast.io_adapters.errors import InputError, LanecastError
 from lanecast.io_adapters.files import bar
-from lanecast.workflows.annotate import AnnotateOptions, annotate_log, output_name
+from lanecast.workflows.annotate_log import AnnotateOptions, annotate_log, output_name
 
 MANIFEST = "manifest.jsonl"
 LOCK = ".lanecast-annotate.lock"

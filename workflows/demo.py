@@ -11,6 +11,15 @@ import argparse
 import time
 from pathlib import Path
 
+from lanecast.io_adapters import registry
+from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.datasets import highd
+from lanecast.io_adapters.sim.sumo_highway import simulate
+from lanecast.workflows.annotate_log import AnnotateOptions
+from lanecast.workflows.bulk import run_bulk
+from lanecast.workflows.log_report import report_logs
+from lanecast.workflows.table_summary import summarise
+
 # A seed the shipped weights never saw (benchmarks/train_shipped.py trains on seeds 11-15, tests on 901-902).
 DEMO_SEED = 2026
 
@@ -42,14 +51,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from lanecast.io_adapters import registry
-    from lanecast.io_adapters.contracts import track_table
-    from lanecast.io_adapters.datasets import highd
-    from lanecast.io_adapters.sim.sumo_highway import simulate
-    from lanecast.workflows.annotate import AnnotateOptions
-    from lanecast.workflows.bulk import run_bulk
-    from lanecast.workflows.info import summarise
-
     out: Path = args.out
     started = time.perf_counter()
 
@@ -82,10 +83,8 @@ def run(args: argparse.Namespace) -> int:
     annotated = sorted(annotated_dir.glob("*.mcap"))
     step(f"annotated log with /lanecast/forecast and /lanecast/prediction: {', '.join(map(str, annotated))}")
 
-    from lanecast.workflows import report
-
     report_dir = out / "report"
-    status = report.report_logs([annotated_dir], report_dir)
+    status = report_logs([annotated_dir], report_dir)
     step(
         f"done. Open {annotated[0] if annotated else annotated_dir} in Foxglove; the report is {report_dir / 'report.html'}"
     )

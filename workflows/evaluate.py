@@ -7,11 +7,13 @@ Writes ``metrics.json`` (one entry per model: ``stcnn``, ``cv``, ``ca`` and, whe
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
-from typing import Any
 
-import numpy as np
+from lanecast.io_adapters.contracts.windows import load_windows
+from lanecast.models.baselines import constant_acceleration, constant_velocity
+from lanecast.models.evaluation import always_straight, evaluate, example_scenes, write_metrics
+from lanecast.models.forecaster import Forecaster
+from lanecast.models.report import write_report
 
 SPLITS = {"test": ("test",), "val": ("val",), "all": ("train", "val", "test", "none")}
 
@@ -46,121 +48,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def vehicle_ids(index: Any) -> np.ndarray:
-    """One integer per (recording, track_id) of a windows index → int64 [N]."""
-    rec = index.column("recording").to_numpy(zero_copy_only=False)
-    _, rec_code = np.unique(rec.astype(str), return_inverse=True)
-    track = index.column("track_id").to_numpy()
-    _, code = np.unique(np.stack([rec_code.ravel(), track], axis=1), axis=0, return_inverse=True)
-    return code.ravel().astype(np.int64)
-
-
-def evaluate(
-    windows: Any,
-    forecasters: list[Any],
-    *,
-    splits: tuple[str, ...] = ("test",),
-    top_k: int = 3,
-    batch_size: int = 4096,
-) -> tuple[dict[str, Any], dict[str, Any], np.ndarray]:
-    """Metrics of every forecaster on the labelled windows of ``splits``.
-
-    Returns (model name → ``lanecast.models.metrics.summary``, model name → Predictions, window indices [M]).
-    """
-    from lanecast.io_adapters.errors import InputError
-    from lanecast.models.metrics import summary
-    from lanecast.models.train import labelled
-
-    idx = labelled(windows, splits)
-    if len(idx) == 0:
-        raise InputError(
-            None,
-            f"no labelled windows in split(s) {', '.join(splits)}",
-            expected="windows with known futures",
-        )
-    inputs, present = np.asarray(windows.inputs[idx]), np.asarray(windows.present[idx])
-    future, maneuver = np.asarray(windows.future[idx]), np.asarray(windows.maneuver[idx])
-    vehicle = vehicle_ids(windows.index.take(idx))
-    metrics, preds = {}, {}
-    for f in forecasters:
-        p = f.predict(inputs, present, top_k=top_k, batch_size=batch_size)
-        preds[f.name] = p
-        metrics[f.name] = summary(
-            p.offsets, future, maneuver, vehicle, candidates=p.top_offsets, predicted_maneuver=p.maneuver
-        )
-    return metrics, preds, idx
-
-
-def example_scenes(windows: Any, idx: np.ndarray, pred: Any, count: int) -> list[Any]:
-    """Up to ``count`` scenes: a correctly predicted left and right lane change, a straight window,
-    and the largest 5 s error (deterministic choices)."""
-    from lanecast.models.report import Scene
-
-    if count <= 0 or pred.maneuver is None:
-        return []
-    true = np.asarray(windows.maneuver[idx])
-    future = np.asarray(windows.future[idx])
-    err5 = np.hypot(*(pred.offsets[:, -1] - future[:, -1]).T)
-    picks: list[tuple[str, int]] = []
-    for cls, label in ((1, "left lane change"), (2, "right lane change")):
-        hit = np.flatnonzero(np.any(true == cls, axis=1) & np.any(pred.maneuver == cls, axis=1))
-        if hit.size:
-            picks.append((f"{label}, predicted", int(hit[np.argmax(pred.probs[hit, :, cls].max(axis=1))])))
-    straight = np.flatnonzero(np.all(true == 0, axis=1))
-    if straight.size:
-        picks.append(("straight driving", int(straight[straight.size // 2])))
-    picks.append(("largest error at 5 s", int(np.argmax(err5))))
-    scenes = []
-    rec = windows.index.column("recording").to_numpy(zero_copy_only=False)
-    tid = windows.index.column("track_id").to_numpy()
-    t0 = windows.index.column("t0_ns").to_numpy()
-    for title, i in picks[:count]:
-        w = int(idx[i])
-        scenes.append(
-            Scene(
-                title=f"{title}: {rec[w]} track {tid[w]} at t0 = {t0[w] / 1e9:.1f} s (error at 5 s {err5[i]:.2f} m)",
-                inputs=np.asarray(windows.inputs[w]),
-                present=np.asarray(windows.present[w]),
-                future=future[i],
-                offsets=pred.offsets[i],
-                maneuver=pred.maneuver[i],
-                alternatives=pred.top_offsets[i],
-                alt_probs=pred.top_probs[i],
-            )
-        )
-    return scenes
-
-
-def write_metrics(path: Path, metrics: dict[str, Any], meta: dict[str, Any]) -> Path:
-    """metrics.json: one key per model name plus ``meta``."""
-    from lanecast.io_adapters.files import atomic_path
-
-    with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps({**metrics, "meta": meta}, indent=2, allow_nan=False) + "\n")
-    return path
-
-
-def always_straight(windows: Any, idx: np.ndarray) -> dict[str, Any]:
-    """Maneuver accuracy and macro-F1 of always predicting straight (the reference a classifier must beat)."""
-    from lanecast.models.metrics import accuracy, confusion_matrix, macro_f1
-
-    true = np.asarray(windows.maneuver[idx])
-    conf = confusion_matrix(true, np.zeros_like(true))
-    return {"maneuver_accuracy": accuracy(conf), "maneuver_macro_f1": macro_f1(conf)}
-
-
 def run(args: argparse.Namespace) -> int:
-    import torch
+    import torch  # heavy: loaded when the command runs, not for `lanecast --help`
 
-    from lanecast.io_adapters.contracts.windows import load_windows
-    from lanecast.models.baselines import constant_acceleration, constant_velocity
     from lanecast.models.checkpoint import resolve
     from lanecast.models.predict import STCNNForecaster
-    from lanecast.models.report import write_report
 
     torch.set_num_threads(max(1, min(2, torch.get_num_threads())))
     windows = load_windows(args.windows)
-    forecasters: list[Any] = [
+    forecasters: list[Forecaster] = [
         STCNNForecaster.load(args.model, "stcnn"),
         constant_velocity(),
         constant_acceleration(),

@@ -8,26 +8,30 @@ This module is not a command: it has no ``register``.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pyarrow as pa
+
+from lanecast.io_adapters.contracts.windows import Windows
+from lanecast.io_adapters.errors import InputError
+from lanecast.models.forecaster import Forecaster
+from lanecast.models.predict import STCNNForecaster, forecasts_table
+from lanecast.pipeline.make_windows import make_windows
+from lanecast.pipeline.neighbours import NEIGHBOUR_RANGE_M
 
 #: Rate of the windows (Hz); ``every_s`` is converted to a stride in these frames.
 WINDOW_RATE_HZ = 10.0
 
 
 def forecast_windows(
-    windows: Any,
+    windows: Windows,
     model_dir: Path | str | None = None,
     *,
     top_k: int = 3,
     batch_size: int = 4096,
-    forecaster: Any = None,
+    forecaster: Forecaster | None = None,
 ) -> pa.Table:
     """Forecasts table for ready windows (see ``lanecast.models.predict.forecasts_table`` for the columns)."""
-    from lanecast.models.predict import STCNNForecaster, forecasts_table
-
     forecaster = forecaster or STCNNForecaster.load(model_dir)
     preds = forecaster.predict(windows.inputs, windows.present, top_k=top_k, batch_size=batch_size)
     return forecasts_table(windows.index, preds)
@@ -41,7 +45,7 @@ def forecast_table(
     top_k: int = 3,
     batch_size: int = 4096,
     t0_ns: np.ndarray | None = None,
-    forecaster: Any = None,
+    forecaster: Forecaster | None = None,
 ) -> pa.Table:
     """Forecast every target with 3 s of history, every ``every_s`` seconds of its track.
 
@@ -54,11 +58,6 @@ def forecast_table(
     (the K most probable maneuver sequences and their trajectories, most probable first).
     An empty table (0 rows, same columns) when no target has 3 s of history.
     """
-    from lanecast.io_adapters.errors import InputError
-    from lanecast.models.predict import STCNNForecaster
-    from lanecast.pipeline.make_windows import make_windows
-    from lanecast.pipeline.neighbours import NEIGHBOUR_RANGE_M
-
     stride = round(every_s * WINDOW_RATE_HZ)
     if stride < 1:
         raise InputError(None, f"every_s={every_s}", expected=f"at least {1 / WINDOW_RATE_HZ:g} s")

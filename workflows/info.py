@@ -5,12 +5,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
-import pyarrow as pa
-import pyarrow.compute as pc
-
 from lanecast.io_adapters import registry
 from lanecast.io_adapters.contracts import track_table
+from lanecast.workflows.table_summary import summarise
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -24,35 +21,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("paths", nargs="+", metavar="PATH")
     p.add_argument("--format", choices=sorted(registry.READERS), help="input format (default: detected)")
     p.set_defaults(func=run)
-
-
-def summarise(table: pa.Table) -> list[dict[str, object]]:
-    """One dict per recording: tracks, rows, frames, duration (s), frame rate, lane changes, vehicles per class."""
-    meta = track_table.read_meta(table)
-    names = table.column("recording").cast(pa.string()).to_numpy(zero_copy_only=False)
-    changes = np.zeros(table.num_rows, dtype=bool)
-    changes[track_table.lane_change_rows(table)] = True
-    starts = track_table.track_boundaries(table)
-    out = []
-    for name in sorted(meta.recordings):
-        rows = names == name
-        rate = meta.recordings[name].frame_rate
-        frames = table.column("frame").to_numpy()[rows]
-        first_rows = starts[:-1][rows[starts[:-1]]]
-        classes = pc.value_counts(table.column("object_class").take(pa.array(first_rows)).cast(pa.string()))
-        out.append(
-            {
-                "recording": name,
-                "tracks": int(np.unique(table.column("track_id").to_numpy()[rows]).size),
-                "rows": int(rows.sum()),
-                "frames": int(np.unique(frames).size),
-                "duration_s": float((frames.max() - frames.min() + 1) / rate) if frames.size else 0.0,
-                "frame_rate": rate,
-                "lane_changes": int(changes[rows].sum()),
-                "classes": {c["values"]: c["counts"] for c in classes.to_pylist()},
-            }
-        )
-    return out
 
 
 def run(args: argparse.Namespace) -> int:

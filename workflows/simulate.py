@@ -6,6 +6,8 @@ import argparse
 import time
 from pathlib import Path
 
+from lanecast.io_adapters.sim import sumo_highway
+
 DENSITIES = ("low", "medium", "high")
 
 
@@ -60,8 +62,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from lanecast.io_adapters.sim import sumo_highway
-
     started = time.perf_counter()
     out = sumo_highway.simulate(
         args.out_dir,

@@ -1,11 +1,22 @@
-"""`lanecast train`: train the ST-CNN's classifier and regressor on a windows dataset."""
+"""`lanecast train`: train the ST-CNN's classifier and regressor on a windows dataset.
+
+torch-heavy modules (``lanecast.models.train``, ``checkpoint``, ``predict``) are imported when the
+command runs, so that ``lanecast --help`` stays fast.
+"""
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+from lanecast.io_adapters.contracts.windows import load_windows
+from lanecast.io_adapters.errors import InputError
+from lanecast.models.evaluation import evaluate
+
+if TYPE_CHECKING:
+    from lanecast.models.train import TrainConfig
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -55,9 +66,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def default_config() -> Any:
+def default_config() -> TrainConfig:
     """The shipped model's training config (architecture and hyper-parameters), else the code defaults."""
-    from lanecast.io_adapters.errors import InputError
     from lanecast.models.checkpoint import read_card, resolve
     from lanecast.models.train import TrainConfig
 
@@ -68,14 +78,11 @@ def default_config() -> Any:
         return TrainConfig()
 
 
-def train_and_save(windows_dir: Path, out: Path, config: Any, *, top_k: int = 3) -> dict[str, Any]:
+def train_and_save(windows_dir: Path, out: Path, config: TrainConfig, *, top_k: int = 3) -> dict[str, Any]:
     """Train, evaluate on val and test (if present), save; return the card."""
-    from lanecast.io_adapters.contracts.windows import load_windows
-    from lanecast.io_adapters.errors import InputError
     from lanecast.models.checkpoint import save_checkpoint
     from lanecast.models.predict import STCNNForecaster
     from lanecast.models.train import train
-    from lanecast.workflows.evaluate import evaluate
 
     windows = load_windows(windows_dir)
     data = {

@@ -7,7 +7,9 @@ import time
 from pathlib import Path
 
 from lanecast.io_adapters import registry
+from lanecast.io_adapters.contracts.windows import save_windows
 from lanecast.io_adapters.errors import InputError
+from lanecast.pipeline.make_windows import make_windows
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -59,9 +61,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from lanecast.io_adapters.contracts.windows import save_windows
-    from lanecast.pipeline.make_windows import make_windows
-
     started = time.perf_counter()
     if args.out.exists() and not args.out.is_dir():
         raise InputError(args.out, "exists and is not a directory", expected="a directory path")

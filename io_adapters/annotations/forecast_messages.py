@@ -34,6 +34,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
+from lanecast.io_adapters.contracts.windows import MANEUVERS
 from lanecast.io_adapters.errors import InputError
 
 FORECAST_TOPIC = "/lanecast/forecast"
@@ -41,7 +42,7 @@ PREDICTION_TOPIC = "/lanecast/prediction"
 Encoding = Literal["protobuf", "json", "cdr"]
 ENCODINGS: tuple[str, ...] = ("protobuf", "json", "cdr")
 
-MANEUVERS: tuple[str, ...] = ("straight", "left", "right", "unknown")  # index -1: unknown
+LABELS: tuple[str, ...] = (*MANEUVERS, "unknown")  # maneuver names by index; index -1: unknown
 # RGB per maneuver index: straight blue, left green, right orange.
 COLOURS: np.ndarray = np.array(
     [[0.20, 0.55, 1.00], [0.10, 0.80, 0.25], [1.00, 0.45, 0.10], [0.60, 0.60, 0.60]]
@@ -340,7 +341,7 @@ def _entities(frame: ForecastFrame) -> list[_Entity]:
     main_rgba = [(*c, MAIN_ALPHA) for c in COLOURS[main].tolist()]
     alt_rgba = [[(*c, ALT_ALPHA) for c in row] for row in COLOURS[alt].tolist()]
     ids = frame.track_id.astype(str).tolist()
-    names = [MANEUVERS[j] for j in main.tolist()]
+    names = [LABELS[j] for j in main.tolist()]
     sequences = [_sequence_json(tuple(row)) for row in frame.maneuver.tolist()]
     probs = _json_rows(np.round(frame.probs, 4))
     top_k = _json_rows(np.round(frame.alt_prob, 4))
@@ -364,7 +365,7 @@ def _entities(frame: ForecastFrame) -> list[_Entity]:
 
 @functools.lru_cache(maxsize=1024)
 def _sequence_json(row: tuple[int, ...]) -> str:
-    return json.dumps([MANEUVERS[j] for j in row])
+    return json.dumps([LABELS[j] for j in row])
 
 
 def _json_rows(values: np.ndarray) -> list[str]:
@@ -427,7 +428,7 @@ def prediction_dict(frame: ForecastFrame) -> dict[str, Any]:
         "frame_id": frame.frame_id,
         "t0_ns": frame.t0_ns,
         "horizon_s": frame.horizon_s.tolist(),
-        "maneuver_names": list(MANEUVERS[:3]),
+        "maneuver_names": list(MANEUVERS),
         "targets": targets,
     }
 

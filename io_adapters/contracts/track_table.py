@@ -19,7 +19,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from lanecast.io_adapters.errors import TrackTableError
+from lanecast.io_adapters.errors import InputError, TrackTableError
 from lanecast.io_adapters.files import atomic_path
 
 SCHEMA_VERSION = 1
@@ -353,8 +353,6 @@ def write_parquet(table: pa.Table, path: str | Path) -> Path:
 
 def read_parquet(path: str | Path) -> pa.Table:
     """Read a track table written by :func:`write_parquet` and validate it."""
-    from lanecast.io_adapters.errors import InputError
-
     try:
         table = pq.read_table(path)
     except (OSError, pa.ArrowInvalid) as exc:

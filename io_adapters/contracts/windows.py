@@ -29,11 +29,17 @@ import pyarrow.parquet as pq
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import atomic_path
 
+#: Vehicle rows of the window tensor, in their fixed, spatially coherent order.
 ROWS: tuple[str, ...] = ("FL", "F", "FR", "L", "T", "R", "RL", "RR")
+#: Row of the target vehicle.
+TARGET_ROW = ROWS.index("T")
 CHANNELS: tuple[str, ...] = ("x", "y", "v", "a")
 CHANNEL_UNITS: tuple[str, ...] = ("m", "m", "m/s", "m/s^2")
 HISTORY = 30  # frames at 10 Hz, t0 included
 HORIZONS = 5  # future steps, 1 s apart
+#: Times of the future steps after t0 (s).
+HORIZON_S: tuple[float, ...] = tuple(float(step) for step in range(1, HORIZONS + 1))
+#: Maneuver classes, by label index.
 MANEUVERS: tuple[str, ...] = ("straight", "left", "right")
 SPLITS: tuple[str, ...] = ("train", "val", "test", "none")
 
@@ -105,6 +111,29 @@ def to_source_frame(
     ox = np.asarray(origin_x, dtype=np.float64).reshape(c.shape)
     oy = np.asarray(origin_y, dtype=np.float64).reshape(c.shape)
     return np.stack([ox + c * x - s * y, oy + s * x + c * y], axis=-1)
+
+
+def to_window_frame(
+    xy: np.ndarray, origin_x: np.ndarray, origin_y: np.ndarray, heading: np.ndarray
+) -> np.ndarray:
+    """Source-frame points [N, ..., 2] to the window frame: R(-heading) @ (xy - origin) (float64).
+
+    The inverse of :func:`to_source_frame`.
+    """
+    c = np.cos(heading).reshape((-1,) + (1,) * (xy.ndim - 2))
+    s = np.sin(heading).reshape(c.shape)
+    dx = xy[..., 0] - np.asarray(origin_x, dtype=np.float64).reshape(c.shape)
+    dy = xy[..., 1] - np.asarray(origin_y, dtype=np.float64).reshape(c.shape)
+    return np.stack([c * dx + s * dy, -s * dx + c * dy], axis=-1)
+
+
+def labelled(windows: Windows, splits: tuple[str, ...]) -> np.ndarray:
+    """Indices [M] of windows in ``splits`` whose future and maneuvers are all known."""
+    split = windows.index.column("split").to_numpy(zero_copy_only=False)
+    ok = np.isin(split, list(splits))
+    ok &= np.all(np.isfinite(np.asarray(windows.future)), axis=(1, 2))
+    ok &= np.all(np.asarray(windows.maneuver) >= 0, axis=1)
+    return np.flatnonzero(ok)
 
 
 def empty_windows(manifest: dict[str, Any] | None = None) -> Windows:

@@ -1,0 +1,117 @@
+"""Metrics of forecasters on a windows dataset, the example scenes of a report, and ``metrics.json``.
+
+The library behind ``lanecast evaluate``, ``lanecast train`` (validation and test metrics in the card)
+and ``lanecast report`` (the same ``metrics.json`` for annotated logs). Torch-free: the forecasters
+come in loaded.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+
+from lanecast.io_adapters.contracts.windows import Windows, labelled
+from lanecast.io_adapters.errors import InputError
+from lanecast.io_adapters.files import atomic_path
+from lanecast.models.forecaster import Forecaster, Predictions
+from lanecast.models.metrics import accuracy, confusion_matrix, macro_f1, summary
+from lanecast.models.report import Scene
+
+
+def vehicle_ids(index: pa.Table) -> np.ndarray:
+    """One integer per (recording, track_id) of a windows index → int64 [N]."""
+    rec = index.column("recording").to_numpy(zero_copy_only=False)
+    _, rec_code = np.unique(rec.astype(str), return_inverse=True)
+    track = index.column("track_id").to_numpy()
+    _, code = np.unique(np.stack([rec_code.ravel(), track], axis=1), axis=0, return_inverse=True)
+    return code.ravel().astype(np.int64)
+
+
+def evaluate(
+    windows: Windows,
+    forecasters: Sequence[Forecaster],
+    *,
+    splits: tuple[str, ...] = ("test",),
+    top_k: int = 3,
+    batch_size: int = 4096,
+) -> tuple[dict[str, Any], dict[str, Predictions], np.ndarray]:
+    """Metrics of every forecaster on the labelled windows of ``splits``.
+
+    Returns (model name → ``lanecast.models.metrics.summary``, model name → Predictions, window indices [M]).
+    """
+    idx = labelled(windows, splits)
+    if len(idx) == 0:
+        raise InputError(
+            None,
+            f"no labelled windows in split(s) {', '.join(splits)}",
+            expected="windows with known futures",
+        )
+    inputs, present = np.asarray(windows.inputs[idx]), np.asarray(windows.present[idx])
+    future, maneuver = np.asarray(windows.future[idx]), np.asarray(windows.maneuver[idx])
+    vehicle = vehicle_ids(windows.index.take(idx))
+    metrics: dict[str, Any] = {}
+    preds: dict[str, Predictions] = {}
+    for f in forecasters:
+        p = f.predict(inputs, present, top_k=top_k, batch_size=batch_size)
+        preds[f.name] = p
+        metrics[f.name] = summary(
+            p.offsets, future, maneuver, vehicle, candidates=p.top_offsets, predicted_maneuver=p.maneuver
+        )
+    return metrics, preds, idx
+
+
+def example_scenes(windows: Windows, idx: np.ndarray, pred: Predictions, count: int) -> list[Scene]:
+    """Up to ``count`` scenes: a correctly predicted left and right lane change, a straight window,
+    and the largest 5 s error (deterministic choices)."""
+    if count <= 0 or pred.maneuver is None or pred.probs is None:
+        return []
+    true = np.asarray(windows.maneuver[idx])
+    future = np.asarray(windows.future[idx])
+    err5 = np.hypot(*(pred.offsets[:, -1] - future[:, -1]).T)
+    picks: list[tuple[str, int]] = []
+    for cls, label in ((1, "left lane change"), (2, "right lane change")):
+        hit = np.flatnonzero(np.any(true == cls, axis=1) & np.any(pred.maneuver == cls, axis=1))
+        if hit.size:
+            picks.append((f"{label}, predicted", int(hit[np.argmax(pred.probs[hit, :, cls].max(axis=1))])))
+    straight = np.flatnonzero(np.all(true == 0, axis=1))
+    if straight.size:
+        picks.append(("straight driving", int(straight[straight.size // 2])))
+    picks.append(("largest error at 5 s", int(np.argmax(err5))))
+    scenes = []
+    rec = windows.index.column("recording").to_numpy(zero_copy_only=False)
+    tid = windows.index.column("track_id").to_numpy()
+    t0 = windows.index.column("t0_ns").to_numpy()
+    for title, i in picks[:count]:
+        w = int(idx[i])
+        scenes.append(
+            Scene(
+                title=f"{title}: {rec[w]} track {tid[w]} at t0 = {t0[w] / 1e9:.1f} s (error at 5 s {err5[i]:.2f} m)",
+                inputs=np.asarray(windows.inputs[w]),
+                present=np.asarray(windows.present[w]),
+                future=future[i],
+                offsets=pred.offsets[i],
+                maneuver=pred.maneuver[i],
+                alternatives=pred.top_offsets[i],
+                alt_probs=pred.top_probs[i],
+            )
+        )
+    return scenes
+
+
+def write_metrics(path: Path, metrics: dict[str, Any], meta: dict[str, Any]) -> Path:
+    """metrics.json: one key per model name plus ``meta``."""
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps({**metrics, "meta": meta}, indent=2, allow_nan=False) + "\n")
+    return path
+
+
+def always_straight(windows: Windows, idx: np.ndarray) -> dict[str, Any]:
+    """Maneuver accuracy and macro-F1 of always predicting straight (the reference a classifier must beat)."""
+    true = np.asarray(windows.maneuver[idx])
+    conf = confusion_matrix(true, np.zeros_like(true))
+    return {"maneuver_accuracy": accuracy(conf), "maneuver_macro_f1": macro_f1(conf)}
