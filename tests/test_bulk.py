@@ -21,7 +21,7 @@ from test_annotate import assert_all_original_records_equal, forecasts_for, make
 
 from lanecast.workflows.annotate_log import AnnotateOptions
 from lanecast.workflows.bulk import Manifest, checksum, clean_temporaries, discover, plan_outputs, run_bulk
-from lanecast.workflows.report import annotated_logs
+from lanecast.workflows.log_report import annotated_logs
 
 REPO = Path(__file__).resolve().parents[1]
 
