@@ -122,7 +122,7 @@ def test_evaluate_command_writes_metrics_and_a_self_contained_report(
                 str(windows_dir),
                 "--model",
                 str(model_dir),
-                "--report",
+                "--out",
                 str(report),
                 "--regression-only",
                 str(regonly),
@@ -161,8 +161,7 @@ def test_evaluate_command_writes_metrics_and_a_self_contained_report(
 def test_evaluate_reports_a_missing_model(trained: tuple[Path, Path, Path], tmp_path: Path, capsys) -> None:
     windows_dir, _, _ = trained
     assert (
-        main(["evaluate", str(windows_dir), "--model", str(tmp_path / "nope"), "--report", str(tmp_path)])
-        == 2
+        main(["evaluate", str(windows_dir), "--model", str(tmp_path / "nope"), "--out", str(tmp_path)]) == 2
     )
     assert "model" in capsys.readouterr().err
 

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import filecmp
+import os
+import stat
 import subprocess
 import sys
 from pathlib import Path
@@ -213,7 +215,7 @@ def test_same_seed_same_bytes_through_the_command(tmp_path: Path) -> None:
     c = sumo_highway.simulate(tmp_path / "c", seed=4, show_progress=False, **args)  # type: ignore[arg-type]
     b = tmp_path / "b"
     status = cli.main(
-        ["simulate", str(b), "--minutes", "0.2", "--seed", "3", "--lanes-per-direction", "2",
+        ["simulate", "--out", str(b), "--minutes", "0.2", "--seed", "3", "--lanes-per-direction", "2",
          "--density", "high", "--section-length", "200", "--approach-length", "200"]
     )  # fmt: skip
     assert status == 0
@@ -225,7 +227,7 @@ def test_same_seed_same_bytes_through_the_command(tmp_path: Path) -> None:
     assert sorted(p.name for p in a.iterdir()) == sorted(FILES)  # no temporary left behind
 
 
-def test_rewrite_into_existing_directory_keeps_other_files(tmp_path: Path) -> None:
+def test_existing_directory_keeps_other_files_and_a_recording_is_never_overwritten(tmp_path: Path) -> None:
     out = tmp_path / "rec"
     out.mkdir()
     (out / "notes.txt").write_text("mine")
@@ -234,6 +236,24 @@ def test_rewrite_into_existing_directory_keeps_other_files(tmp_path: Path) -> No
     assert (out / "notes.txt").read_text() == "mine"
     assert all((out / name).is_file() for name in FILES)
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+    before = {name: (out / name).read_bytes() for name in FILES}
+    with pytest.raises(InputError, match=r"01_tracks\.csv: already exists"):
+        sumo_highway.simulate(out, show_progress=False, **{**args, "seed": 2})  # type: ignore[arg-type]
+    assert {name: (out / name).read_bytes() for name in FILES} == before
+    assert cli.main(["simulate", "--out", str(out), "--minutes", "0.05", "--seed", "2"]) == 2
+
+
+def test_a_new_output_directory_gets_ordinary_permissions(tmp_path: Path) -> None:
+    old = os.umask(0o022)
+    try:
+        out = sumo_highway.simulate(
+            tmp_path / "new" / "rec", minutes=0.05, seed=1, section_length_m=100.0,
+            approach_length_m=150.0, show_progress=False,
+        )  # fmt: skip
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE(out.stat().st_mode) == 0o755
+    assert {stat.S_IMODE((out / name).stat().st_mode) for name in FILES} == {0o644}
 
 
 @pytest.mark.parametrize(
@@ -286,4 +306,4 @@ def test_help_has_an_example(capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(SystemExit):
         cli.main(["simulate", "--help"])
     out = capsys.readouterr().out
-    assert "lanecast simulate sim/ --minutes 15 --seed 1" in out
+    assert "lanecast simulate --out sim/ --minutes 5 --seed 1" in out

@@ -12,6 +12,7 @@ from pathlib import Path
 from lanecast.io_adapters.errors import InputError
 from lanecast.workflows import bulk
 from lanecast.workflows.annotate_log import AnnotateOptions
+from lanecast.workflows.vocabulary import HelpFormatter, add_model_option
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -28,24 +29,20 @@ def register(sub: argparse._SubParsersAction) -> None:
         ),
         epilog=(
             "examples:\n"
-            "  lanecast annotate drive.mcap --out annotated/\n"
-            "  lanecast annotate logs/ --out annotated/ --workers 2 --every 0.5\n"
+            "  lanecast annotate logs/ --out annotated/\n"
+            "  lanecast annotate logs/ --out annotated/ --workers 2 --every 0.5   # redoes: other options\n"
             "  lanecast annotate logs/ --out /shared/annotated --engine ray --address ray://head:10001"
         ),
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     p.add_argument(
         "inputs", nargs="+", type=Path, metavar="LOG_OR_DIR", help="logs, or directories searched for logs"
     )
     p.add_argument("--out", required=True, type=Path, metavar="OUT_DIR", help="output directory")
-    p.add_argument(
-        "--model", type=Path, metavar="MODEL_DIR", help="model directory (default: the bundled model)"
-    )
+    add_model_option(p)
     p.add_argument("--topic", help="topic with tracked objects (default: every supported topic)")
-    p.add_argument(
-        "--every", type=float, default=1.0, metavar="SECONDS", help="forecast period (default: 1.0)"
-    )
-    p.add_argument("--top-k", type=int, default=3, help="alternatives drawn per target (default: 3)")
+    p.add_argument("--every", type=float, default=1.0, metavar="SECONDS", help="forecast period")
+    p.add_argument("--top-k", type=int, default=3, help="alternatives drawn per target")
     p.add_argument(
         "--encoding",
         choices=("auto", "protobuf", "json"),
@@ -58,14 +55,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="PARQUET_OR_DIR",
         help="use precomputed forecasts (a table, or DIR/<log name>.parquet per log) instead of the model",
     )
-    p.add_argument("--workers", type=int, default=1, help="logs annotated in parallel (default: 1)")
+    p.add_argument("--workers", type=int, default=1, help="logs annotated in parallel")
     p.add_argument(
         "--engine", choices=("local", "ray"), default="local", help="local processes or a Ray cluster"
     )
     p.add_argument("--address", help="Ray cluster address (default: start Ray locally)")
-    p.add_argument(
-        "--retries", type=int, default=2, help="Ray: retries of a task whose worker died (default: 2)"
-    )
+    p.add_argument("--retries", type=int, default=2, help="Ray: retries of a task whose worker died")
     p.set_defaults(func=run)
 
 

@@ -9,10 +9,13 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 from collections.abc import Sequence
 
+from lanecast import __version__
 from lanecast.io_adapters.errors import LanecastError
+from lanecast.workflows.vocabulary import HelpFormatter
 
 COMMANDS = ("demo", "simulate", "convert", "info", "windows", "train", "evaluate", "annotate", "report")
 
@@ -22,7 +25,9 @@ def build_parser() -> argparse.ArgumentParser:
         prog="lanecast",
         description="Highway maneuver and trajectory prediction (Mersch et al., IROS 2021) for datasets and drive logs.",
         epilog="Start with: lanecast demo",
+        formatter_class=HelpFormatter,
     )
+    parser.add_argument("--version", action="version", version=f"lanecast {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in COMMANDS:
         try:
@@ -35,11 +40,24 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _stdout_closed() -> int:
+    """The reader of stdout went away (``lanecast info … | head``): stop quietly, as Unix tools do.
+
+    Python would report the failed flush of stdout at exit: point stdout at /dev/null first."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    os.close(devnull)
+    return 141  # 128 + SIGPIPE, what a shell reports for a tool killed by the closed pipe
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
         status = args.func(args)
+        sys.stdout.flush()
+    except BrokenPipeError:
+        return _stdout_closed()
     except LanecastError as exc:
         print(f"lanecast {args.command}: error: {exc}", file=sys.stderr)
         return 2

@@ -9,6 +9,7 @@ from pathlib import Path
 from lanecast.io_adapters import registry
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.errors import InputError
+from lanecast.workflows.vocabulary import HelpFormatter
 
 _SUFFIX_TO_FORMAT = {".parquet": "parquet", ".pq": "parquet", ".mcap": "mcap", ".bag": "ros1"}
 
@@ -27,7 +28,7 @@ def register(sub: argparse._SubParsersAction) -> None:
             "  lanecast convert trajectories-0750am-0805am.txt --out us101.parquet\n"
             "  lanecast convert highd-01.parquet --to mcap --out highd-01.mcap"
         ),
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     p.add_argument("inputs", nargs="+", metavar="INPUT", help="files or directories to read")
     p.add_argument("--out", required=True, type=Path, help="output path")

@@ -19,6 +19,7 @@ from lanecast.workflows.annotate_log import AnnotateOptions
 from lanecast.workflows.bulk import run_bulk
 from lanecast.workflows.log_report import report_logs
 from lanecast.workflows.table_summary import summarise
+from lanecast.workflows.vocabulary import HelpFormatter, add_model_option
 
 # A seed the shipped weights never saw (benchmarks/train_shipped.py trains on seeds 11-15, tests on 901-902).
 DEMO_SEED = 2026
@@ -33,20 +34,18 @@ def register(sub: argparse._SubParsersAction) -> None:
             "forecasts written into a new MCAP (open it in Foxglove) → metrics and an HTML report."
         ),
         epilog="example:\n  lanecast demo --out lanecast-demo --minutes 5",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=HelpFormatter,
     )
-    p.add_argument(
-        "--out", type=Path, default=Path("lanecast-demo"), help="output directory (default: ./lanecast-demo)"
-    )
-    p.add_argument("--minutes", type=float, default=5.0, help="simulated minutes (default: 5)")
+    p.add_argument("--out", type=Path, default=Path("lanecast-demo"), help="output directory")
+    p.add_argument("--minutes", type=float, default=5.0, help="simulated minutes")
     p.add_argument(
         "--seed",
         type=int,
         default=DEMO_SEED,
-        help=f"simulation seed (default: {DEMO_SEED}, never trained on)",
+        help="simulation seed (one the shipped weights never saw)",
     )
-    p.add_argument("--density", choices=("low", "medium", "high"), default="medium")
-    p.add_argument("--model", type=Path, help="model directory (default: the shipped weights)")
+    p.add_argument("--density", choices=("low", "medium", "high"), default="medium", help="traffic density")
+    add_model_option(p)
     p.set_defaults(func=run)
 
 
@@ -59,7 +58,12 @@ def run(args: argparse.Namespace) -> int:
 
     step(f"simulating {args.minutes:g} min of {args.density} highway traffic with SUMO (seed {args.seed})")
     sim_dir = simulate(
-        out / "highd", minutes=args.minutes, seed=args.seed, density=args.density, show_progress=True
+        out / "highd",
+        minutes=args.minutes,
+        seed=args.seed,
+        density=args.density,
+        show_progress=True,
+        overwrite=True,  # the demo owns its folder: a rerun makes it again
     )
     table = highd.read([sim_dir])
     rows = summarise(table)

@@ -14,6 +14,7 @@ from lanecast.models.baselines import constant_acceleration, constant_velocity
 from lanecast.models.evaluation import always_straight, evaluate, example_scenes, write_metrics
 from lanecast.models.forecaster import Forecaster
 from lanecast.models.report import write_report
+from lanecast.workflows.vocabulary import HelpFormatter, add_model_option
 
 SPLITS = {"test": ("test",), "val": ("val",), "all": ("train", "val", "test", "none")}
 
@@ -26,25 +27,23 @@ def register(sub: argparse._SubParsersAction) -> None:
             "Evaluate the ST-CNN (default: the shipped model) and the kinematic baselines on a windows "
             "dataset: RMSE at 1-5 s (per window and per vehicle), ADE/FDE, minADE/minFDE@K, maneuver "
             "accuracy, precision/recall, confusion matrix, RMSE on lane-change windows. Writes "
-            "metrics.json, report.md and report.html into the report directory."
+            "metrics.json, report.md and report.html into --out."
         ),
-        epilog="example:\n  lanecast evaluate windows/ --model runs/model --report runs/report --split test",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="example:\n  lanecast evaluate windows/ --model runs/model --out runs/report --split test",
+        formatter_class=HelpFormatter,
     )
     p.add_argument(
         "windows", type=Path, metavar="WINDOWS", help="windows dataset directory (lanecast windows)"
     )
-    p.add_argument("--model", type=Path, help="model directory or file (default: the shipped model)")
+    add_model_option(p)
     p.add_argument(
         "--regression-only", type=Path, metavar="MODEL", help="a regression-only variant to compare"
     )
-    p.add_argument("--report", type=Path, required=True, metavar="DIR", help="output directory")
-    p.add_argument(
-        "--split", choices=sorted(SPLITS), default="test", help="windows to evaluate (default: test)"
-    )
-    p.add_argument("--top-k", type=int, default=3, help="maneuver sequences for minADE/minFDE (default: 3)")
-    p.add_argument("--examples", type=int, default=4, help="example scenes in the report (default: 4)")
-    p.add_argument("--batch-size", type=int, default=4096)
+    p.add_argument("--out", type=Path, required=True, metavar="DIR", help="report directory")
+    p.add_argument("--split", choices=sorted(SPLITS), default="test", help="windows to evaluate")
+    p.add_argument("--top-k", type=int, default=3, help="maneuver sequences for minADE/minFDE")
+    p.add_argument("--examples", type=int, default=4, help="example scenes in the report")
+    p.add_argument("--batch-size", type=int, default=4096, help="windows per inference batch")
     p.set_defaults(func=run)
 
 
@@ -77,14 +76,14 @@ def run(args: argparse.Namespace) -> int:
         "always_straight": always_straight(windows, idx),
         "sources": windows.manifest.get("sources"),
     }
-    args.report.mkdir(parents=True, exist_ok=True)
-    write_metrics(args.report / "metrics.json", metrics, meta)
+    args.out.mkdir(parents=True, exist_ok=True)
+    write_metrics(args.out / "metrics.json", metrics, meta)
     scenes = example_scenes(windows, idx, preds["stcnn"], args.examples)
-    write_report(args.report, metrics, meta, scenes)
+    write_report(args.out, metrics, meta, scenes)
     print(f"evaluated {len(idx):,} windows ({args.split}); RMSE per window at 1-5 s (m):")
     for name, m in metrics.items():
         rmse = " ".join("–" if v is None else f"{v:.2f}" for v in m["rmse"])
         f1 = m["maneuver_macro_f1"]
         print(f"  {name:<24}{rmse}   macro-F1 {'–' if f1 is None else f'{f1:.3f}'}")
-    print(f"wrote {args.report / 'metrics.json'}, report.md, report.html")
+    print(f"wrote {args.out / 'metrics.json'}, report.md, report.html")
     return 0

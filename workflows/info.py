@@ -8,6 +8,7 @@ from pathlib import Path
 from lanecast.io_adapters import registry
 from lanecast.io_adapters.contracts import track_table
 from lanecast.workflows.table_summary import summarise
+from lanecast.workflows.vocabulary import HelpFormatter
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -16,7 +17,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="summarise a dataset, track table or drive log",
         description="Print the format, recordings, tracks, frames, duration, frame rate and lane changes of PATH.",
         epilog="example:\n  lanecast info highd-01.parquet",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     p.add_argument("paths", nargs="+", metavar="PATH")
     p.add_argument("--format", choices=sorted(registry.READERS), help="input format (default: detected)")

@@ -9,6 +9,7 @@ import argparse
 from pathlib import Path
 
 from lanecast.workflows.log_report import report_logs
+from lanecast.workflows.vocabulary import HelpFormatter
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -22,7 +23,7 @@ def register(sub: argparse._SubParsersAction) -> None:
             "report.html into --out, overall and per log (logs/<name>/)."
         ),
         epilog="example:\n  lanecast annotate drives/ --out annotated/\n  lanecast report annotated/ --out report/",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     p.add_argument("paths", nargs="+", type=Path, metavar="ANNOTATED", help="annotated logs or directories")
     p.add_argument("--out", required=True, type=Path, metavar="DIR", help="report directory")

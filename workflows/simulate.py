@@ -7,6 +7,7 @@ import time
 from pathlib import Path
 
 from lanecast.io_adapters.sim import sumo_highway
+from lanecast.workflows.vocabulary import HelpFormatter
 
 DENSITIES = ("low", "medium", "high")
 
@@ -24,39 +25,41 @@ def register(sub: argparse._SubParsersAction) -> None:
         ),
         epilog=(
             "examples:\n"
-            "  lanecast simulate sim/ --minutes 15 --seed 1\n"
-            "  lanecast simulate sim/ --minutes 5 --seed 7 --density high --lanes-per-direction 2\n"
+            "  lanecast simulate --out sim/ --minutes 5 --seed 1\n"
+            "  lanecast simulate --out sim-dense/ --minutes 5 --seed 7 --density high --lanes-per-direction 2\n"
             "  lanecast convert sim/ --out sim.parquet"
         ),
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=HelpFormatter,
     )
-    p.add_argument("out_dir", type=Path, metavar="OUT_DIR", help="directory for the three CSV files")
+    p.add_argument(
+        "--out", required=True, type=Path, metavar="OUT_DIR", help="directory for the three CSV files"
+    )
     p.add_argument("--minutes", type=float, required=True, help="simulated minutes to record")
     p.add_argument("--seed", type=int, required=True, help="SUMO's random seed")
-    p.add_argument("--lanes-per-direction", type=int, default=3, help="lanes per carriageway (default 3)")
-    p.add_argument("--density", choices=DENSITIES, default="medium", help="traffic density (default medium)")
-    p.add_argument("--truck-share", type=float, default=0.2, help="share of trucks, 0…1 (default 0.2)")
-    p.add_argument("--recording-id", type=int, default=1, help="highD recording number NN (default 1)")
+    p.add_argument("--lanes-per-direction", type=int, default=3, help="lanes per carriageway")
+    p.add_argument("--density", choices=DENSITIES, default="medium", help="traffic density")
+    p.add_argument("--truck-share", type=float, default=0.2, help="share of trucks, 0…1")
+    p.add_argument("--recording-id", type=int, default=1, help="highD recording number NN")
     p.add_argument(
         "--section-length",
         type=float,
         default=1000.0,
         metavar="M",
-        help="length of the recorded section in metres (default 1000; highD films about 420)",
+        help="length of the recorded section in metres (highD films about 420)",
     )
     p.add_argument(
         "--approach-length",
         type=float,
         default=1000.0,
         metavar="M",
-        help="road before and after the section in metres, where traffic settles (default 1000)",
+        help="road before and after the section in metres, where traffic settles",
     )
     p.add_argument(
         "--lane-change-duration",
         type=float,
         default=3.0,
         metavar="S",
-        help="seconds a lane change takes, moving continuously sideways (default 3)",
+        help="seconds a lane change takes, moving continuously sideways",
     )
     p.set_defaults(func=run)
 
@@ -64,7 +67,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     out = sumo_highway.simulate(
-        args.out_dir,
+        args.out,
         minutes=args.minutes,
         seed=args.seed,
         lanes_per_direction=args.lanes_per_direction,

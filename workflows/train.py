@@ -18,6 +18,8 @@ from lanecast.models.evaluation import evaluate
 if TYPE_CHECKING:
     from lanecast.models.train import TrainConfig
 
+from lanecast.workflows.vocabulary import HelpFormatter
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
@@ -37,28 +39,29 @@ def register(sub: argparse._SubParsersAction) -> None:
             "example:\n  lanecast train windows/ --out runs/model --epochs 20 --seed 1\n"
             "  lanecast train windows/ --out runs/regonly --regression-only   # ablation: no maneuver input"
         ),
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     p.add_argument(
         "windows", type=Path, metavar="WINDOWS", help="windows dataset directory (lanecast windows)"
     )
     p.add_argument("--out", type=Path, required=True, metavar="MODEL_DIR", help="where to write the model")
     p.add_argument("--config", type=Path, metavar="FILE", help="training config, JSON")
-    p.add_argument("--epochs", type=int)
-    p.add_argument("--seed", type=int)
-    p.add_argument("--batch-size", type=int)
-    p.add_argument("--lr", type=float)
-    p.add_argument("--threads", type=int, help="CPU threads (default 2)")
-    p.add_argument("--device", help="auto (GPU when there is one), cpu, cuda, ...")
+    shipped = "(default: the shipped model's, see --config)"
+    p.add_argument("--epochs", type=int, help=f"passes over the training windows {shipped}")
+    p.add_argument("--seed", type=int, help=f"seed of initialisation and shuffling {shipped}")
+    p.add_argument("--batch-size", type=int, help=f"windows per batch {shipped}")
+    p.add_argument("--lr", type=float, help=f"Adam's learning rate {shipped}")
+    p.add_argument("--threads", type=int, help="CPU threads (default: 2)")
+    p.add_argument("--device", help="auto (GPU when there is one), cpu, cuda, ... (default: auto)")
     p.add_argument(
         "--class-weight-power",
         type=float,
-        help="weight the classifier's NLL by (1/class frequency)^POWER (0: the paper's plain NLL)",
+        help=f"weight the classifier's NLL by (1/class frequency)^POWER (0: the paper's plain NLL) {shipped}",
     )
     p.add_argument(
         "--select-classifier",
         choices=("nll", "macro_f1"),
-        help="validation criterion for the classifier's epoch",
+        help=f"validation criterion for the classifier's epoch {shipped}",
     )
     p.add_argument(
         "--regression-only", action="store_true", help="regressor without maneuver input (ablation)"

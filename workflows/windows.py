@@ -10,6 +10,7 @@ from lanecast.io_adapters import registry
 from lanecast.io_adapters.contracts.windows import save_windows
 from lanecast.io_adapters.errors import InputError
 from lanecast.pipeline.make_windows import make_windows
+from lanecast.workflows.vocabulary import HelpFormatter
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -27,7 +28,7 @@ def register(sub: argparse._SubParsersAction) -> None:
             "  lanecast windows highd-01.parquet --out windows/highd-01\n"
             "  lanecast windows us101.parquet --out windows/us101 --split hash --seed 3 --stride 5"
         ),
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     p.add_argument(
         "table", nargs="+", metavar="TABLE", help="track table(s) (Parquet) or any input `convert` reads"

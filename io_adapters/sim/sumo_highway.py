@@ -696,11 +696,32 @@ def file_names(recording_id: int) -> dict[str, str]:
     return {kind: f"{recording_id:02d}_{kind}.csv" for kind in ("tracks", "tracksMeta", "recordingMeta")}
 
 
-def write_highd(tables: dict[str, pa.Table], out_dir: Path, recording_id: int = 1) -> Path:
-    """Write the three CSV files atomically: built in a temporary directory, then renamed into place."""
+def refuse_existing_recording(out_dir: Path, recording_id: int) -> None:
+    """A recording is never overwritten: refuse when any of its three files is already in ``out_dir``."""
+    existing = [Path(out_dir) / n for n in file_names(recording_id).values() if (Path(out_dir) / n).exists()]
+    if existing:
+        raise InputError(
+            existing[0],
+            "already exists: a simulation never overwrites a recording",
+            expected="a new --out directory, another --recording-id, or remove the files first",
+        )
+
+
+def write_highd(
+    tables: dict[str, pa.Table], out_dir: Path, recording_id: int = 1, *, overwrite: bool = False
+) -> Path:
+    """Write the three CSV files atomically: built in a temporary directory, then renamed into place.
+
+    The directory gets the permissions of an ordinarily created one; existing files of the same
+    recording are refused unless ``overwrite``."""
     out_dir = Path(out_dir)
+    if not overwrite:
+        refuse_existing_recording(out_dir, recording_id)
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.tmp-", dir=out_dir.parent))
+    umask = os.umask(0)
+    os.umask(umask)
+    tmp.chmod(0o777 & ~umask)  # mkdtemp makes it owner-only
     try:
         names = file_names(recording_id)
         for kind, name in names.items():
@@ -745,10 +766,12 @@ def simulate(
     approach_length_m: float = 1000.0,
     lane_change_duration_s: float = 3.0,
     show_progress: bool = True,
+    overwrite: bool = False,
 ) -> Path:
     """Simulate ``minutes`` of highway traffic and write a highD recording into ``out_dir``.
 
-    Returns ``out_dir``. The same arguments give byte-identical files.
+    Returns ``out_dir``. The same arguments give byte-identical files. An existing recording of the
+    same number in ``out_dir`` is refused before simulating, unless ``overwrite``.
     """
     cfg = HighwayConfig(
         minutes=minutes,
@@ -765,6 +788,8 @@ def simulate(
         raise InputError(None, f"invalid recording id {recording_id}", expected="1 … 99")
     if Path(out_dir).exists() and not Path(out_dir).is_dir():
         raise InputError(out_dir, "exists and is not a directory", expected="a directory for the CSV files")
+    if not overwrite:
+        refuse_existing_recording(Path(out_dir), recording_id)
     total_s = cfg.warmup_s + cfg.n_frames / FRAME_RATE
     with tempfile.TemporaryDirectory(prefix="lanecast-sumo-") as work:
         if show_progress:
@@ -773,4 +798,4 @@ def simulate(
         else:
             samples = run_simulation(cfg, Path(work))
     tables = to_highd(samples, cfg, recording_id)
-    return write_highd(tables, Path(out_dir), recording_id)
+    return write_highd(tables, Path(out_dir), recording_id, overwrite=overwrite)

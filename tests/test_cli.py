@@ -1,0 +1,84 @@
+"""One CLI vocabulary: --out for every output, --model alike everywhere, defaults in --help,
+--version, and a closed stdout (`| head`) that ends quietly."""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from lanecast import __version__
+from lanecast.workflows import cli
+from lanecast.workflows.vocabulary import MODEL_HELP
+
+REPO = Path(__file__).resolve().parents[1]
+WRITERS = ("demo", "simulate", "convert", "windows", "train", "evaluate", "annotate", "report")
+
+
+def help_of(command: str, capsys: pytest.CaptureFixture[str]) -> str:
+    with pytest.raises(SystemExit) as done:
+        cli.main([command, "--help"])
+    assert done.value.code == 0
+    return " ".join(capsys.readouterr().out.split())  # one line: argparse wraps help text anywhere
+
+
+def test_version(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit):
+        cli.main(["--version"])
+    assert capsys.readouterr().out.strip() == f"lanecast {__version__}"
+
+
+@pytest.mark.parametrize("command", cli.COMMANDS)
+def test_every_default_is_in_the_help(command: str, capsys: pytest.CaptureFixture[str]) -> None:
+    text = help_of(command, capsys)
+    options = text.split("options:", 1)[1]
+    parser = cli.build_parser()
+    sub = next(a for a in parser._actions if a.dest == "command").choices[command]  # type: ignore[index]
+    for action in sub._actions:
+        if action.default in (None, False, "==SUPPRESS==") or not action.option_strings:
+            continue
+        option_help = options.split(f" {action.option_strings[-1]} ", 1)[1]
+        assert "default" in option_help.split(" --", 1)[0], f"{command} {action.option_strings[-1]}"
+    assert "example" in text
+
+
+@pytest.mark.parametrize("command", WRITERS)
+def test_every_output_is_named_by_out(command: str, capsys: pytest.CaptureFixture[str]) -> None:
+    text = help_of(command, capsys)
+    assert re.search(r"--out [A-Z_]+", text)
+    assert "--report" not in text
+
+
+def test_model_means_the_same_everywhere(capsys: pytest.CaptureFixture[str]) -> None:
+    with_model = [c for c in cli.COMMANDS if "--model MODEL" in help_of(c, capsys)]
+    assert {"demo", "evaluate", "annotate"} <= set(with_model)
+    for command in with_model:
+        assert " ".join(MODEL_HELP.split()) in help_of(command, capsys)
+
+
+def test_a_closed_stdout_ends_quietly(tmp_path: Path) -> None:
+    """`lanecast info … | head`: the reader is gone before lanecast writes; no traceback."""
+    from lanecast.io_adapters.contracts import track_table
+    from lanecast.io_adapters.datasets import highd
+    from lanecast.io_adapters.sim import sumo_highway
+
+    rec = sumo_highway.simulate(
+        tmp_path / "sim", minutes=0.05, seed=1, section_length_m=100.0, approach_length_m=150.0,
+        show_progress=False,
+    )  # fmt: skip
+    table = track_table.write_parquet(highd.read([rec]), tmp_path / "t.parquet")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "lanecast", "info", str(table)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        env={**os.environ, "PYTHONPATH": str(REPO)},
+    )
+    assert proc.stdout is not None and proc.stderr is not None
+    proc.stdout.close()  # like `head` that has read all it wanted
+    err = proc.stderr.read().decode()
+    assert proc.wait(timeout=120) == 141
+    assert "Traceback" not in err and "BrokenPipe" not in err
