@@ -5,12 +5,11 @@ a model directory (``lanecast train --out MODEL_DIR`` writes ``stcnn.*``). The c
 needed to use the weights (architecture config, input and output normalisation) and what is needed
 to trust them (training data, parameters, history, validation and test metrics, version).
 The shipped model is ``models/weights/stcnn-sumo.*``, the default wherever a model is optional.
+Paths and cards are ``lanecast.models.card`` (torch-free; re-exported here).
 """
 
 from __future__ import annotations
 
-import json
-from importlib import metadata
 from pathlib import Path
 from typing import Any
 
@@ -20,20 +19,16 @@ from safetensors.torch import load_file, save_file
 
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import atomic_path
+from lanecast.models.card import FORMAT as FORMAT
+from lanecast.models.card import FORMAT_VERSION as FORMAT_VERSION
+from lanecast.models.card import SHIPPED_STEM as SHIPPED_STEM
+from lanecast.models.card import WEIGHTS_DIR as WEIGHTS_DIR
+from lanecast.models.card import lanecast_version as lanecast_version
+from lanecast.models.card import read_card as read_card
+from lanecast.models.card import resolve as resolve
+from lanecast.models.card import set_card_section as set_card_section
+from lanecast.models.card import write_card
 from lanecast.models.stcnn import STCNN, STCNNConfig, count_parameters
-
-FORMAT = "lanecast-stcnn"
-FORMAT_VERSION = 1
-#: Directory of the shipped weights, the default model of every command.
-WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
-SHIPPED_STEM = "stcnn-sumo"
-
-
-def lanecast_version() -> str:
-    try:
-        return metadata.version("lanecast")
-    except metadata.PackageNotFoundError:
-        return "unknown"
 
 
 def architecture_card(model: STCNN) -> dict[str, Any]:
@@ -72,51 +67,8 @@ def save_checkpoint(model: STCNN, card: dict[str, Any], directory: Path, stem: s
         save_file(tensors, str(tmp), metadata={"format": FORMAT, "format_version": str(FORMAT_VERSION)})
         tmp.chmod(0o644)  # package data: readable by everyone
     card_path = directory / f"{stem}.json"
-    with atomic_path(card_path) as tmp:
-        tmp.write_text(json.dumps(full, indent=2, allow_nan=False, default=_json_default) + "\n")
-        tmp.chmod(0o644)
+    write_card(card_path, full)
     return card_path
-
-
-def _json_default(value: Any) -> Any:
-    if hasattr(value, "tolist"):
-        return value.tolist()
-    raise TypeError(f"not JSON-serialisable: {type(value).__name__}")
-
-
-def resolve(model: Path | str | None) -> tuple[Path, Path]:
-    """(weights, card) paths of a model given as a directory, either file, or None (the shipped model)."""
-    path = Path(model) if model is not None else WEIGHTS_DIR / f"{SHIPPED_STEM}.json"
-    if path.is_dir():
-        cards = sorted(p for p in path.glob("*.json") if p.with_suffix(".safetensors").is_file())
-        if len(cards) != 1:
-            found = ", ".join(p.name for p in cards) or "none"
-            raise InputError(path, f"expected one model (<stem>.safetensors + <stem>.json), found {found}")
-        path = cards[0]
-    if path.suffix not in (".json", ".safetensors"):
-        raise InputError(path, "not a model", expected="a model directory, .safetensors or .json file")
-    weights, card = path.with_suffix(".safetensors"), path.with_suffix(".json")
-    for p in (weights, card):
-        if not p.is_file():
-            hint = " (the shipped model is missing: reinstall lanecast)" if model is None else ""
-            raise InputError(p, f"model file not found{hint}")
-    return weights, card
-
-
-def read_card(path: Path) -> dict[str, Any]:
-    """Parse and check a model card."""
-    try:
-        card = json.loads(Path(path).read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(path, f"unreadable model card: {exc}", expected="JSON") from exc
-    if not isinstance(card, dict) or card.get("format") != FORMAT:
-        raise InputError(path, "not a lanecast model card", column="format", expected=repr(FORMAT))
-    if card.get("format_version", 0) > FORMAT_VERSION:
-        raise InputError(path, f"card format {card['format_version']} is newer than this lanecast reads")
-    for key in ("architecture", "normalisation"):
-        if key not in card:
-            raise InputError(path, "incomplete model card", column=key, expected="present")
-    return card
 
 
 def load_checkpoint(model: Path | str | None = None) -> tuple[STCNN, dict[str, Any]]:

@@ -4,7 +4,10 @@ The classifier gives per-step probabilities [N, 5, 3]; the regressor gets the ar
 paper's inference). Beyond the paper, the K most probable of the 3^5 = 243 maneuver sequences (the
 probability of a sequence is the product of its per-step probabilities) are each regressed too.
 Offsets are de-normalised with the card's statistics; ``forecasts_table`` maps them to the source
-frame. For speed both networks run as one fused module (see ``FusedSTCNN``).
+frame. For speed both networks run as one fused module (see ``FusedSTCNN``). This is the torch engine;
+``lanecast.models.onnx_predict`` runs the same path exported to ONNX (``lanecast.models.serving``
+picks one). What a prediction is (``lanecast.models.forecaster``) and the forecasts table
+(``lanecast.models.forecasts``) are torch-free.
 """
 
 from __future__ import annotations
@@ -14,14 +17,15 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pyarrow as pa
 import torch
 from torch import nn
 from torch.nn import functional as F
 
-from lanecast.io_adapters.contracts.windows import HORIZON_S, NormStats, normalise, to_source_frame
+from lanecast.io_adapters.contracts.windows import NormStats, normalise
 from lanecast.models.checkpoint import load_checkpoint
 from lanecast.models.forecaster import Predictions
+from lanecast.models.forecasts import forecasts_table as forecasts_table
+from lanecast.models.forecasts import nested as nested
 from lanecast.models.stcnn import STCNN
 
 
@@ -166,50 +170,3 @@ class STCNNForecaster:
         out.top_offsets += self.future_mean
         out.offsets[:] = out.top_offsets[:, 0]  # the top sequence is the per-step argmax
         return out
-
-
-def forecasts_table(index: pa.Table, preds: Predictions) -> pa.Table:
-    """Forecasts in the source frame, one row per window.
-
-    index: the windows' index (recording, track_id, t0_ns, origin_x, origin_y, origin_heading).
-    Columns: recording, track_id, t0_ns, horizon_s list[5], x, y list[5] (m, source frame),
-    maneuver_probs list[5] of list[3] (straight, left, right; null for baselines), maneuver list[5]
-    (null for baselines), and the K alternatives: alt_probs list[K], alt_maneuvers list[K] of
-    list[5], alt_x, alt_y list[K] of list[5].
-    """
-    n = index.num_rows
-    ox, oy, heading = (index.column(c).to_numpy() for c in ("origin_x", "origin_y", "origin_heading"))
-    xy = to_source_frame(preds.offsets, ox, oy, heading)  # [N, 5, 2]
-    alt = to_source_frame(preds.top_offsets, ox, oy, heading)  # [N, K, 5, 2]
-    horizon = np.broadcast_to(np.asarray(HORIZON_S, np.float32), (n, len(HORIZON_S)))
-    columns: dict[str, pa.Array] = {
-        "recording": index.column("recording").combine_chunks(),
-        "track_id": index.column("track_id").combine_chunks(),
-        "t0_ns": index.column("t0_ns").combine_chunks(),
-        "horizon_s": nested(horizon),
-        "x": nested(xy[..., 0]),
-        "y": nested(xy[..., 1]),
-        "maneuver_probs": nested(preds.probs, n, (5, 3), pa.float32()),
-        "maneuver": nested(preds.maneuver, n, (5,), pa.int8()),
-        "alt_probs": nested(preds.top_probs),
-        "alt_maneuvers": nested(preds.top_sequences, n, (preds.top_probs.shape[1], 5), pa.int8()),
-        "alt_x": nested(alt[..., 0]),
-        "alt_y": nested(alt[..., 1]),
-    }
-    return pa.table(columns)
-
-
-def nested(
-    values: np.ndarray | None, n: int = 0, shape: tuple[int, ...] = (), dtype: pa.DataType | None = None
-) -> pa.Array:
-    """An [N, a, b, …] array as N rows of nested lists (all null when ``values`` is None)."""
-    if values is None:
-        inner: pa.DataType = dtype or pa.float32()
-        for _ in shape:
-            inner = pa.list_(inner)
-        return pa.nulls(n, inner)
-    flat: pa.Array = pa.array(np.ascontiguousarray(values).reshape(-1), type=dtype)
-    for size in reversed(values.shape[1:]):
-        count = len(flat) // size
-        flat = pa.ListArray.from_arrays(pa.array(np.arange(count + 1, dtype=np.int32) * size), flat)
-    return flat

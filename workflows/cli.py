@@ -17,7 +17,18 @@ from lanecast import __version__
 from lanecast.io_adapters.errors import LanecastError
 from lanecast.workflows.vocabulary import HelpFormatter
 
-COMMANDS = ("demo", "simulate", "convert", "info", "windows", "train", "evaluate", "annotate", "report")
+COMMANDS = (
+    "demo",
+    "simulate",
+    "convert",
+    "info",
+    "windows",
+    "train",
+    "evaluate",
+    "export",
+    "annotate",
+    "report",
+)
 
 
 def build_parser() -> argparse.ArgumentParser:

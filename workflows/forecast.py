@@ -1,7 +1,7 @@
 """Forecasts for a track table (a library for the commands that predict, e.g. annotating drive logs).
 
 track table → windows without requiring a future (``lanecast.pipeline.make_windows``) → ST-CNN in batches
-(``lanecast.models.predict``) → one row per (track, t0) with the 5 future points in the source's own frame.
+(``lanecast.models.serving``: ONNX Runtime, else torch) → one row per (track, t0) with the 5 future points in the source's own frame.
 This module is not a command: it has no ``register``.
 """
 
@@ -15,7 +15,8 @@ import pyarrow as pa
 from lanecast.io_adapters.contracts.windows import Windows
 from lanecast.io_adapters.errors import InputError
 from lanecast.models.forecaster import Forecaster
-from lanecast.models.predict import STCNNForecaster, forecasts_table
+from lanecast.models.forecasts import forecasts_table
+from lanecast.models.serving import load_forecaster
 from lanecast.pipeline.make_windows import make_windows
 from lanecast.pipeline.neighbours import NEIGHBOUR_RANGE_M
 
@@ -31,8 +32,8 @@ def forecast_windows(
     batch_size: int = 4096,
     forecaster: Forecaster | None = None,
 ) -> pa.Table:
-    """Forecasts table for ready windows (see ``lanecast.models.predict.forecasts_table`` for the columns)."""
-    forecaster = forecaster or STCNNForecaster.load(model_dir)
+    """Forecasts table for ready windows (see ``lanecast.models.forecasts.forecasts_table`` for the columns)."""
+    forecaster = forecaster or load_forecaster(model_dir)
     preds = forecaster.predict(windows.inputs, windows.present, top_k=top_k, batch_size=batch_size)
     return forecasts_table(windows.index, preds)
 
@@ -50,7 +51,7 @@ def forecast_table(
     """Forecast every target with 3 s of history, every ``every_s`` seconds of its track.
 
     table: a track table (any rate, validated by make_windows). model_dir: a model directory or file
-    (None: the shipped model); ``forecaster`` (an already loaded ``STCNNForecaster`` or baseline)
+    (None: the shipped model); ``forecaster`` (an already loaded forecaster or baseline)
     takes precedence. ``t0_ns``: forecast only at these times instead.
     Returns columns recording, track_id, t0_ns, horizon_s list[5] (s), x, y list[5] (m, source frame),
     maneuver_probs list[5] of list[3] (straight, left, right), maneuver list[5] (0 straight, 1 left,
@@ -61,7 +62,7 @@ def forecast_table(
     stride = round(every_s * WINDOW_RATE_HZ)
     if stride < 1:
         raise InputError(None, f"every_s={every_s}", expected=f"at least {1 / WINDOW_RATE_HZ:g} s")
-    forecaster = forecaster or STCNNForecaster.load(model_dir)
+    forecaster = forecaster or load_forecaster(model_dir)
     card = getattr(forecaster, "card", None) or {}
     neighbour_range = (card.get("windows") or {}).get("neighbour_range_m") or NEIGHBOUR_RANGE_M
     windows = make_windows(

@@ -1,0 +1,60 @@
+"""The forecasts table: ``Predictions`` (window frame) mapped to the source frame, one row per window.
+
+Torch-free, shared by every engine: torch (``lanecast.models.predict``), ONNX Runtime
+(``lanecast.models.onnx_predict``) and the kinematic baselines (``lanecast.models.baselines``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pyarrow as pa
+
+from lanecast.io_adapters.contracts.windows import HORIZON_S, to_source_frame
+from lanecast.models.forecaster import Predictions
+
+
+def forecasts_table(index: pa.Table, preds: Predictions) -> pa.Table:
+    """Forecasts in the source frame, one row per window.
+
+    index: the windows' index (recording, track_id, t0_ns, origin_x, origin_y, origin_heading).
+    Columns: recording, track_id, t0_ns, horizon_s list[5], x, y list[5] (m, source frame),
+    maneuver_probs list[5] of list[3] (straight, left, right; null for baselines), maneuver list[5]
+    (null for baselines), and the K alternatives: alt_probs list[K], alt_maneuvers list[K] of
+    list[5], alt_x, alt_y list[K] of list[5].
+    """
+    n = index.num_rows
+    ox, oy, heading = (index.column(c).to_numpy() for c in ("origin_x", "origin_y", "origin_heading"))
+    xy = to_source_frame(preds.offsets, ox, oy, heading)  # [N, 5, 2]
+    alt = to_source_frame(preds.top_offsets, ox, oy, heading)  # [N, K, 5, 2]
+    horizon = np.broadcast_to(np.asarray(HORIZON_S, np.float32), (n, len(HORIZON_S)))
+    columns: dict[str, pa.Array] = {
+        "recording": index.column("recording").combine_chunks(),
+        "track_id": index.column("track_id").combine_chunks(),
+        "t0_ns": index.column("t0_ns").combine_chunks(),
+        "horizon_s": nested(horizon),
+        "x": nested(xy[..., 0]),
+        "y": nested(xy[..., 1]),
+        "maneuver_probs": nested(preds.probs, n, (5, 3), pa.float32()),
+        "maneuver": nested(preds.maneuver, n, (5,), pa.int8()),
+        "alt_probs": nested(preds.top_probs),
+        "alt_maneuvers": nested(preds.top_sequences, n, (preds.top_probs.shape[1], 5), pa.int8()),
+        "alt_x": nested(alt[..., 0]),
+        "alt_y": nested(alt[..., 1]),
+    }
+    return pa.table(columns)
+
+
+def nested(
+    values: np.ndarray | None, n: int = 0, shape: tuple[int, ...] = (), dtype: pa.DataType | None = None
+) -> pa.Array:
+    """An [N, a, b, …] array as N rows of nested lists (all null when ``values`` is None)."""
+    if values is None:
+        inner: pa.DataType = dtype or pa.float32()
+        for _ in shape:
+            inner = pa.list_(inner)
+        return pa.nulls(n, inner)
+    flat: pa.Array = pa.array(np.ascontiguousarray(values).reshape(-1), type=dtype)
+    for size in reversed(values.shape[1:]):
+        count = len(flat) // size
+        flat = pa.ListArray.from_arrays(pa.array(np.arange(count + 1, dtype=np.int32) * size), flat)
+    return flat

@@ -1,0 +1,126 @@
+"""Prediction on ONNX Runtime: the exported graph of ``lanecast.models.onnx_export``, without torch.
+
+One ``session.run`` per batch does the whole library path (normalise, classify, top-K sequences,
+regress, de-normalise); Python only slices batches. ``onnx_file`` tells whether a card's ONNX export
+still matches its weights (a retrained model leaves a stale file behind: it is never used).
+
+Threads: one intra-op thread per process by default (``LANECAST_THREADS`` overrides), threads that
+sleep instead of spinning when idle. On a shared machine a second thread per process bought nothing
+and cost up to 10× under contention (BENCHMARKS.md, "Inference"); use more cores through more worker
+processes (``lanecast annotate --workers N``), one per core.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lanecast.models.card import file_sha256, normalisation_sha256
+from lanecast.models.forecaster import Predictions
+
+#: Environment variable overriding the intra-op threads of an ONNX Runtime session.
+THREADS_ENV = "LANECAST_THREADS"
+
+
+def default_threads() -> int:
+    """Intra-op threads per process: ``$LANECAST_THREADS`` or 1."""
+    value = os.environ.get(THREADS_ENV, "")
+    return max(1, int(value)) if value.strip().isdigit() else 1
+
+
+def onnx_file(card_path: Path, weights_path: Path, card: dict[str, Any]) -> tuple[Path | None, str]:
+    """(the card's ONNX file, "") when it is present and was exported from these weights, else (None, why)."""
+    section = card.get("onnx")
+    if not isinstance(section, dict) or not isinstance(section.get("file"), str):
+        return None, "the model has no ONNX export"
+    name = section["file"]
+    path = card_path.parent / name
+    if Path(name).name != name or path.suffix != ".onnx":
+        return None, f"the card's onnx.file {name!r} is not a file name beside it"
+    if not path.is_file():
+        return None, f"{path.name} is missing"
+    if section.get("weights_sha256") != file_sha256(weights_path):
+        return None, f"{path.name} is stale: it was exported from other weights than {weights_path.name}"
+    if section.get("normalisation_sha256") != normalisation_sha256(card):
+        return None, f"{path.name} is stale: the card's normalisation changed since the export"
+    if section.get("sha256") != file_sha256(path):
+        return None, f"{path.name} was modified after the export"
+    return path, ""
+
+
+class OnnxForecaster:
+    """The exported prediction graph on an ONNX Runtime session (same outputs as ``STCNNForecaster``)."""
+
+    engine = "onnxruntime"
+
+    def __init__(self, session: Any, card: dict[str, Any], name: str = "stcnn") -> None:
+        self.session = session
+        self.card = card
+        self.name = name
+        self._outputs = ["probs", "maneuver", "top_sequences", "top_probs", "top_offsets"]
+
+    @classmethod
+    def from_file(
+        cls, path: Path, card: dict[str, Any], name: str = "stcnn", *, threads: int | None = None
+    ) -> OnnxForecaster:
+        """A session on ``path`` with ``threads`` intra-op threads (None: ``default_threads()``)."""
+        import onnxruntime as ort
+
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = threads or default_threads()
+        options.inter_op_num_threads = 1
+        options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+        options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+        options.add_session_config_entry("session.intra_op.allow_spinning", "0")
+        options.log_severity_level = 3
+        session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+        return cls(session, card, name)
+
+    def predict(
+        self, inputs: np.ndarray, present: np.ndarray, *, top_k: int = 3, batch_size: int = 4096
+    ) -> Predictions:
+        """inputs float32 [N, 4, 8, 30] physical (may be memory-mapped), present bool [N, 8, 30] → Predictions.
+
+        ``top_k`` = 0 still regresses the argmax sequence but returns no alternatives (K = 1 kept).
+        """
+        n = inputs.shape[0]
+        k = np.asarray(max(top_k, 1), np.int64)
+        if n == 0:
+            return empty_predictions(int(k))
+        parts = [
+            self.session.run(
+                self._outputs,
+                {
+                    "inputs": np.ascontiguousarray(inputs[s : s + batch_size], np.float32),
+                    "present": np.ascontiguousarray(present[s : s + batch_size], np.bool_),
+                    "k": k,
+                },
+            )
+            for s in range(0, n, batch_size)
+        ]
+        probs, maneuver, sequences, top_probs, top_offsets = (
+            p[0] if len(parts) == 1 else np.concatenate(p) for p in zip(*parts, strict=True)
+        )
+        return Predictions(
+            offsets=top_offsets[:, 0],  # the top sequence is the per-step argmax
+            probs=probs,
+            maneuver=maneuver,
+            top_sequences=sequences,
+            top_probs=top_probs,
+            top_offsets=top_offsets,
+        )
+
+
+def empty_predictions(k: int, horizon: int = 5, classes: int = 3) -> Predictions:
+    """Predictions for no windows (the shapes and dtypes of a non-empty batch)."""
+    return Predictions(
+        offsets=np.empty((0, horizon, 2), np.float32),
+        probs=np.empty((0, horizon, classes), np.float32),
+        maneuver=np.empty((0, horizon), np.int64),
+        top_sequences=np.empty((0, k, horizon), np.int64),
+        top_probs=np.empty((0, k), np.float32),
+        top_offsets=np.empty((0, k, horizon, 2), np.float32),
+    )

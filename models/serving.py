@@ -1,0 +1,48 @@
+"""Which engine serves a model: ONNX Runtime where its export is fresh and the runtime installed, else torch.
+
+``load_forecaster`` is what the commands that predict call. ``engine="auto"`` takes ONNX Runtime when
+the card's ONNX file was exported from these very weights (``onnx_predict.onnx_file``) and falls back
+to torch otherwise, saying why on stderr; ``"onnx"`` insists (an error instead of the fallback),
+``"torch"`` never tries. torch is imported only when torch serves.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from lanecast.io_adapters.errors import InputError
+from lanecast.models.card import read_card, resolve
+from lanecast.models.forecaster import Forecaster
+from lanecast.models.onnx_predict import OnnxForecaster, onnx_file
+
+ENGINES = ("auto", "onnx", "torch")
+
+
+def load_forecaster(
+    model: Path | str | None = None, name: str = "stcnn", *, engine: str = "auto", threads: int | None = None
+) -> Forecaster:
+    """A loaded forecaster (``OnnxForecaster`` or ``STCNNForecaster``) for a model (None: the shipped one)."""
+    if engine not in ENGINES:
+        raise InputError(None, f"unknown prediction engine {engine!r}", expected=", ".join(ENGINES))
+    weights_path, card_path = resolve(model)
+    if engine != "torch":
+        card = read_card(card_path)
+        path, why = onnx_file(card_path, weights_path, card)
+        if path is not None:
+            try:
+                return OnnxForecaster.from_file(path, card, name, threads=threads)
+            except ImportError:
+                why = "onnxruntime is not installed"
+        if engine == "onnx":
+            raise InputError(card_path, f"cannot predict with ONNX Runtime: {why}")
+        hint = f" (lanecast export {weights_path.parent} --to onnx)" if "installed" not in why else ""
+        print(f"lanecast: {card_path}: {why}; predicting with torch{hint}", file=sys.stderr)
+    from lanecast.models.predict import STCNNForecaster
+
+    forecaster = STCNNForecaster.load(weights_path, name)
+    if threads is not None:
+        import torch
+
+        torch.set_num_threads(threads)
+    return forecaster
