@@ -69,6 +69,10 @@ def _rebuild(
     return cls(path, reason, line=line, offset=offset, column=column, expected=expected)
 
 
+class OutputError(InputError):
+    """An output path lanecast cannot write (a directory, a read-only place, a symlink loop)."""
+
+
 class FormatNotRecognisedError(InputError):
     """No adapter recognises the file."""
 

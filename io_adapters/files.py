@@ -3,6 +3,10 @@
 Atomic outputs: a reader never sees half of one. Outputs are written under a temporary name beside the target and renamed into place only when
 complete; on any error the temporary is removed and an existing target is left untouched.
 
+Paths: :func:`check_input` is the one place that decides whether a path may be opened as an input
+(a regular file or a directory, readable; never a FIFO, device or symlink loop, which would block
+or crash a sniffer), :func:`check_output` whether an output path can be written.
+
 Progress: tqdm's bars on stderr when it is a terminal; when it is not (a pipe, a log file, CI), a
 plain line every few seconds (``LINE_INTERVAL_S``) and one at the end, so that long work in a batch
 job still shows that it moves, without carriage returns or bar characters in the log.
@@ -13,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
+import stat
 import sys
 import tempfile
 import time
@@ -21,6 +26,8 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from tqdm.auto import tqdm
+
+from lanecast.io_adapters.errors import InputError, OutputError
 
 T = TypeVar("T")
 
@@ -37,18 +44,83 @@ def _umask() -> int:
     return mask
 
 
+def check_input(path: str | Path) -> Path:
+    """``path`` as a Path if it is a readable regular file or directory; InputError otherwise.
+
+    Looks with ``stat`` before anything opens the path: opening a FIFO would block, and a symlink
+    loop or an unreadable file must be refused with the file's name, not a traceback.
+    """
+    path = Path(path)
+    try:
+        info = os.stat(path)
+    except FileNotFoundError as exc:
+        raise InputError(path, "no such file or directory") from exc
+    except OSError as exc:  # ELOOP, EACCES on a parent, ENAMETOOLONG, …
+        raise InputError(path, f"cannot open: {exc.strerror or exc}") from exc
+    try:
+        if stat.S_ISDIR(info.st_mode):
+            os.listdir(path)
+        elif stat.S_ISREG(info.st_mode):
+            with open(path, "rb") as fh:
+                fh.read(1)
+        else:
+            raise InputError(
+                path,
+                "not a regular file (a FIFO, socket or device)",
+                expected="a file or a directory",
+            )
+    except OSError as exc:
+        raise InputError(path, f"cannot read: {exc.strerror or exc}") from exc
+    return path
+
+
+def check_output(path: str | Path, *, directory: bool = False) -> Path:
+    """``path`` as a Path if lanecast can write an output there; OutputError otherwise.
+
+    Refused: an existing directory where a file is wanted (or a file where a directory is wanted),
+    a symlink loop, a parent that is not a directory or cannot be written.
+    """
+    path = Path(path)
+    try:
+        info: os.stat_result | None = os.stat(path)
+    except FileNotFoundError:
+        info = None
+    except OSError as exc:
+        raise OutputError(path, f"cannot write here: {exc.strerror or exc}") from exc
+    if info is not None:
+        if not directory and stat.S_ISDIR(info.st_mode):
+            raise OutputError(path, "is a directory", expected="a file path for the output")
+        if directory and not stat.S_ISDIR(info.st_mode):
+            raise OutputError(path, "exists and is not a directory", expected="an output directory")
+    parent = path.parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    try:
+        parent_info = os.stat(parent)
+    except OSError as exc:
+        raise OutputError(path, f"cannot write here: {exc.strerror or exc}") from exc
+    if not stat.S_ISDIR(parent_info.st_mode):
+        raise OutputError(path, f"{parent} is not a directory", expected="an output path in a directory")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise OutputError(path, f"the directory {parent} is not writable")
+    return path
+
+
 @contextlib.contextmanager
 def atomic_path(target: str | Path, *, directory: bool = False) -> Iterator[Path]:
     """Yield a temporary path beside ``target``; rename it onto ``target`` on success."""
-    target = Path(target)
-    target.parent.mkdir(parents=True, exist_ok=True)
+    target = check_output(target, directory=directory)
     prefix = f".{target.name}.tmp-"
-    if directory:
-        tmp = Path(tempfile.mkdtemp(prefix=prefix, dir=target.parent))
-    else:
-        fd, name = tempfile.mkstemp(prefix=prefix, dir=target.parent)
-        os.close(fd)
-        tmp = Path(name)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        if directory:
+            tmp = Path(tempfile.mkdtemp(prefix=prefix, dir=target.parent))
+        else:
+            fd, name = tempfile.mkstemp(prefix=prefix, dir=target.parent)
+            os.close(fd)
+            tmp = Path(name)
+    except OSError as exc:
+        raise OutputError(target, f"cannot write here: {exc.strerror or exc}") from exc
     # mkstemp/mkdtemp make owner-only entries; outputs get the modes of ordinary new files.
     tmp.chmod((0o777 if directory else 0o666) & ~_umask())
     try:

@@ -17,7 +17,8 @@ from typing import Any
 import pyarrow as pa
 
 from lanecast.io_adapters.contracts import track_table
-from lanecast.io_adapters.errors import FormatNotRecognisedError, InputError
+from lanecast.io_adapters.errors import FormatNotRecognisedError
+from lanecast.io_adapters.files import check_input
 
 READERS: dict[str, str] = {
     "parquet": "lanecast.io_adapters.datasets.parquet",
@@ -52,9 +53,7 @@ def writer(fmt: str) -> ModuleType:
 
 def detect(path: str | Path) -> str:
     """The name of the format of ``path`` (a file, or a directory such as a ROS 2 bag)."""
-    path = Path(path)
-    if not path.exists():
-        raise InputError(path, "no such file or directory")
+    path = check_input(path)
     for fmt in READERS:
         if reader(fmt).sniff(path):
             return fmt
@@ -66,9 +65,12 @@ def detect(path: str | Path) -> str:
 
 
 def read_any(paths: Sequence[str | Path], fmt: str | None = None, **options: Any) -> pa.Table:
-    """Read inputs of any supported format (detected per path unless ``fmt``) into one track table."""
+    """Read inputs of any supported format (detected per path unless ``fmt``) into one track table.
+
+    Every path is checked by :func:`check_input` before any reader opens it (also with ``fmt``).
+    """
     groups: dict[str, list[Path]] = {}
-    for p in map(Path, paths):
+    for p in map(check_input, paths):
         groups.setdefault(fmt or detect(p), []).append(p)
     tables = [reader(name).read(group, **options) for name, group in groups.items()]
     return tables[0] if len(tables) == 1 else track_table.concat(tables)

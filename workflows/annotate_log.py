@@ -31,7 +31,7 @@ from lanecast.io_adapters.annotations import forecast_messages as fm
 from lanecast.io_adapters.annotations import mcap_copy
 from lanecast.io_adapters.contracts.track_table import read_meta
 from lanecast.io_adapters.errors import InputError, LogError
-from lanecast.io_adapters.files import atomic_path
+from lanecast.io_adapters.files import atomic_path, check_input
 
 LOG_KINDS = ("mcap", "ros2", "ros1")
 MCAP_MAGIC = b"\x89MCAP0\r\n"
@@ -53,7 +53,7 @@ class AnnotateOptions:
 
 def log_kind(path: Path) -> str:
     """``mcap``, ``ros2`` (a bag directory) or ``ros1`` (a .bag file), from the first bytes."""
-    path = Path(path)
+    path = check_input(path)
     if path.is_dir():
         if (path / "metadata.yaml").is_file():
             return "ros2"
@@ -187,7 +187,7 @@ def annotate_log(
     """
     src, out = Path(src), Path(out)
     options = options or AnnotateOptions()
-    if out.resolve() == src.resolve():
+    if os.path.realpath(out) == os.path.realpath(check_input(src)):
         raise InputError(out, "the output would overwrite the input log", expected="another output path")
     kind = log_kind(src)
     refuse_annotated(src, kind)

@@ -37,7 +37,7 @@ from pathlib import Path
 from typing import Any
 
 from lanecast.io_adapters.errors import InputError, LanecastError
-from lanecast.io_adapters.files import bar
+from lanecast.io_adapters.files import bar, check_input
 from lanecast.workflows.annotate_log import AnnotateOptions, annotate_log, output_name
 
 MANIFEST = "manifest.jsonl"
@@ -89,11 +89,11 @@ def discover(paths: Sequence[Path], exclude: Path | None = None) -> list[Path]:
     """The logs named by ``paths``: files as given; directories searched recursively for ``*.mcap``,
     ``*.bag`` and ROS 2 bag directories (not descended into), skipping ``exclude`` (OUT_DIR)."""
     found: list[Path] = []
-    excluded = exclude.resolve() if exclude is not None else None
+    excluded = os.path.realpath(exclude) if exclude is not None else None
 
     def walk(folder: Path) -> Iterator[Path]:
         for entry in sorted(folder.iterdir()):
-            if excluded is not None and entry.resolve() == excluded:
+            if excluded is not None and os.path.realpath(entry) == excluded:
                 continue
             if entry.name.startswith("."):
                 continue
@@ -105,15 +105,14 @@ def discover(paths: Sequence[Path], exclude: Path | None = None) -> list[Path]:
                 yield entry
 
     for p in map(Path, paths):
-        if not p.exists():
-            raise InputError(p, "no such file or directory")
+        check_input(p)
         if p.is_dir() and not is_ros2_bag(p):
             found.extend(walk(p))
         else:
             found.append(p)
     unique: dict[Path, Path] = {}
     for p in found:
-        unique.setdefault(p.resolve(), p)
+        unique.setdefault(Path(os.path.realpath(p)), p)
     return list(unique)
 
 

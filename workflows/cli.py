@@ -72,6 +72,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except LanecastError as exc:
         print(f"lanecast {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:  # the environment, not a bug: a full disk, a vanished or unwritable path
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"lanecast {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print(f"lanecast {args.command}: interrupted", file=sys.stderr)
         return 130

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import os
 import time
 from pathlib import Path
 
 from lanecast.io_adapters import registry
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.errors import InputError
+from lanecast.io_adapters.files import check_output
 from lanecast.workflows.vocabulary import HelpFormatter
 
 _SUFFIX_TO_FORMAT = {".parquet": "parquet", ".pq": "parquet", ".mcap": "mcap", ".bag": "ros1"}
@@ -58,7 +60,8 @@ def run(args: argparse.Namespace) -> int:
         options["topic"] = args.topic
     if args.salvage:
         options["salvage"] = True
-    if args.out.resolve() in {Path(p).resolve() for p in args.inputs}:
+    check_output(args.out, directory=output_format(args.out, args.to) == "ros2")
+    if os.path.realpath(args.out) in {os.path.realpath(p) for p in args.inputs}:
         raise InputError(args.out, "the output would overwrite an input", expected="a new output path")
     table = registry.read_any(args.inputs, fmt=args.format, **options)
     fmt = output_format(args.out, args.to)

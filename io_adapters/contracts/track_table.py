@@ -19,6 +19,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
+from lanecast.io_adapters import json_fields
 from lanecast.io_adapters.errors import InputError, TrackTableError
 from lanecast.io_adapters.files import atomic_path
 
@@ -110,9 +111,23 @@ class TableMeta:
 
     @classmethod
     def from_json(cls, text: str | bytes) -> TableMeta:
-        doc = json.loads(text)
-        recordings = {name: RecordingMeta(**rec) for name, rec in doc["recordings"].items()}
-        return cls(doc["source_format"], recordings, list(doc.get("source_files", [])))
+        """Parse the document, every field checked (FieldError naming the field otherwise)."""
+        doc = json_fields.check(json_fields.loads(text, "lanecast"), "lanecast", "object")
+        recordings = {}
+        for name, rec in json_fields.get(doc, "recordings", "", "object").items():
+            where = f"recordings.{name}"
+            json_fields.check(rec, where, "object")
+            recordings[name] = RecordingMeta(
+                frame_rate=float(json_fields.get(rec, "frame_rate", where, "positive")),
+                coordinate_frame=json_fields.get(rec, "coordinate_frame", where, "str", "road"),
+                source_files=list(json_fields.get(rec, "source_files", where, "str_list", [])),
+                extra=dict(json_fields.get(rec, "extra", where, "object", {})),
+            )
+        return cls(
+            json_fields.get(doc, "source_format", "", "str"),
+            recordings,
+            list(json_fields.get(doc, "source_files", "", "str_list", [])),
+        )
 
 
 def schema(with_neighbours: bool) -> pa.Schema:
@@ -199,7 +214,10 @@ def read_meta(table: pa.Table | pa.Schema) -> TableMeta:
     raw = (schema_.metadata or {}).get(META_KEY)
     if raw is None:
         raise TrackTableError("the table carries no 'lanecast' schema metadata (not a lanecast track table)")
-    return TableMeta.from_json(raw)
+    try:
+        return TableMeta.from_json(raw)
+    except json_fields.FieldError as exc:
+        raise TrackTableError(f"bad 'lanecast' schema metadata: {exc}") from exc
 
 
 def validate(table: pa.Table, source: str | Path | None = None) -> None:
@@ -221,9 +239,12 @@ def validate(table: pa.Table, source: str | Path | None = None) -> None:
         got = table.schema.field(name)
         if got.type != expected.type:
             raise TrackTableError(f"{where}column {name!r} has type {got.type}, expected {expected.type}")
-        if name in UNITS and (got.metadata or {}).get(b"unit", b"").decode() != UNITS[name]:
+        if name in UNITS and (got.metadata or {}).get(b"unit", b"").decode(errors="replace") != UNITS[name]:
             raise TrackTableError(f"{where}column {name!r} does not state its unit {UNITS[name]!r}")
-    meta = read_meta(table)
+    try:
+        meta = read_meta(table)
+    except TrackTableError as exc:
+        raise TrackTableError(f"{where}{exc}") from exc
     recordings = set(pc.unique(table.column("recording").cast(pa.string())).to_pylist())
     unknown = recordings - set(meta.recordings)
     if unknown:
@@ -347,15 +368,20 @@ def write_parquet(table: pa.Table, path: str | Path) -> Path:
     validate(table)
     path = Path(path)
     with atomic_path(path) as tmp:
-        pq.write_table(table, tmp, compression="zstd")
+        # Page checksums: a flipped byte in the data is refused on reading instead of read as a value.
+        pq.write_table(table, tmp, compression="zstd", write_page_checksum=True)
     return path
 
 
 def read_parquet(path: str | Path) -> pa.Table:
-    """Read a track table written by :func:`write_parquet` and validate it."""
+    """Read a track table written by :func:`write_parquet` and validate it.
+
+    Page checksums are verified where the file has them (every file :func:`write_parquet` writes);
+    what they do not cover (the footer) is checked by :func:`validate`.
+    """
     try:
-        table = pq.read_table(path)
-    except (OSError, pa.ArrowInvalid) as exc:
+        table = pq.read_table(path, page_checksum_verification=True)
+    except (OSError, pa.ArrowException) as exc:
         raise InputError(
             path, f"not a readable Parquet file: {exc}", expected="a lanecast track table"
         ) from exc

@@ -56,6 +56,9 @@ _ROS_NAMES = {
     "std_msgs/String": ros_types.STRING,
 }
 
+_OP_NAMES = {OP_SCHEMA: "Schema", OP_CHANNEL: "Channel", OP_MESSAGE: "Message", OP_METADATA: "Metadata"}
+# Records read with fixed-size fields: the least length their fields take.
+_FIXED_SIZE = {OP_DATA_END: 4, OP_STATISTICS: 8, OP_FOOTER: 20, OP_CHUNK: 28}
 _MSG_HEAD = struct.Struct("<HIQQ")
 _REC_HEAD = struct.Struct("<BQ")
 _LEN = struct.Struct("<Q")
@@ -101,24 +104,34 @@ class _Damage(Exception):
         self.offset, self.message, self.expected, self.resync = offset, message, expected, resync
 
 
-def _string(buf: Any, pos: int) -> tuple[str, int]:
+def _string(buf: Any, pos: int, end: int) -> tuple[str, int]:
+    """The length-prefixed UTF-8 string at buf[pos] that must end by ``end`` (its record's end)."""
+    if pos + 4 > end:
+        raise ValueError("a string length runs past the record")
     (n,) = struct.unpack_from("<I", buf, pos)
-    end = pos + 4 + n
-    if end > len(buf):
-        raise ValueError("string runs past the record")
-    return bytes(buf[pos + 4 : end]).decode(), end
+    stop = pos + 4 + n
+    if stop > end:
+        raise ValueError(f"a string of {n} bytes runs past the record")
+    try:
+        return bytes(buf[pos + 4 : stop]).decode(), stop
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"a string that is not UTF-8 ({exc.reason} at byte {exc.start})") from exc
 
 
-def _string_map(buf: Any, pos: int) -> tuple[dict[str, str], int]:
+def _string_map(buf: Any, pos: int, end: int) -> tuple[dict[str, str], int]:
+    if pos + 4 > end:
+        raise ValueError("a map length runs past the record")
     (n,) = struct.unpack_from("<I", buf, pos)
-    end = pos + 4 + n
+    stop = pos + 4 + n
+    if stop > end:
+        raise ValueError(f"a map of {n} bytes runs past the record")
     pos += 4
     out = {}
-    while pos < end:
-        k, pos = _string(buf, pos)
-        v, pos = _string(buf, pos)
+    while pos < stop:
+        k, pos = _string(buf, pos, stop)
+        v, pos = _string(buf, pos, stop)
         out[k] = v
-    return out, end
+    return out, stop
 
 
 @dataclass
@@ -217,17 +230,27 @@ class _LogDecoder:
         self.offset = 0  # offset of the record being decoded (for errors)
 
     # -- records
-    def schema(self, buf: Any, pos: int) -> None:
+    def schema(self, buf: Any, pos: int, end: int) -> None:
+        """A Schema record whose body is buf[pos:end]."""
+        if pos + 2 > end:
+            raise ValueError("a Schema record too short for its id")
         (sid,) = struct.unpack_from("<H", buf, pos)
-        name, pos = _string(buf, pos + 2)
-        encoding, pos = _string(buf, pos)
+        name, pos = _string(buf, pos + 2, end)
+        encoding, pos = _string(buf, pos, end)
+        if pos + 4 > end:
+            raise ValueError("the schema data length runs past the record")
         (n,) = struct.unpack_from("<I", buf, pos)
+        if pos + 4 + n > end:
+            raise ValueError(f"schema data of {n} bytes runs past the record")
         self.schemas[sid] = _Schema(name, encoding, bytes(buf[pos + 4 : pos + 4 + n]))
 
-    def channel(self, buf: Any, pos: int) -> None:
+    def channel(self, buf: Any, pos: int, end: int) -> None:
+        """A Channel record whose body is buf[pos:end]."""
+        if pos + 4 > end:
+            raise ValueError("a Channel record too short for its ids")
         cid, sid = struct.unpack_from("<HH", buf, pos)
-        topic, pos = _string(buf, pos + 4)
-        encoding, pos = _string(buf, pos)
+        topic, pos = _string(buf, pos + 4, end)
+        encoding, pos = _string(buf, pos, end)
         channel = _Channel(topic, sid, encoding)
         if self.channels.get(cid) == channel:
             return  # repeated (the summary repeats every channel)
@@ -236,9 +259,10 @@ class _LogDecoder:
         if type(old) is _ProtobufBatch:
             old.flush()
 
-    def metadata(self, buf: Any, pos: int) -> None:
-        name, pos = _string(buf, pos)
-        values, _ = _string_map(buf, pos)
+    def metadata(self, buf: Any, pos: int, end: int) -> None:
+        """A Metadata record whose body is buf[pos:end]."""
+        name, pos = _string(buf, pos, end)
+        values, _ = _string_map(buf, pos, end)
         if name == to.META_NAME and to.META_NAME in values:
             self.log_meta = to.parse_log_metadata(self.path, values[to.META_NAME])
 
@@ -392,6 +416,8 @@ class _LogDecoder:
             if nxt > end:
                 raise ValueError(f"record at {pos - start} declares {length} bytes, only {end - body} left")
             if op == OP_MESSAGE:
+                if length < _MSG_HEAD.size:
+                    raise ValueError(f"a Message record of {length} bytes, shorter than its header")
                 cid, _seq, log_time, _pub = unpack_msg(buf, body)
                 h = handlers[cid] if cid in handlers else handler(cid)
                 if h is not None:
@@ -406,9 +432,9 @@ class _LogDecoder:
                         self._call(h, cid, buf[body + 22 : nxt], log_time)
                 count += 1
             elif op == OP_SCHEMA:
-                self.schema(buf, body)
+                self.schema(buf, body, nxt)
             elif op == OP_CHANNEL:
-                self.channel(buf, body)
+                self.channel(buf, body, nxt)
             pos = nxt
         if spans:
             data = buf.obj if in_chunk and start == 0 else bytes(buf[start:end])
@@ -497,10 +523,28 @@ class _LogDecoder:
             ) from exc
 
 
+#: Largest chunk (uncompressed) read: a chunk's declared size is checked against it before any
+#: allocation (MCAP writers make chunks of a few MB).
+MAX_CHUNK_BYTES = 1 << 30
+
+
 def _chunk_payload(buf: Any, body: int, end: int) -> bytes:
-    """The decompressed, CRC-checked records of a Chunk record whose body is buf[body:end]."""
+    """The decompressed, CRC-checked records of a Chunk record whose body is buf[body:end].
+
+    The declared uncompressed size is bounded (:data:`MAX_CHUNK_BYTES`) and decompression stops
+    one byte past it, so a chunk or an LZ4/zstd frame that lies about its size costs no more memory
+    than the size the chunk declares.
+    """
+    if body + 28 > end:
+        raise ValueError("a Chunk record too short for its header")
     _t0, _t1, size, crc = struct.unpack_from("<QQQI", buf, body)
-    compression, pos = _string(buf, body + 28)
+    if size > MAX_CHUNK_BYTES:
+        raise ValueError(
+            f"the chunk declares {size:,} uncompressed bytes, more than the {MAX_CHUNK_BYTES:,} accepted"
+        )
+    compression, pos = _string(buf, body + 28, end)
+    if pos + 8 > end:
+        raise ValueError("the chunk's records length runs past the chunk")
     (n,) = struct.unpack_from("<Q", buf, pos)
     if pos + 8 + n > end:
         raise ValueError(f"chunk records ({n} bytes) run past the chunk")
@@ -508,17 +552,27 @@ def _chunk_payload(buf: Any, body: int, end: int) -> bytes:
     if compression == "zstd":
         import zstandard
 
-        data = zstandard.ZstdDecompressor().decompress(raw, max_output_size=size)
+        pieces = []
+        with zstandard.ZstdDecompressor().stream_reader(bytes(raw), read_across_frames=True) as reader:
+            wanted = size + 1
+            while wanted > 0 and (piece := reader.read(wanted)):
+                pieces.append(piece)
+                wanted -= len(piece)
+        data = b"".join(pieces)
     elif compression == "lz4":
         import lz4.frame
 
-        data = lz4.frame.decompress(bytes(raw))
+        try:
+            data = lz4.frame.LZ4FrameDecompressor().decompress(bytes(raw), max_length=size + 1)
+        except RuntimeError as exc:  # lz4 reports a damaged frame as RuntimeError
+            raise ValueError(f"damaged LZ4 frame: {exc}") from exc
     elif compression == "":
         data = bytes(raw)
     else:
         raise ValueError(f"unknown compression {compression!r}")
     if len(data) != size:
-        raise ValueError(f"decompressed to {len(data)} bytes, the chunk says {size}")
+        said = "more than" if len(data) > size else f"{len(data)} bytes,"
+        raise ValueError(f"decompressed to {said} the {size} bytes the chunk says")
     if crc and zlib.crc32(data) != crc:
         raise ValueError(f"CRC mismatch (stored {crc:#010x}, computed {zlib.crc32(data):#010x})")
     return data
@@ -653,10 +707,23 @@ def _walk(buf: Any, path: Path, dec: _LogDecoder, salvage: bool) -> None:
                     if type(exc).__module__.startswith(("zstandard", "lz4")):
                         raise _Damage(pos, f"corrupt chunk: {exc}", "an intact zstd/lz4 chunk", True) from exc
                     raise
-            elif op in (OP_SCHEMA, OP_CHANNEL, OP_MESSAGE):
-                stats.messages += dec.records(buf, pos, nxt, False)
-            elif op == OP_METADATA:
-                dec.metadata(buf, body)
+            elif op in _FIXED_SIZE and length < _FIXED_SIZE[op]:
+                raise _Damage(
+                    pos,
+                    f"corrupt record: opcode {op:#04x} declares {length} bytes, fewer than its fields",
+                    f"at least {_FIXED_SIZE[op]} bytes",
+                    False,
+                )
+            elif op in (OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_METADATA):
+                try:
+                    if op == OP_METADATA:
+                        dec.metadata(buf, body, nxt)
+                    else:
+                        stats.messages += dec.records(buf, pos, nxt, False)
+                except (ValueError, struct.error) as exc:
+                    raise _Damage(
+                        pos, f"corrupt {_OP_NAMES[op]} record: {exc}", f"a valid {_OP_NAMES[op]} record", True
+                    ) from exc
             elif op == OP_DATA_END:
                 data_end_seen = True
                 (crc,) = struct.unpack_from("<I", buf, body)

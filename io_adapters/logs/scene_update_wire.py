@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from lanecast.io_adapters.logs.tracked_objects import NAN, Categorical, track_id_of, yaw_of
+from lanecast.io_adapters.logs.tracked_objects import MAX_STAMP_SEC, NAN, Categorical, track_id_of, yaw_of
 
 # Bytes a fixed-width field's value takes, by wire type (VARINT and LEN are measured).
 _FIXED_WIDTH = np.array([0, 8, 0, 0, 0, 4, 0, 0], dtype=np.int64)
@@ -135,12 +135,21 @@ def _len_fields(buf: np.ndarray, pos: np.ndarray) -> tuple[np.ndarray, np.ndarra
 def _scan(buf: np.ndarray, starts: np.ndarray, ends: np.ndarray, owners: np.ndarray) -> _Fields:
     """All fields of the messages buf[starts[i]:ends[i]] [n], tagged with owners[i].
 
-    ``buf`` holds at least :data:`PAD` bytes after the last message end.
+    ``buf`` holds at least :data:`PAD` bytes after the last message. Raises ValueError on field
+    number 0, a wire type protobuf does not define (or a group), or a field past its message. One
+    vectorised pass per field position while many messages are walked together; when only a few
+    long ones are left, the rest goes through :func:`_scan_few`, so that the work stays a small
+    constant per byte read (a long run of tiny fields is not one numpy pass per field).
     """
     out: list[tuple[np.ndarray, ...]] = []
     keep = starts < ends
     owner, pos, end = owners[keep], starts[keep], ends[keep]
+    passes = 0
     while pos.size:
+        passes += 1
+        if pos.size <= _FEW and passes > _FEW_AFTER:
+            out.append(_scan_few(buf, owner, pos, end))
+            break
         fast = _len_fields(buf, pos)
         if fast is not None:
             # Every field here is length-delimited, tag and length short: the usual case for
@@ -150,7 +159,9 @@ def _scan(buf: np.ndarray, starts: np.ndarray, ends: np.ndarray, owners: np.ndar
             tag, vstart, vend = _fields_at(buf, pos)
             if _BAD_WIRE[tag & 7].any():
                 raise ValueError("malformed protobuf message (bad wire type)")
-        if (vend > end).any():
+        if (tag < 8).any():
+            raise ValueError("malformed protobuf message (field number 0)")
+        if (vend > end).any() or (vend < vstart).any():
             raise ValueError("malformed protobuf message (a field runs past its message)")
         out.append((owner, tag, vstart, vend))
         more = vend < end
@@ -164,6 +175,52 @@ def _scan(buf: np.ndarray, starts: np.ndarray, ends: np.ndarray, owners: np.ndar
     if len(out) == 1:
         return _Fields(*out[0])
     return _Fields(*(np.concatenate(c) for c in zip(*out, strict=True)))
+
+
+_FEW = 4  # messages still being walked at or below which the scalar walk takes over …
+_FEW_AFTER = 16  # … once this many vectorised passes have been made
+
+
+def _scan_few(
+    buf: np.ndarray, owners: np.ndarray, starts: np.ndarray, ends: np.ndarray
+) -> tuple[np.ndarray, ...]:
+    """The fields of a few messages buf[starts[i]:ends[i]], walked one field at a time in Python
+    (a few hundred nanoseconds per field): (owner, tag, value start, value end) arrays [m]."""
+    data = buf.tobytes()
+    cols: tuple[list[int], list[int], list[int], list[int]] = ([], [], [], [])
+    for owner, start, end in zip(owners.tolist(), starts.tolist(), ends.tolist(), strict=True):
+        pos = start
+        while pos < end:
+            tag, pos = _varint_at(data, pos, end)
+            wire = tag & 7
+            if tag < 8 or _BAD_WIRE[wire]:
+                raise ValueError("malformed protobuf message (field number 0 or bad wire type)")
+            if wire == 0:
+                _, vend = _varint_at(data, pos, end)
+                vstart = pos
+            elif wire == 2:
+                length, vstart = _varint_at(data, pos, end)
+                vend = vstart + length
+            else:
+                vstart, vend = pos, pos + (8 if wire == 1 else 4)
+            if vend > end:
+                raise ValueError("malformed protobuf message (a field runs past its message)")
+            for col, value in zip(cols, (owner, tag, vstart, vend), strict=True):
+                col.append(value)
+            pos = vend
+    return tuple(np.asarray(c, dtype=np.int64) for c in cols)
+
+
+def _varint_at(data: bytes, pos: int, end: int) -> tuple[int, int]:
+    """The varint at data[pos] (at most 10 bytes, before ``end``) and the offset after it."""
+    value = shift = 0
+    for i in range(pos, min(pos + 10, end)):
+        byte = data[i]
+        value |= (byte & 0x7F) << shift
+        if byte < 0x80:
+            return value, i + 1
+        shift += 7
+    raise ValueError("malformed protobuf varint")
 
 
 def _sub(buf: np.ndarray, f: _Fields, sel: np.ndarray) -> _Fields:
@@ -426,16 +483,33 @@ def _times(buf: np.ndarray, f: _Fields, sel: np.ndarray, n: int) -> np.ndarray:
     i = np.flatnonzero(has)
     nsec[i], pos[i] = _varints(buf, pos[i] + 1)
     fast = pos == end
+    _check_stamps(sec, nsec)
     value = sec.astype(np.int64) * 1_000_000_000 + nsec.astype(np.int64)
     out[owner[fast]] = value[fast]
     if not fast.all():
         g = _scan(buf, start[~fast], end[~fast], owner[~fast])
-        for field_no, scale in ((1, 1_000_000_000), (2, 1)):
+        parts = []
+        for field_no in (1, 2):
             m = g.pick(field_no, 0)
-            out[g.owner[m]] += _varints(buf, g.start[m])[0].astype(np.int64) * scale
+            part = np.zeros(n, dtype=np.uint64)
+            part[g.owner[m]] = _varints(buf, g.start[m])[0]
+            parts.append(part)
+        _check_stamps(*parts)
+        slow = np.zeros(n, dtype=bool)
+        slow[owner[~fast]] = True
+        out[slow] = (parts[0].astype(np.int64) * 1_000_000_000 + parts[1].astype(np.int64))[slow]
     return out
 
 
+def _check_stamps(sec: np.ndarray, nsec: np.ndarray) -> None:
+    """Timestamps (uint64 [n] seconds and nanoseconds) that fit int64 nanoseconds, else ValueError."""
+    if (sec > np.uint64(MAX_STAMP_SEC)).any() or (nsec > np.uint64(999_999_999)).any():
+        raise ValueError(f"timestamp out of range (sec up to {MAX_STAMP_SEC}, nsec up to 999999999 expected)")
+
+
+#: Largest SceneUpdate message decoded (some 300,000 entities): bounds the memory a crafted message
+#: can claim, since the decoder keeps a few integers per field.
+MAX_MESSAGE_BYTES = 32 << 20
 ENTITY_GROUP = 16384  # entities decoded together (a group's bytes and arrays stay in the CPU cache)
 
 # Entity metadata parsed as numbers: column name → key.
@@ -451,6 +525,11 @@ def scene_update_block(
     of an entity), as :meth:`ObjectColumns.add_block` takes them. ``buf`` is copied unless it
     holds :data:`PAD` bytes after the last message.
     """
+    if starts.size and int((ends - starts).max()) > MAX_MESSAGE_BYTES:
+        raise ValueError(
+            f"a SceneUpdate message of {int((ends - starts).max()):,} bytes "
+            f"(more than the {MAX_MESSAGE_BYTES:,} this reader accepts)"
+        )
     if starts.size and int(ends.max()) + PAD > buf.size:
         buf = np.concatenate([buf, np.zeros(PAD, dtype=np.uint8)])
     msgs = _scan(buf, starts, ends, np.arange(starts.size))

@@ -34,8 +34,8 @@ Conventions of the logs lanecast writes (documented here, used by both writers):
 from __future__ import annotations
 
 import hashlib
-import json
 import math
+import sys
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
+from lanecast.io_adapters import json_fields as jf
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.errors import FrameError, LogError
 
@@ -73,6 +74,7 @@ KNOWN_CLASSES = frozenset(AUTOWARE_LABELS.values()) | {"van", "motorbike"}
 _FLOATS = ("x", "y", "qx", "qy", "qz", "qw", "length", "width", "vx", "vy", "ax", "ay", "lane")
 _NF = len(_FLOATS)
 NAN = math.nan
+MAX_STAMP_SEC = (2**63 - 1) // 1_000_000_000 - 1  # the last second whose nanoseconds fit int64
 
 
 def track_id_of(text: str) -> int:
@@ -235,7 +237,13 @@ def add_scene_update_json(cols: ObjectColumns, doc: Mapping[str, Any], log_time:
         q = pose.get("orientation", {})
         s = c.get("size", {})
         ts = e.get("timestamp") or {}
-        t = int(ts.get("sec", 0)) * 1_000_000_000 + int(ts.get("nsec", 0)) or log_time
+        sec, nsec = int(ts.get("sec", 0)), int(ts.get("nsec", 0))
+        if not (0 <= sec <= MAX_STAMP_SEC and 0 <= nsec <= 999_999_999):
+            raise ValueError(
+                f"entity timestamp sec={sec}, nsec={nsec} out of range "
+                f"(0 <= sec <= {MAX_STAMP_SEC}, 0 <= nsec <= 999999999 expected)"
+            )
+        t = sec * 1_000_000_000 + nsec or log_time
         meta = {kv.get("key"): kv.get("value") for kv in e.get("metadata", ())}
         ints += (t, log_time, track_id_of(str(e.get("id", ""))))
         floats += (
@@ -509,6 +517,7 @@ def assemble(
     recordings_meta = (log_meta or {}).get("recordings") or {}
     if recordings_meta:
         fixed |= {str(r.get("coordinate_frame")) for r in recordings_meta.values()}
+    plan: list[tuple[str, str | None]]
     if topic is not None:
         plan = [(topic, None)]
         for name, spec in recordings_meta.items():
@@ -518,6 +527,19 @@ def assemble(
         plan = [
             (spec["topic"], name) for name, spec in recordings_meta.items() if spec.get("topic") in topics
         ]
+        # The metadata is the log's word, not the truth: a topic with objects that it does not name
+        # (a renamed topic, an edited document) is read as a recording of its own, never dropped.
+        claimed = {t for t, _ in plan}
+        claimed |= {t + MARKER_SUFFIX for t in claimed}
+        for t in sorted(set(topics) - claimed):
+            if len(topics[t].columns):
+                name = _fallback_name(path, t, set(recordings_meta))
+                print(
+                    f"lanecast: {path}: topic {t!r} has objects but no entry in the log's lanecast "
+                    f"metadata; read as recording {name!r}",
+                    file=sys.stderr,
+                )
+                plan.append((t, name))
     else:
         marker_topics = {t + MARKER_SUFFIX for t in topics}
         plan = [(t, None) for t in sorted(topics) if t not in marker_topics or len(topics) == 1]
@@ -551,6 +573,11 @@ def assemble(
         rec_extra.update({"topic": tp, "message_type": data.msgtype, "messages": data.columns.messages})
         if dropped:
             rec_extra["duplicates_dropped"] = dropped
+            print(
+                f"lanecast: {path}: topic {tp!r}: {dropped:,} rows repeat a (track, frame) of an earlier "
+                "row; kept the earliest by log time",
+                file=sys.stderr,
+            )
         if extra:
             rec_extra.update(extra)
         recordings[rec_name] = track_table.RecordingMeta(
@@ -575,6 +602,15 @@ def assemble(
     table = track_table.build_table(columns, meta)
     track_table.validate(table, source=path)
     return table
+
+
+def _fallback_name(path: Path, topic: str, taken: set[str]) -> str:
+    """A recording name for a topic the log's metadata does not name, distinct from ``taken``."""
+    stem = path.stem if path.suffix else path.name
+    name = f"{stem}-{topic.strip('/').replace('/', '-')}"
+    while name in taken:
+        name += "-unlisted"
+    return name
 
 
 def _to_fixed_frame(
@@ -776,15 +812,43 @@ def log_metadata(
     }
 
 
+#: Highest frame rate accepted from a log's lanecast metadata (Hz).
+MAX_META_FRAME_RATE = 10_000.0
+
+
 def parse_log_metadata(path: Path, text: str | bytes) -> dict[str, Any]:
-    """lanecast's metadata document from a log, checked enough to use."""
+    """lanecast's metadata document from a log, every field used checked for type and range.
+
+    A log can carry anything under this name, so the document is input like any other: a wrong
+    type, a missing key, deep nesting or text that is not JSON is a LogError naming the field.
+    """
+    what = "lanecast metadata"
     try:
-        doc = json.loads(text)
-        if not isinstance(doc, dict) or not isinstance(doc.get("recordings", {}), dict):
-            raise ValueError("not an object with 'recordings'")
-        return doc
-    except ValueError as exc:
-        raise LogError(path, f"unreadable lanecast metadata: {exc}", expected="a JSON document") from exc
+        doc = jf.check(jf.loads(text, "lanecast"), "lanecast", "object")
+        jf.get(doc, "source_format", "", "str|null", None)
+        jf.get(doc, "source_files", "", "str_list", [])
+        for name, spec in jf.get(doc, "recordings", "", "object", {}).items():
+            where = f"recordings.{name}"
+            jf.check(spec, where, "object")
+            jf.get(spec, "topic", where, "str")
+            rate = jf.get(spec, "frame_rate", where, "positive")
+            if rate > MAX_META_FRAME_RATE:
+                raise jf.FieldError(
+                    f"{where}.frame_rate", f"{rate}", f"a rate up to {MAX_META_FRAME_RATE:g} Hz"
+                )
+            jf.get(spec, "coordinate_frame", where, "str", "map")
+            jf.get(spec, "source_files", where, "str_list", [])
+            jf.get(spec, "extra", where, "object", {})
+            for key in ("frame0", "time0_ns"):
+                jf.get(spec, key, where, "count", 0)
+            if ("frame0" in spec) != ("time0_ns" in spec):
+                raise jf.FieldError(
+                    f"{where}.frame0", "frame0 and time0_ns not both given", "both or neither"
+                )
+            jf.get(spec, "frames", where, "int_list", [])
+    except jf.FieldError as exc:
+        raise LogError(path, f"{what}: {exc.reason}", column=exc.name, expected=exc.expected) from exc
+    return doc
 
 
 def table_columns(table: pa.Table) -> dict[str, np.ndarray]:

@@ -1,0 +1,409 @@
+"""Malformed and hostile inputs, one minimal input per cause: a clean refusal naming the file and
+where, or a correct reading; never a traceback, a hang or a silent change (issue 13)."""
+
+from __future__ import annotations
+
+import json
+import os
+import struct
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+from lanecast.io_adapters import registry
+from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.errors import InputError, LanecastError, LogError, TrackTableError
+from lanecast.io_adapters.logs import mcap_reader
+from lanecast.workflows.cli import main
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _s(text: str | bytes) -> bytes:
+    raw = text.encode() if isinstance(text, str) else text
+    return struct.pack("<I", len(raw)) + raw
+
+
+def _record(op: int, body: bytes) -> bytes:
+    return bytes([op]) + struct.pack("<Q", len(body)) + body
+
+
+def _entity(track: int, x: float, sec: int = 0, nsec: int = 0) -> dict[str, object]:
+    return {
+        "timestamp": {"sec": sec, "nsec": nsec},
+        "frame_id": "map",
+        "id": str(track),
+        "metadata": [{"key": "class", "value": "car"}],
+        "cubes": [
+            {
+                "pose": {"position": {"x": x, "y": 0.0, "z": 0.0}, "orientation": {"w": 1.0}},
+                "size": {"x": 4.5, "y": 1.8, "z": 1.5},
+            }
+        ],
+    }
+
+
+def json_log(
+    path: Path,
+    messages: list[tuple[str, int, list[dict[str, object]]]],
+    metadata: dict[str, str] | None = None,
+) -> Path:
+    """An MCAP of JSON SceneUpdates: (topic, log time ns, entities) per message."""
+    from mcap.writer import Writer
+
+    schema = (REPO / "io_adapters/data/foxglove/SceneUpdate.json").read_bytes()
+    with path.open("wb") as f:
+        w = Writer(f)
+        w.start()
+        sid = w.register_schema("foxglove.SceneUpdate", "jsonschema", schema)
+        channels: dict[str, int] = {}
+        for topic, t, entities in messages:
+            if topic not in channels:
+                channels[topic] = w.register_channel(topic, "json", sid)
+            data = json.dumps({"entities": entities}).encode()
+            w.add_message(channels[topic], log_time=t, data=data, publish_time=t)
+        if metadata is not None:
+            w.add_metadata("lanecast", metadata)
+        w.finish()
+    return path
+
+
+def straight_messages(topic: str = "/objects", n: int = 20) -> list[tuple[str, int, list[dict[str, object]]]]:
+    return [(topic, (i + 1) * 100_000_000, [_entity(1, 2.0 * i), _entity(2, 50 + 2.0 * i)]) for i in range(n)]
+
+
+def cli(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str]:
+    status = main(args)
+    err = capsys.readouterr().err.strip()
+    return status, err
+
+
+def assert_one_line_error(status: int, err: str, command: str, name: str) -> None:
+    assert status == 2
+    lines = err.splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"lanecast {command}: error: "), err
+    assert name in lines[0]
+
+
+# ------------------------------------------------------------------------------- paths in and out
+
+
+def test_fifo_input_is_refused_without_opening_it(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    fifo = tmp_path / "log.mcap"
+    os.mkfifo(fifo)
+    for fmt in (["--format", "mcap"], []):
+        status, err = cli(["convert", str(fifo), *fmt, "--out", str(tmp_path / "x.parquet")], capsys)
+        assert_one_line_error(status, err, "convert", str(fifo))
+        assert "not a regular file" in err
+
+
+def test_symlink_loops_and_directories(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    loop = tmp_path / "loop"
+    loop.symlink_to(loop)
+    good = json_log(tmp_path / "good.mcap", straight_messages())
+    status, err = cli(["convert", str(loop), "--out", str(tmp_path / "x.parquet")], capsys)
+    assert_one_line_error(status, err, "convert", str(loop))
+    status, err = cli(["convert", str(good), "--out", str(loop)], capsys)
+    assert_one_line_error(status, err, "convert", str(loop))
+    status, err = cli(["convert", str(good), "--out", str(tmp_path)], capsys)
+    assert_one_line_error(status, err, "convert", str(tmp_path))
+    assert "is a directory" in err
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    status, err = cli(["convert", str(good), "--out", str(blocker / "x.parquet")], capsys)
+    assert_one_line_error(status, err, "convert", str(blocker))
+    assert not (tmp_path / "x.parquet").exists()
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root reads and writes regardless of modes")
+def test_unreadable_input_and_read_only_output(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    good = json_log(tmp_path / "good.mcap", straight_messages())
+    good.chmod(0)
+    status, err = cli(["convert", str(good), "--out", str(tmp_path / "x.parquet")], capsys)
+    assert_one_line_error(status, err, "convert", str(good))
+    good.chmod(0o644)
+    ro = tmp_path / "ro"
+    ro.mkdir(mode=0o555)
+    status, err = cli(["convert", str(good), "--out", str(ro / "x.parquet")], capsys)
+    assert_one_line_error(status, err, "convert", str(ro))
+
+
+def test_cli_subprocess_prints_no_traceback(tmp_path: Path) -> None:
+    """End to end through the installed entry point: exit 2 and one line."""
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(mcap_reader.MAGIC + _record(0x03, struct.pack("<H", 1) + _s("x")[:3]))
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    done = subprocess.run(
+        [sys.executable, "-m", "lanecast", "convert", str(bad), "--out", str(tmp_path / "x.parquet")],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=120,
+    )
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.count("\n") == 1 and done.stderr.startswith("lanecast convert: error: ")
+    assert str(bad) in done.stderr and "offset 8" in done.stderr
+
+
+# ------------------------------------------------------------------------------------------- MCAP
+
+
+def raw_log(path: Path, records: bytes) -> Path:
+    """An unchunked MCAP: header, the given records, data end, footer, magic."""
+    header = _record(0x01, _s("") + _s("test"))
+    footer = _record(0x02, struct.pack("<QQI", 0, 0, 0))
+    path.write_bytes(
+        mcap_reader.MAGIC
+        + header
+        + records
+        + _record(0x0F, struct.pack("<I", 0))
+        + footer
+        + mcap_reader.MAGIC
+    )
+    return path
+
+
+@pytest.mark.parametrize(
+    ("name", "records", "match"),
+    [
+        (
+            "string past record",
+            _record(0x03, struct.pack("<H", 1) + struct.pack("<I", 999) + b"abc"),
+            "runs past",
+        ),
+        (
+            "non-UTF-8 schema name",
+            _record(0x03, struct.pack("<H", 1) + _s(b"\xff\xfe") + _s("jsonschema") + _s("{}")),
+            "not UTF-8",
+        ),
+        (
+            "non-UTF-8 topic",
+            _record(0x04, struct.pack("<HH", 1, 0) + _s(b"/a\xc3") + _s("json") + struct.pack("<I", 0)),
+            "not UTF-8",
+        ),
+        ("metadata map past record", _record(0x0C, _s("lanecast") + struct.pack("<I", 1 << 20)), "runs past"),
+        ("message shorter than its header", _record(0x05, b"\x01\x00"), "shorter than its header"),
+        ("statistics too short", _record(0x0B, b"\x01"), "fewer than its fields"),
+    ],
+)
+def test_unchunked_records_with_bad_fields(tmp_path: Path, name: str, records: bytes, match: str) -> None:
+    path = raw_log(tmp_path / "bad.mcap", records)
+    with pytest.raises(LogError, match=match) as err:
+        mcap_reader.read(path)
+    assert (
+        err.value.path == str(path) and err.value.offset == 8 + 9 + 4 + 8
+    )  # the first record after the header
+
+
+def _chunk(records: bytes, size: int, compression: str, compressed: bytes) -> bytes:
+    body = (
+        struct.pack("<QQQI", 0, 0, size, 0)
+        + _s(compression)
+        + struct.pack("<Q", len(compressed))
+        + compressed
+    )
+    return _record(0x06, body)
+
+
+def test_chunk_claiming_a_terabyte_is_refused_before_allocating(tmp_path: Path) -> None:
+    import lz4.frame
+    import zstandard
+
+    records = _record(0x03, struct.pack("<H", 1) + _s("x") + _s("y") + _s(""))
+    for compression, data in (
+        ("zstd", zstandard.ZstdCompressor().compress(records)),
+        ("lz4", lz4.frame.compress(records)),
+        ("", records),
+    ):
+        path = raw_log(tmp_path / f"big-{compression}.mcap", _chunk(records, 1 << 40, compression, data))
+        with pytest.raises(LogError, match="declares 1,099,511,627,776 uncompressed bytes") as err:
+            mcap_reader.read(path)
+        assert err.value.offset == 29
+
+
+def test_lz4_frame_that_expands_past_the_declared_size(tmp_path: Path) -> None:
+    """A frame whose own header claims 2^40 bytes, and a zero bomb: decompression stops at the chunk's size."""
+    import lz4.frame
+
+    bomb = lz4.frame.compress(bytes(64 << 20))
+    path = raw_log(tmp_path / "bomb.mcap", _chunk(b"", 1000, "lz4", bomb))
+    with pytest.raises(LogError, match="more than the 1000 bytes the chunk says"):
+        mcap_reader.read(path)
+    frame = bytearray(lz4.frame.compress(b"abc", store_size=True))
+    frame[6:14] = struct.pack("<Q", 1 << 40)  # content size in the frame descriptor
+    path = raw_log(tmp_path / "lie.mcap", _chunk(b"", 3, "lz4", bytes(frame)))
+    with pytest.raises(LogError, match="corrupt chunk"):
+        mcap_reader.read(path)
+
+
+def _protobuf_log(path: Path, message: bytes) -> Path:
+    from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+    from mcap.writer import CompressionType, Writer
+    from mcap_protobuf.schema import build_file_descriptor_set
+
+    with path.open("wb") as f:
+        w = Writer(f, compression=CompressionType.ZSTD, chunk_size=1 << 24)
+        w.start()
+        sid = w.register_schema(
+            "foxglove.SceneUpdate", "protobuf", build_file_descriptor_set(SceneUpdate).SerializeToString()
+        )
+        cid = w.register_channel("/scene", "protobuf", sid)
+        w.add_message(cid, log_time=1, data=message, publish_time=1)
+        w.finish()
+    return path
+
+
+@pytest.mark.parametrize(
+    ("message", "match"),
+    [
+        (bytes(4 << 20), "field number 0"),  # the hang: 4 MiB of zeros, a few KB on disk
+        (b"\x12\x04\x00\x00\x00\x00", "field number 0"),  # inside an entity
+        (b"\x12\x02\x0b\x00", "bad wire type"),  # a group start
+        (b"\x12\x03\x0f\x00\x00", "bad wire type"),  # wire type 7
+        (b"\x12\x0c\x0a\x0a\x08\xff\xff\xff\xff\xff\xff\xff\xff\x7f", "timestamp out of range"),  # sec 2^63-1
+    ],
+)
+def test_protobuf_scene_update_wire_faults(tmp_path: Path, message: bytes, match: str) -> None:
+    path = _protobuf_log(tmp_path / "pb.mcap", message)
+    assert path.stat().st_size < 16_000
+    with pytest.raises(LogError, match=match) as err:
+        mcap_reader.read(path)
+    assert err.value.path == str(path) and err.value.offset is not None
+
+
+def test_long_run_of_tiny_fields_is_read_in_bounded_work(tmp_path: Path) -> None:
+    """1M two-byte unknown fields (valid protobuf): decoded by the scalar walk, no objects in it."""
+    path = _protobuf_log(tmp_path / "tiny.mcap", b"\x18\x00" * 1_000_000)
+    with pytest.raises(LogError, match="no supported topic with tracked objects"):
+        mcap_reader.read(path)
+
+
+def test_json_timestamp_beyond_int64(tmp_path: Path) -> None:
+    messages = straight_messages()
+    messages[3][2][0]["timestamp"] = {"sec": 2**63, "nsec": 0}
+    path = json_log(tmp_path / "t.mcap", messages)
+    with pytest.raises(LogError, match=r"sec=9223372036854775808.*out of range") as err:
+        mcap_reader.read(path)
+    assert err.value.offset is not None
+
+
+@pytest.mark.parametrize(
+    ("doc", "column"),
+    [
+        ('{"recordings": {"r": {"topic": "/objects", "frame_rate": "abc"}}}', "recordings.r.frame_rate"),
+        ('{"source_files": 1, "recordings": {}}', "source_files"),
+        ('{"recordings": {"r": {"frame_rate": 10}}}', "recordings.r.topic"),
+        (
+            '{"recordings": {"r": {"topic": "/objects", "frame_rate": 10, "frames": [1.5]}}}',
+            "recordings.r.frames",
+        ),
+        ("[" * 100_000 + "]" * 100_000, "lanecast"),
+        ("not json", "lanecast"),
+        ('{"recordings": []}', "recordings"),
+    ],
+)
+def test_lanecast_metadata_in_a_log_is_checked(tmp_path: Path, doc: str, column: str) -> None:
+    path = json_log(tmp_path / "m.mcap", straight_messages(), {"lanecast": doc})
+    with pytest.raises(LogError, match="lanecast metadata") as err:
+        mcap_reader.read(path)
+    assert err.value.column == column and err.value.path == str(path)
+
+
+def test_wrong_topic_in_metadata_does_not_drop_objects(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    doc = {"recordings": {"r": {"topic": "/renamed", "frame_rate": 10.0, "coordinate_frame": "map"}}}
+    path = json_log(tmp_path / "w.mcap", straight_messages(), {"lanecast": json.dumps(doc)})
+    table = mcap_reader.read(path)
+    assert table.num_rows == 40
+    assert "'/objects' has objects but no entry" in capsys.readouterr().err
+
+
+def test_duplicate_track_frames_in_a_log_are_reported(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    messages = straight_messages()
+    messages[5][2].append(_entity(1, 99.0))  # track 1 twice in one message
+    table = mcap_reader.read(json_log(tmp_path / "d.mcap", messages))
+    assert table.num_rows == 40
+    assert "1 rows repeat a (track, frame)" in capsys.readouterr().err
+
+
+# ----------------------------------------------------------------------------------------- Parquet
+
+
+def _parquet(tmp_path: Path) -> tuple[Path, pa.Table]:
+    table = mcap_reader.read(json_log(tmp_path / "src.mcap", straight_messages()))
+    return track_table.write_parquet(table, tmp_path / "t.parquet"), table
+
+
+@pytest.mark.parametrize(
+    ("edit", "match"),
+    [
+        (lambda d: d["recordings"]["src"].update(frame_rate="abc"), "recordings.src.frame_rate"),
+        (lambda d: d.update(source_files=1), "source_files"),
+        (lambda d: d.pop("source_format"), "source_format"),
+        (lambda d: d["recordings"].update(src=[]), "recordings.src"),
+    ],
+)
+def test_parquet_metadata_with_wrong_types(tmp_path: Path, edit: object, match: str) -> None:
+    path, table = _parquet(tmp_path)
+    doc = json.loads(table.schema.metadata[b"lanecast"])
+    edit(doc)  # type: ignore[operator]
+    bad = table.replace_schema_metadata({b"lanecast": json.dumps(doc).encode()})
+    pq.write_table(bad, path)
+    with pytest.raises(TrackTableError, match=match) as err:
+        registry.read_any([path])
+    assert str(path) in str(err.value)
+
+
+def test_parquet_metadata_deeply_nested(tmp_path: Path) -> None:
+    path, table = _parquet(tmp_path)
+    pq.write_table(table.replace_schema_metadata({b"lanecast": b"[" * 50_000 + b"]" * 50_000}), path)
+    with pytest.raises(TrackTableError, match="nested 50000 levels"):
+        registry.read_any([path])
+
+
+def test_parquet_flipped_data_byte_is_detected(tmp_path: Path) -> None:
+    """Every byte of the first column chunk's pages flipped in turn: refused or (header bytes the
+    checksum does not cover) read back equal; never a different table."""
+    path, _ = _parquet(tmp_path)
+    good = registry.read_any([path])
+    data = path.read_bytes()
+    meta = pq.ParquetFile(path).metadata.row_group(0).column(4)  # x
+    start = meta.data_page_offset
+    refused = 0
+    for offset in range(start, start + meta.total_compressed_size, 7):
+        bad = bytearray(data)
+        bad[offset] ^= 0x5A
+        out = tmp_path / "flipped.parquet"
+        out.write_bytes(bytes(bad))
+        try:
+            back = registry.read_any([out])
+        except LanecastError:
+            refused += 1
+            continue
+        assert back.equals(good)
+    assert refused > 0
+
+
+def test_parquet_written_with_page_checksums(tmp_path: Path) -> None:
+    path, _ = _parquet(tmp_path)
+    data = bytearray(path.read_bytes())
+    col = pq.ParquetFile(path).metadata.row_group(0).column(4)
+    end = col.data_page_offset + col.total_compressed_size
+    data[end - 3] ^= 0xFF  # inside the compressed page body
+    path.write_bytes(bytes(data))
+    with pytest.raises(InputError, match=r"(?i)checksum|crc|corrupt|not a readable"):
+        registry.read_any([path])
+
+
+def test_values_are_identical_after_reading(tmp_path: Path) -> None:
+    path, table = _parquet(tmp_path)
+    back = registry.read_any([path])
+    assert np.array_equal(back.column("x").to_numpy(), table.column("x").to_numpy())
