@@ -53,14 +53,23 @@ def evaluate(
         )
     inputs, present = np.asarray(windows.inputs[idx]), np.asarray(windows.present[idx])
     future, maneuver = np.asarray(windows.future[idx]), np.asarray(windows.maneuver[idx])
-    vehicle = vehicle_ids(windows.index.take(idx))
+    index = windows.index.take(idx)
+    vehicle = vehicle_ids(index)
+    recording = index.column("recording").to_numpy(zero_copy_only=False).astype(str)
     metrics: dict[str, Any] = {}
     preds: dict[str, Predictions] = {}
     for f in forecasters:
         p = f.predict(inputs, present, top_k=top_k, batch_size=batch_size)
         preds[f.name] = p
         metrics[f.name] = summary(
-            p.offsets, future, maneuver, vehicle, candidates=p.top_offsets, predicted_maneuver=p.maneuver
+            p.offsets,
+            future,
+            maneuver,
+            vehicle,
+            candidates=p.top_offsets,
+            predicted_maneuver=p.maneuver,
+            probs=p.probs,
+            recording=recording,
         )
     return metrics, preds, idx
 

@@ -83,7 +83,14 @@ def run(args: argparse.Namespace) -> int:
     print(f"evaluated {len(idx):,} windows ({args.split}); RMSE per window at 1-5 s (m):")
     for name, m in metrics.items():
         rmse = " ".join("–" if v is None else f"{v:.2f}" for v in m["rmse"])
-        f1 = m["maneuver_macro_f1"]
-        print(f"  {name:<24}{rmse}   macro-F1 {'–' if f1 is None else f'{f1:.3f}'}")
+        f1, acc = m["maneuver_macro_f1"], m["maneuver_accuracy"]
+        maneuvers = "" if f1 is None else f"   macro-F1 {f1:.3f}, accuracy {acc:.3f}"
+        print(f"  {name:<24}{rmse}{maneuvers}")
+    straight = meta["always_straight"]
+    print(
+        f"  {'always straight':<24}{'':<24}   macro-F1 {straight['maneuver_macro_f1']:.3f}, "
+        f"accuracy {straight['maneuver_accuracy']:.3f}"
+    )
+    print("  (macro-F1 over the maneuver classes present or predicted: a false lane change counts)")
     print(f"wrote {args.out / 'metrics.json'}, report.md, report.html")
     return 0
