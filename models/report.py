@@ -46,7 +46,7 @@ class Scene:
     alt_probs: np.ndarray  # float [K]
 
 
-def _plt() -> Any:
+def pyplot() -> Any:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -55,16 +55,16 @@ def _plt() -> Any:
     return plt
 
 
-def _png(fig: Any) -> bytes:
+def png_bytes(fig: Any) -> bytes:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
-    _plt().close(fig)
+    pyplot().close(fig)
     return buf.getvalue()
 
 
 def rmse_plot(metrics: dict[str, Any]) -> bytes:
     """RMSE (per window) against the horizon for every model in ``metrics``."""
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(5.5, 3.6))
     for name, m in metrics.items():
         values = [np.nan if v is None else v for v in m["rmse"]]
@@ -74,12 +74,12 @@ def rmse_plot(metrics: dict[str, Any]) -> bytes:
     ax.set_xticks(range(1, 6))
     ax.grid(alpha=0.3)
     ax.legend()
-    return _png(fig)
+    return png_bytes(fig)
 
 
 def confusion_plot(confusion: Sequence[Sequence[int]], title: str) -> bytes:
     """Confusion matrix (rows true, columns predicted), counts and row-normalised shading."""
-    plt = _plt()
+    plt = pyplot()
     conf = np.asarray(confusion, dtype=np.float64)
     rows = conf / np.maximum(conf.sum(axis=1, keepdims=True), 1)
     fig, ax = plt.subplots(figsize=(4.2, 3.6))
@@ -100,14 +100,14 @@ def confusion_plot(confusion: Sequence[Sequence[int]], title: str) -> bytes:
     ax.set_xlabel("predicted")
     ax.set_ylabel("true")
     ax.set_title(title, fontsize=9)
-    return _png(fig)
+    return png_bytes(fig)
 
 
 def scene_plot(scene: Scene) -> bytes:
     """One window drawn like the paper's qualitative figures (x forward, y left)."""
     from matplotlib.patches import Rectangle
 
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(10, 3.2))
     x, y, v = scene.inputs[0], scene.inputs[1], scene.inputs[2]
     for row, label in enumerate(ROWS):
@@ -173,7 +173,7 @@ def scene_plot(scene: Scene) -> bytes:
     ax.set_ylabel("y (m, left)")
     ax.set_title(scene.title, fontsize=9)
     ax.grid(alpha=0.2)
-    return _png(fig)
+    return png_bytes(fig)
 
 
 def _fmt(value: Any, digits: int = 2) -> str:

@@ -25,6 +25,7 @@ from __future__ import annotations
 import copy
 import json
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
@@ -147,14 +148,22 @@ class _Batches:
     """Gathers and normalises batches from (possibly memory-mapped) windows."""
 
     def __init__(
-        self, windows: Windows, input_stats: NormStats, future_mean: np.ndarray, future_std: float
+        self,
+        windows: Windows,
+        input_stats: NormStats,
+        future_mean: np.ndarray,
+        future_std: float,
+        transform: Callable[[np.ndarray], np.ndarray] | None = None,
     ) -> None:
         self.w, self.stats = windows, input_stats
         self.mean, self.std = future_mean, future_std
+        self.transform = transform
 
     def get(self, idx: np.ndarray, device: torch.device) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         idx = np.sort(idx)  # sequential reads of the memory map; order inside a batch is irrelevant
         x = normalise(self.w.inputs[idx], self.w.present[idx], self.stats)
+        if self.transform is not None:
+            x = np.ascontiguousarray(self.transform(x), dtype=np.float32)
         y = (np.asarray(self.w.future[idx]) - self.mean) / self.std
         m = np.asarray(self.w.maneuver[idx])
         return (
@@ -217,12 +226,15 @@ def train(
     *,
     data_card: dict[str, Any] | None = None,
     classifier_from: STCNN | None = None,
+    transform: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> TrainResult:
     """Train both networks on the ``train`` split, validating on ``val`` each epoch; keep the best epochs.
 
     windows: a ``lanecast.io_adapters.contracts.windows.Windows`` (memory-mapped is fine). ``classifier_from``: copy
     that model's (trained) classifier and train only the regressor (e.g. for the regression-only
-    ablation, whose classifier is the same network). Reproducible for a seed on a given machine and
+    ablation, whose classifier is the same network). ``transform``: applied to every normalised input
+    batch [B, 4, 8, 30] before the networks see it (the input ablations of ``lanecast.models.ablation``;
+    its output must fit ``config.model.channels``). Reproducible for a seed on a given machine and
     thread count. Raises InputError when there is nothing to train on.
     """
     config = config or TrainConfig()
@@ -239,7 +251,7 @@ def train(
         )
     input_stats = compute_stats(windows.inputs[train_idx], windows.present[train_idx])
     future_mean, future_std = future_stats(windows.future[train_idx])
-    batches = _Batches(windows, input_stats, future_mean, future_std)
+    batches = _Batches(windows, input_stats, future_mean, future_std, transform)
     train_counts = np.bincount(np.asarray(windows.maneuver[train_idx]).ravel(), minlength=3)
     weights = class_weights(windows.maneuver[train_idx], config.class_weight_power, config.model.classes)
     weight_t = torch.from_numpy(weights).to(device) if config.class_weight_power > 0 else None

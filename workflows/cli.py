@@ -26,6 +26,8 @@ COMMANDS = (
     "train",
     "evaluate",
     "export",
+    "ablate",
+    "explain",
     "annotate",
     "report",
 )

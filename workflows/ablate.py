@@ -1,0 +1,125 @@
+"""`lanecast ablate`: the paper's ablation study (Table II) retrained and scored on one windows dataset.
+
+Writes ``ablation.json`` (per variant: parameters, mean and std over seeds, every run, the paper's
+values), ``report.html`` / ``report.md`` (the paper's table layout, beside the paper's) and
+``ablation.png`` into ``--out``. See ``lanecast.models.ablation`` for what each variant changes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+
+#: The ``--quick`` preset (CI, smoke tests): a few epochs on at most this many training windows.
+QUICK = {"epochs": 2, "max_train_windows": 1500, "batch_size": 128}
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    from lanecast.models.ablation import variants
+
+    names = list(variants())
+    p = sub.add_parser(
+        "ablate",
+        help="retrain and score the paper's seven ablation variants (Table II)",
+        description=(
+            "Retrain the ST-CNN's ablation variants of Mersch et al. (IROS 2021, Table II) on the same windows "
+            "(train split; validation picks the best epochs) and score them on the same test windows, for "
+            "each seed: only x and y; without neighbourhood; shuffled neighbourhood; without dilation "
+            "(90,681 parameters); without maneuver; sampled maneuver; full. Writes ablation.json, "
+            "report.html, report.md and ablation.png into --out: RMSE at 1-5 s, mean ± std over seeds, in "
+            f"the paper's table layout beside the paper's values. Variants: {', '.join(names)}."
+        ),
+        epilog=(
+            "examples:\n"
+            "  lanecast ablate windows/ --out runs/ablation --seeds 3\n"
+            "  lanecast ablate windows/ --out runs/ablation-quick --quick --variants full,no_dilation"
+        ),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument(
+        "windows", type=Path, metavar="WINDOWS", help="windows dataset directory (lanecast windows)"
+    )
+    p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
+    p.add_argument(
+        "--variants",
+        default=",".join(names),
+        metavar="A,B,…",
+        help="comma-separated variants (default: all seven, in the paper's order)",
+    )
+    p.add_argument("--seeds", type=int, default=3, help="training seeds 0..N-1 per variant (default: 3)")
+    p.add_argument("--epochs", type=int, help="epochs per training (default: 10; --quick: 2)")
+    p.add_argument("--config", type=Path, metavar="JSON", help="training config (lanecast train --config)")
+    p.add_argument(
+        "--max-train-windows",
+        type=int,
+        metavar="N",
+        help="train on at most N training windows (a seeded sample; default: all; --quick: 1500)",
+    )
+    p.add_argument(
+        "--quick",
+        action="store_true",
+        help="a preset small enough for CI: 2 epochs, at most 1,500 training windows, batch 128",
+    )
+    p.add_argument("--threads", type=int, default=1, help="torch threads (default: 1)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from lanecast.io_adapters.contracts.windows import load_windows, subset
+    from lanecast.io_adapters.errors import InputError
+    from lanecast.io_adapters.files import atomic_path
+    from lanecast.models.ablation import run_ablation, variants
+    from lanecast.models.ablation_report import write_ablation_report
+    from lanecast.models.train import TrainConfig, labelled
+
+    names = [n.strip() for n in args.variants.split(",") if n.strip()]
+    unknown = sorted(set(names) - set(variants()))
+    if unknown or not names:
+        raise InputError(
+            None, f"unknown variant(s) {unknown}", column="--variants", expected=", ".join(variants())
+        )
+    if args.seeds < 1:
+        raise InputError(None, f"--seeds {args.seeds}", column="--seeds", expected="at least 1")
+    config = TrainConfig.from_file(args.config) if args.config else TrainConfig(epochs=10)
+    config.threads = args.threads
+    max_train = args.max_train_windows
+    if args.quick:
+        config.epochs, config.batch_size = QUICK["epochs"], QUICK["batch_size"]
+        max_train = max_train or QUICK["max_train_windows"]
+    if args.epochs is not None:
+        config.epochs = args.epochs
+
+    windows = load_windows(args.windows)
+    if max_train is not None:
+        train_idx = labelled(windows, ("train",))
+        if len(train_idx) > max_train:
+            keep = np.random.default_rng(0).choice(train_idx, size=max_train, replace=False)
+            others = np.setdiff1d(np.arange(len(windows)), train_idx)
+            windows = subset(windows, np.sort(np.concatenate([keep, others])))
+    result = run_ablation(windows, names, list(range(args.seeds)), config)
+    result["windows"] = str(args.windows)
+    result["max_train_windows"] = max_train
+    args.out.mkdir(parents=True, exist_ok=True)
+    with atomic_path(args.out / "ablation.json") as tmp:
+        tmp.write_text(json.dumps(finite(result), indent=2, allow_nan=False) + "\n")
+    html = write_ablation_report(args.out, result)  # NaN still NaN here: the table shows "–"
+    print(f"RMSE per window at 1-5 s (m), mean over {args.seeds} seed(s):")
+    for v in result["variants"].values():
+        print(f"  {v['label']:<24}" + " ".join(f"{x:.2f}" for x in v["mean"]["rmse"]))
+    print(f"wrote {args.out / 'ablation.json'}, {html}")
+    return 0
+
+
+def finite(value: object) -> object:
+    """JSON-ready copy: NaN and infinities become null (e.g. no lane-change window to score)."""
+    if isinstance(value, dict):
+        return {k: finite(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [finite(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
