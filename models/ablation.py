@@ -31,7 +31,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from lanecast.io_adapters.contracts.windows import ROWS, NormStats, normalise
+from lanecast.io_adapters.contracts.windows import ROWS, TARGET_ROW, NormStats, Windows, labelled, normalise
+from lanecast.io_adapters.errors import InputError
 from lanecast.models.metrics import (
     accuracy,
     confusion_matrix,
@@ -42,7 +43,8 @@ from lanecast.models.metrics import (
     miss_rate,
     rmse,
 )
-from lanecast.models.stcnn import STCNN, TARGET_ROW, STCNNConfig, count_parameters
+from lanecast.models.stcnn import STCNN, STCNNConfig, count_parameters
+from lanecast.models.train import TrainConfig, TrainResult, train
 
 #: The fixed row order of the shuffled-neighbourhood variant: row i of its input is row
 #: SHUFFLED_ROWS[i] of the contract's order FL F FR L T R RL RR: F L FL FR R RR T RL (no row stays in
@@ -244,14 +246,14 @@ def mean_std(runs: list[dict[str, Any]]) -> tuple[dict[str, Any], dict[str, Any]
     return mean, std
 
 
-def train_variant(windows: Any, variant: Variant, config: Any, *, full: STCNN | None = None) -> Any:
+def train_variant(
+    windows: Windows, variant: Variant, config: TrainConfig, *, full: STCNN | None = None
+) -> TrainResult:
     """Train one variant (``lanecast.models.train.train`` with its architecture and input transform).
 
-    ``config``: a TrainConfig (its ``model`` is replaced by the variant's); ``full``: the trained full
+    ``config``: its ``model`` is replaced by the variant's; ``full``: the trained full
     model, needed by ``no_maneuver`` (whose classifier is copied and left alone). Returns the TrainResult.
     """
-    from lanecast.models.train import train
-
     if variant.training == "sampled":
         raise ValueError("the sampled-maneuver variant is not trained: it reuses the full model")
     if variant.training == "regressor" and full is None:
@@ -264,11 +266,8 @@ def train_variant(windows: Any, variant: Variant, config: Any, *, full: STCNN | 
     )
 
 
-def _split_indices(windows: Any) -> tuple[np.ndarray, str]:
+def _split_indices(windows: Windows) -> tuple[np.ndarray, str]:
     """The windows the ablation is scored on: labelled test windows, else validation ones."""
-    from lanecast.io_adapters.errors import InputError
-    from lanecast.models.train import labelled
-
     for split in ("test", "val"):
         idx = labelled(windows, (split,))
         if len(idx):
@@ -277,18 +276,16 @@ def _split_indices(windows: Any) -> tuple[np.ndarray, str]:
 
 
 def run_ablation(
-    windows: Any,
+    windows: Windows,
     names: list[str],
     seeds: list[int],
-    config: Any,
+    config: TrainConfig,
     *,
     log: Callable[[str], None] = print,
 ) -> dict[str, Any]:
     """Train and score every variant in ``names`` for every seed on ``windows`` (train split to train,
-    val to select epochs, test to score). ``config``: a ``lanecast.models.train.TrainConfig`` whose
-    ``seed`` and ``model`` each variant replaces. Returns the content of ``ablation.json``."""
-    from lanecast.models.train import labelled
-
+    val to select epochs, test to score). ``config``: the training config whose ``seed`` and
+    ``model`` each variant replaces. Returns the content of ``ablation.json``."""
     table = variants()
     unknown = sorted(set(names) - set(table))
     if unknown:
@@ -302,10 +299,11 @@ def run_ablation(
     runs: dict[str, list[dict[str, Any]]] = {n: [] for n in order}
     for seed in seeds:
         cfg = replace(config, seed=seed)
-        full: Any = None
+        full: TrainResult | None = None
         for name in (["full"] if need_full else []) + [n for n in order if n != "full" or not need_full]:
             v = table[name]
             if v.training == "sampled":
+                assert full is not None  # trained first whenever a variant needs it
                 model, card, seconds = full.model, full.card, 0.0
                 fc = predict_variant(
                     model,

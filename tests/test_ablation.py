@@ -14,7 +14,7 @@ import pytest
 import torch
 from test_train import synthetic_windows
 
-from lanecast.io_adapters.contracts.windows import normalise, save_windows
+from lanecast.io_adapters.contracts.windows import TARGET_ROW, NormStats, normalise, save_windows
 from lanecast.models.ablation import (
     SHUFFLED_ROWS,
     InputAblation,
@@ -24,7 +24,6 @@ from lanecast.models.ablation import (
     variant_parameters,
     variants,
 )
-from lanecast.models.stcnn import TARGET_ROW
 from lanecast.models.train import TrainConfig
 from lanecast.workflows.cli import main
 
@@ -101,9 +100,7 @@ def test_shuffled_sees_the_fixed_permutation() -> None:
     np.testing.assert_allclose(seen[-1], stats_x[:, :, list(SHUFFLED_ROWS)], rtol=1e-6, atol=1e-6)
 
 
-def _stats(card: dict[str, Any]) -> Any:
-    from lanecast.io_adapters.contracts.windows import NormStats
-
+def _stats(card: dict[str, Any]) -> NormStats:
     return NormStats.from_dict(card["normalisation"]["inputs"])
 
 
