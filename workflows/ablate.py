@@ -12,6 +12,8 @@ import json
 import math
 from pathlib import Path
 
+from lanecast.workflows.vocabulary import HelpFormatter
+
 #: The ``--quick`` preset (CI, smoke tests): a few epochs on at most this many training windows.
 QUICK = {"epochs": 2, "max_train_windows": 1500, "batch_size": 128}
 
@@ -34,7 +36,7 @@ def register(sub: argparse._SubParsersAction) -> None:
             "  lanecast ablate windows/ --out runs/ablation --seeds 3\n"
             "  lanecast ablate windows/ --out runs/ablation-quick --quick --variants full,no_dilation"
         ),
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     p.add_argument(
         "windows", type=Path, metavar="WINDOWS", help="windows dataset directory (lanecast windows)"
@@ -45,7 +47,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="A,B,…",
         help="comma-separated variants (default: all seven)",
     )
-    p.add_argument("--seeds", type=int, default=3, help="training seeds 0..N-1 per variant (default: 3)")
+    p.add_argument("--seeds", type=int, default=3, help="training seeds 0..N-1 per variant")
     p.add_argument("--epochs", type=int, help="epochs per training (default: 10; --quick: 2)")
     p.add_argument("--config", type=Path, metavar="JSON", help="training config (lanecast train --config)")
     p.add_argument(
@@ -59,7 +61,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="a preset small enough for CI: 2 epochs, at most 1,500 training windows, batch 128",
     )
-    p.add_argument("--threads", type=int, default=1, help="torch threads (default: 1)")
+    p.add_argument("--threads", type=int, default=1, help="torch threads")
     p.set_defaults(func=run)
 
 
