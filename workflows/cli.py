@@ -27,7 +27,6 @@ COMMANDS = (
     "evaluate",
     "export",
     "ablate",
-    "explain",
     "annotate",
     "report",
 )
