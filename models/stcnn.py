@@ -34,16 +34,18 @@ from typing import Any
 import torch
 from torch import nn
 
+from lanecast.io_adapters.contracts.windows import CHANNELS, HISTORY, HORIZONS, MANEUVERS, ROWS
+
 
 @dataclass(frozen=True)
 class STCNNConfig:
     """Everything that fixes the architecture (stored in the model card)."""
 
-    channels: int = 4
-    vehicles: int = 8
-    history: int = 30
-    horizon: int = 5
-    classes: int = 3
+    channels: int = len(CHANNELS)
+    vehicles: int = len(ROWS)
+    history: int = HISTORY
+    horizon: int = HORIZONS
+    classes: int = len(MANEUVERS)
     conv_channels: tuple[int, ...] = (24, 40, 56, 24)
     conv_kernels: tuple[tuple[int, int], ...] = ((5, 10), (3, 3), (2, 3), (1, 1))
     conv_dilations: tuple[tuple[int, int], ...] = ((1, 2), (1, 2), (1, 2), (1, 1))

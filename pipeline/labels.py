@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from lanecast.io_adapters.contracts.track_runs import lane_change_starts, row_extent, run_starts
 from lanecast.pipeline.neighbours import Columns
 
 STRAIGHT, LEFT, RIGHT, UNKNOWN = 0, 1, 2, -1
@@ -28,14 +29,7 @@ REFERENCE_S = 3.0
 
 def track_bounds(cols: Columns) -> tuple[np.ndarray, np.ndarray]:
     """(first row, last row) of each row's track, int64 [n] each."""
-    n = cols.n
-    new = np.ones(n, dtype=bool)
-    if n > 1:
-        new[1:] = (cols.rec[1:] != cols.rec[:-1]) | (cols.track[1:] != cols.track[:-1])
-    starts = np.flatnonzero(new)
-    ends = np.append(starts[1:], n) - 1
-    tid = np.cumsum(new) - 1
-    return starts[tid], ends[tid]
+    return row_extent(run_starts(cols.rec, cols.track))
 
 
 def lane_changes(
@@ -43,17 +37,9 @@ def lane_changes(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Rows where the lane id changes (first row in the new lane) and the direction of each
     (1 left, 2 right, 0 if there is no lateral displacement). int64 [c] each."""
-    first, last = track_bounds(cols)
-    n = cols.n
-    change = np.zeros(n, dtype=bool)
-    if n > 1:
-        change[1:] = (
-            (first[1:] == first[:-1])
-            & cols.lane_known[1:]
-            & cols.lane_known[:-1]
-            & (cols.lane[1:] != cols.lane[:-1])
-        )
-    rows = np.flatnonzero(change)
+    new_track = run_starts(cols.rec, cols.track)
+    first, last = row_extent(new_track)
+    rows = np.flatnonzero(lane_change_starts(new_track, cols.lane, cols.lane_known))
     m = max(round(span_s * rate_hz), 1)
     before = np.maximum(rows - m, first[rows])
     after = np.minimum(rows + m - 1, last[rows])

@@ -16,6 +16,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.contracts.track_runs import run_bounds
 from lanecast.io_adapters.contracts.windows import (
     CHANNEL_UNITS,
     CHANNELS,
@@ -214,7 +215,7 @@ def recording_groups(table: pa.Table, max_rows: int) -> list[tuple[int, int]]:
     _, codes = track_table.recording_codes(table)
     if codes.size == 0:
         return []
-    bounds = np.r_[0, np.flatnonzero(codes[1:] != codes[:-1]) + 1, codes.size]
+    bounds = run_bounds(codes)
     groups: list[tuple[int, int]] = []
     lo = prev = 0
     for end in bounds[1:].tolist():

@@ -33,9 +33,12 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.contracts.track_runs import run_starts
+from lanecast.io_adapters.contracts.windows import ROWS
 from lanecast.io_adapters.errors import TrackTableError
 
-SLOTS: tuple[str, ...] = ("FL", "F", "FR", "L", "R", "RL", "RR")
+#: The seven neighbour slots: the window's vehicle rows without the target.
+SLOTS: tuple[str, ...] = tuple(row for row in ROWS if row != "T")
 SOURCE_COLUMNS: dict[str, str] = {
     "FL": "left_preceding_id",
     "F": "preceding_id",
@@ -128,9 +131,7 @@ class RowIndex:
     def __init__(self, cols: Columns) -> None:
         n = cols.n
         self.frame = cols.frame
-        new_track = np.ones(n, dtype=bool)
-        if n > 1:
-            new_track[1:] = (cols.rec[1:] != cols.rec[:-1]) | (cols.track[1:] != cols.track[:-1])
+        new_track = run_starts(cols.rec, cols.track)
         self.track_start = np.flatnonzero(new_track)
         self.track_of_row = np.cumsum(new_track) - 1
         self.track_end = np.append(self.track_start[1:], n)  # exclusive

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lanecast.io_adapters.contracts.track_runs import row_extent, run_starts
 from lanecast.io_adapters.contracts.windows import HISTORY, HORIZONS, ROWS, TARGET_ROW
 from lanecast.pipeline.neighbours import SLOTS, Columns
 
@@ -31,20 +32,8 @@ LONG_CHORD_FRAMES = 100  # 10 s: the fallback chord for a target that barely mov
 def runs(cols: Columns) -> tuple[np.ndarray, np.ndarray]:
     """Gap-free run lengths around each row: (back, fwd) int64 [n], the number of consecutive
     frames of the row's track ending at / starting at the row (both count the row itself)."""
-    n = cols.n
-    idx = np.arange(n)
-    new = np.ones(n, dtype=bool)
-    if n > 1:
-        new[1:] = (
-            (cols.rec[1:] != cols.rec[:-1])
-            | (cols.track[1:] != cols.track[:-1])
-            | (cols.frame[1:] - cols.frame[:-1] != 1)
-        )
-    run_first = np.maximum.accumulate(np.where(new, idx, 0))
-    end = np.ones(n, dtype=bool)
-    if n > 1:
-        end[:-1] = new[1:]
-    run_last = np.minimum.accumulate(np.where(end, idx, n)[::-1])[::-1]
+    idx = np.arange(cols.n)
+    run_first, run_last = row_extent(run_starts(cols.rec, cols.track, cols.frame - idx))
     return idx - run_first + 1, run_last - idx + 1
 
 

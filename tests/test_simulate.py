@@ -194,14 +194,6 @@ def test_subscription_constants_are_tracis() -> None:
     assert (sumo_highway.VAR_LEADER, sumo_highway.VAR_FOLLOWER) == (tc.VAR_LEADER, tc.VAR_FOLLOWER)
 
 
-def test_per_track_gradient_by_hand() -> None:
-    values = np.array([0.0, 1.0, 3.0, 5.0, 5.0, 2.0])
-    new_track = np.array([True, False, False, True, False, True])
-    got = sumo_highway._per_track_gradient(values, new_track)
-    # track 1: one-sided (1-0)/0.04, central (3-0)/0.08, one-sided (3-1)/0.04; track 2 constant; track 3 alone.
-    assert got.tolist() == pytest.approx([25.0, 37.5, 50.0, 0.0, 0.0, 0.0])
-
-
 def test_same_seed_same_bytes_through_the_command(tmp_path: Path) -> None:
     """One run through the API, one through `lanecast simulate`: identical files; another seed differs."""
     args = {

@@ -36,6 +36,7 @@ import pyarrow.compute as pc
 
 from lanecast.io_adapters.contracts.windows import MANEUVERS
 from lanecast.io_adapters.errors import InputError
+from lanecast.io_adapters.logs.mcap_writer import scene_update_jsonschema
 
 FORECAST_TOPIC = "/lanecast/forecast"
 PREDICTION_TOPIC = "/lanecast/prediction"
@@ -481,14 +482,6 @@ def scene_update_dict(frame: ForecastFrame) -> dict[str, Any]:
             }
         )
     return {"deletions": [], "entities": entities}
-
-
-@functools.cache
-def scene_update_jsonschema() -> bytes:
-    """Foxglove's published JSON schema of ``foxglove.SceneUpdate`` (shipped in io_adapters/data)."""
-    return (
-        resources.files("lanecast.io_adapters") / "data" / "foxglove" / "jsonschema" / "SceneUpdate.json"
-    ).read_bytes()
 
 
 # --------------------------------------------------------------------------------------- protobuf

@@ -20,6 +20,7 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from lanecast.io_adapters import json_fields
+from lanecast.io_adapters.contracts.track_runs import lane_change_starts, run_bounds, run_starts
 from lanecast.io_adapters.errors import InputError, TrackTableError
 from lanecast.io_adapters.files import atomic_path
 
@@ -321,13 +322,9 @@ def track_boundaries(table: pa.Table) -> np.ndarray:
 
     Assumes rows sorted by (recording, track_id, frame); ``starts[i]:starts[i+1]`` is track i.
     """
-    n = table.num_rows
-    if n == 0:
+    if table.num_rows == 0:
         return np.zeros(1, dtype=np.int64)
-    codes = recording_codes(table)[1]
-    track = table.column("track_id").to_numpy()
-    change = np.flatnonzero((codes[1:] != codes[:-1]) | (track[1:] != track[:-1])) + 1
-    return np.concatenate([[0], change, [n]]).astype(np.int64)
+    return run_bounds(recording_codes(table)[1], table.column("track_id").to_numpy())
 
 
 def concat(tables: Iterable[pa.Table]) -> pa.Table:
@@ -392,17 +389,12 @@ def read_parquet(path: str | Path) -> pa.Table:
 def lane_change_rows(table: pa.Table) -> np.ndarray:
     """Rows whose ``lane_id`` differs from the previous row of the same track (both known).
 
-    This is DESIGN.md §2's definition of where a lane change happens; the row returned is the
-    first frame in the new lane.
+    This is where a lane change happens (docs/design.md, "Maneuver labels"); the row returned is
+    the first frame in the new lane.
     """
     if table.num_rows < 2:
         return np.zeros(0, dtype=np.int64)
     lane = table.column("lane_id")
     known = ~np.asarray(pc.is_null(lane))
-    lane_values = np.asarray(lane.fill_null(0))
-    starts = track_boundaries(table)
-    same_track = np.ones(table.num_rows, dtype=bool)
-    same_track[starts[:-1]] = False
-    change = np.zeros(table.num_rows, dtype=bool)
-    change[1:] = same_track[1:] & known[1:] & known[:-1] & (lane_values[1:] != lane_values[:-1])
-    return np.flatnonzero(change)
+    new_track = run_starts(recording_codes(table)[1], table.column("track_id").to_numpy())
+    return np.flatnonzero(lane_change_starts(new_track, np.asarray(lane.fill_null(0)), known))

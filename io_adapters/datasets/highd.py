@@ -31,6 +31,8 @@ import pyarrow.compute as pc
 import pyarrow.csv as pacsv
 
 from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.contracts.track_runs import run_bounds
+from lanecast.io_adapters.datasets.csv_errors import check_field_counts, record_lines
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import progress
 
@@ -189,28 +191,10 @@ def recordings(paths: Sequence[str | Path]) -> list[Recording]:
 
 
 def _data_lines(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """1-based line numbers and field counts of the data records of ``path`` (error path only).
-
-    Returns ``(lines int64 [R], fields int64 [R])`` for every non-empty line after the header,
-    in file order, i.e. ``lines[i]`` is the line of the i-th row pyarrow parses.
-    """
-    data = np.fromfile(path, dtype=np.uint8)
-    newlines = np.flatnonzero(data == ord("\n"))
-    starts = np.concatenate([[0], newlines + 1])
-    ends = np.concatenate([newlines, [data.size]])
-    if starts[-1] >= data.size:  # file ends with a newline: no line after it
-        starts, ends = starts[:-1], ends[:-1]
-    length = ends - starts
-    cr_end = np.zeros(length.shape, dtype=bool)
-    nonzero = length > 0
-    cr_end[nonzero] = data[ends[nonzero] - 1] == ord("\r")
-    empty = (length - cr_end) <= 0
-    commas = np.flatnonzero(data == ord(","))
-    fields = np.searchsorted(commas, ends) - np.searchsorted(commas, starts) + 1
-    numbers = np.arange(1, starts.size + 1)
-    keep = ~empty
-    keep[:1] = False  # the header
-    return numbers[keep], fields[keep]
+    """1-based line numbers and field counts of the data records of ``path`` (error path only):
+    ``lines[i]`` is the line of the i-th row pyarrow parses (the header excluded)."""
+    lines, fields = record_lines(path.read_bytes())
+    return lines[1:], fields[1:]
 
 
 def _read_csv(
@@ -265,26 +249,9 @@ def _read_csv(
 
 def _diagnose(path: Path, names: list[str], columns: Mapping[str, str]) -> None:
     """After a failed fast parse: find the first bad line (field count or cell) and raise there."""
-    lines, fields = _data_lines(path)
-    wrong = np.flatnonzero(fields != len(names))
-    if wrong.size:
-        i = int(wrong[0])
-        got = int(fields[i])
-        last = i == lines.size - 1
-        if got < len(names):
-            raise InputError(
-                path,
-                f"{'truncated last line: ' if last else ''}{got} fields, the header has {len(names)}",
-                line=int(lines[i]),
-                column=names[got],
-                expected=f"{len(names)} comma-separated fields",
-            )
-        raise InputError(
-            path,
-            f"{got} fields, the header has {len(names)}",
-            line=int(lines[i]),
-            expected=f"{len(names)} comma-separated fields",
-        )
+    data = path.read_bytes()
+    check_field_counts(path, data, names)
+    lines = record_lines(data)[0][1:]
     try:
         table = pacsv.read_csv(
             path,
@@ -490,8 +457,8 @@ def _check_meta(
             expected="one row per vehicle",
         )
     ids, frames = cols["id"], cols["frame"]
-    starts = np.flatnonzero(np.concatenate([[True], ids[1:] != ids[:-1]]))
-    ends = np.concatenate([starts[1:], [ids.size]])
+    bounds = run_bounds(ids)
+    starts, ends = bounds[:-1], bounds[1:]
     track_ids = ids[starts]
     pos = np.minimum(np.searchsorted(sorted_ids, track_ids), sorted_ids.size - 1)
     unknown = np.flatnonzero(sorted_ids[pos] != track_ids)

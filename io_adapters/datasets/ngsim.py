@@ -46,6 +46,8 @@ import pyarrow.compute as pc
 import pyarrow.csv as pacsv
 
 from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.contracts.track_runs import along_track_derivative, row_extent, run_starts
+from lanecast.io_adapters.datasets.csv_errors import check_field_counts, line_spans, record_lines
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import progress
 
@@ -200,7 +202,7 @@ def _parse_txt(path: Path, location: str | None) -> _Parsed:
     except (ValueError, pd.errors.ParserError) as exc:
         ok, error = False, str(exc)
     if not ok:
-        _check_fields(path, n_fields, whitespace=True, names=TXT_COLUMNS)
+        check_field_counts(path, path.read_bytes(), TXT_COLUMNS, whitespace=True)
         try:
             frame = pd.read_csv(path, sep=r"\s+", header=None, dtype=str, engine="c", keep_default_na=False)
         except (ValueError, pd.errors.ParserError) as exc:
@@ -215,7 +217,7 @@ def _parse_txt(path: Path, location: str | None) -> _Parsed:
     columns = {name: columns[name] for name in USED_COLUMNS}
     short_line = bool(frame.isna().to_numpy().any())  # the parser pads short lines with NaN
     if short_line or not all(np.isfinite(v).all() for v in columns.values()) or not _integral(columns):
-        _check_fields(path, n_fields, whitespace=True, names=TXT_COLUMNS)
+        check_field_counts(path, path.read_bytes(), TXT_COLUMNS, whitespace=True)
         _check_values(path, columns, TXT_COLUMNS, header=False)
     loc, source = (location, "option") if location else _location_from_path(path)
     n = len(columns["vehicle_id"])
@@ -249,11 +251,11 @@ def _parse_csv(path: Path, first: str, location: str | None) -> _Parsed:
     try:
         table = pacsv.read_csv(path, convert_options=convert)
     except pa.ArrowInvalid as exc:
-        if _line_numbers(path.read_bytes(), whitespace=False).size < 2:
+        if record_lines(path.read_bytes())[0].size < 2:
             raise InputError(
                 path, "the file has a header but no rows", line=2, expected="NGSIM rows"
             ) from exc
-        _check_fields(path, len(header), whitespace=False, names=header)
+        check_field_counts(path, path.read_bytes(), header)
         try:
             strings = pacsv.read_csv(
                 path,
@@ -274,7 +276,7 @@ def _parse_csv(path: Path, first: str, location: str | None) -> _Parsed:
         raise InputError(path, "the file has a header but no rows", line=2, expected="NGSIM rows")
     columns = {n: table.column(by_lower[n]).to_numpy() for n in USED_COLUMNS}
     if not all(np.isfinite(v).all() for v in columns.values()) or not _integral(columns):
-        _check_fields(path, len(header), whitespace=False, names=header)
+        check_field_counts(path, path.read_bytes(), header)
         _check_values(path, columns, header, header=True)
     direction = table.column(by_lower["direction"]).to_numpy() if "direction" in by_lower else None
     n = table.num_rows
@@ -288,7 +290,7 @@ def _parse_csv(path: Path, first: str, location: str | None) -> _Parsed:
         raise InputError(
             path,
             "empty Location",
-            line=int(_line_numbers(path.read_bytes(), whitespace=False)[row + 1]),
+            line=int(record_lines(path.read_bytes())[0][row + 1]),
             column=by_lower["location"].strip(),
             expected="a location name such as peachtree or us-101",
         )
@@ -363,72 +365,6 @@ def _location_from_path(path: Path) -> tuple[str, str]:
 # ------------------------------------------------------------------------------ diagnosis of bad input
 
 
-def _line_spans(data: bytes) -> tuple[np.ndarray, np.ndarray]:
-    """Start and end (exclusive, without the newline and any CR) byte offsets of every line [L]."""
-    arr = np.frombuffer(data, dtype=np.uint8)
-    # Line breaks as the parsers see them: LF, CRLF, and a lone CR.
-    lone_cr = (arr == 13) & np.concatenate([arr[1:] != 10, [True]])
-    newline = np.flatnonzero((arr == 10) | lone_cr)
-    starts = np.concatenate([[0], newline + 1])
-    ends = np.concatenate([newline, [arr.size]])
-    if starts[-1] == arr.size:  # the file ends with a newline: no line after it
-        starts, ends = starts[:-1], ends[:-1]
-    has_cr = (ends > starts) & (arr[np.maximum(ends - 1, 0)] == 13)
-    return starts, ends - has_cr
-
-
-def _field_counts(data: bytes, starts: np.ndarray, ends: np.ndarray, whitespace: bool) -> np.ndarray:
-    """Number of fields on each line [L] (0 for a blank line), counted on the bytes, vectorised."""
-    arr = np.frombuffer(data, dtype=np.uint8)
-    if whitespace:
-        space = np.isin(arr, np.frombuffer(b" \t\r\n", dtype=np.uint8))
-        token_start = ~space
-        token_start[1:] &= space[:-1]
-        marks = token_start
-    else:
-        marks = arr == ord(",")
-    # Each segment runs to the next line's start; its newline and CR are neither commas nor tokens.
-    counts = np.add.reduceat(marks.astype(np.int64), starts) if starts.size else np.zeros(0, np.int64)
-    if whitespace:
-        return counts
-    return np.where(ends > starts, counts + 1, 0)
-
-
-def _blank(data: bytes, starts: np.ndarray, ends: np.ndarray, whitespace: bool) -> np.ndarray:
-    """Lines the parser skips [L]: whitespace-only for the .txt (pandas), empty for the CSV (pyarrow)."""
-    if whitespace:
-        return _field_counts(data, starts, ends, whitespace=True) == 0
-    return ends == starts
-
-
-def _line_numbers(data: bytes, whitespace: bool) -> np.ndarray:
-    """1-based line numbers of the lines the parser reads [rows incl. header]: row index → editor line."""
-    starts, ends = _line_spans(data)
-    return np.flatnonzero(~_blank(data, starts, ends, whitespace)) + 1
-
-
-def _check_fields(path: Path, expected: int, *, whitespace: bool, names: Sequence[str]) -> None:
-    """Raise InputError at the first non-blank line whose number of fields is not ``expected``."""
-    data = path.read_bytes()
-    starts, ends = _line_spans(data)
-    counts = _field_counts(data, starts, ends, whitespace)
-    wrong = ~_blank(data, starts, ends, whitespace) & (counts != expected)
-    if not wrong.any():
-        return
-    line = int(np.flatnonzero(wrong)[0])
-    got = int(counts[line])
-    truncated = line == starts.size - 1 and not data.endswith(b"\n") and got < expected
-    what = "truncated last line" if truncated else "wrong number of fields"
-    sep = "whitespace-separated" if whitespace else "comma-separated"
-    raise InputError(
-        path,
-        f"{what}: {got} fields",
-        line=line + 1,
-        column=names[got] if got < expected else None,
-        expected=f"{expected} {sep} fields",
-    )
-
-
 def _check_values(path: Path, columns: dict[str, np.ndarray], names: Sequence[str], *, header: bool) -> None:
     """Raise InputError at the first cell (row-major) of ``columns`` that is not a finite number.
 
@@ -449,8 +385,8 @@ def _check_values(path: Path, columns: dict[str, np.ndarray], names: Sequence[st
     if first_row is None:
         return
     data = path.read_bytes()
-    line = int(_line_numbers(data, whitespace=not header)[first_row + (1 if header else 0)])
-    starts, ends = _line_spans(data)
+    line = int(record_lines(data, whitespace=not header)[0][first_row + (1 if header else 0)])
+    starts, ends = line_spans(data)
     text = data[starts[line - 1] : ends[line - 1]].decode("utf-8", errors="replace")
     cells = text.split(",") if header else text.split()
     index = lower.index(first_col)
@@ -647,30 +583,7 @@ class _Tracks:
 
 
 def _tracks(rec: np.ndarray, vehicle: np.ndarray) -> _Tracks:
-    n = rec.size
-    new = np.ones(n, dtype=bool)
-    new[1:] = (rec[1:] != rec[:-1]) | (vehicle[1:] != vehicle[:-1])
-    starts = np.flatnonzero(new)
-    ends = np.concatenate([starts[1:], [n]]) - 1
-    length = np.diff(np.concatenate([starts, [n]]))
-    return _Tracks(np.repeat(starts, length), np.repeat(ends, length))
-
-
-def track_gradient(
-    values: np.ndarray, t: np.ndarray, first: np.ndarray, last: np.ndarray, span: int = 1
-) -> np.ndarray:
-    """d values / d t along each track [n], by differences over ±``span`` rows clipped to the track.
-
-    ``values``, ``t`` (s) [n] sorted by track then time; ``first``/``last`` [n] the track's row range
-    (inclusive). Inside a track this is the central difference over 2·span rows (a light smoothing:
-    the mean of the 2·span unit steps), one-sided near the ends, 0 for a single-row track. Frame gaps
-    are fine: the differences divide by the actual time between the rows.
-    """
-    i = np.arange(values.size)
-    lo = np.maximum(i - span, first)
-    hi = np.minimum(i + span, last)
-    dt = t[hi] - t[lo]
-    return np.where(dt > 0, (values[hi] - values[lo]) / np.where(dt > 0, dt, 1.0), 0.0)
+    return _Tracks(*row_extent(run_starts(rec, vehicle)))
 
 
 def _fill_within_track(
@@ -702,8 +615,8 @@ def _kinematics(
     front_y = -cols["local_x"] * FEET
 
     # Arterials: heading from the motion of the front bumper, held through stops.
-    gx = track_gradient(front_x, t, tracks.first, tracks.last, GRADIENT_SPAN)
-    gy = track_gradient(front_y, t, tracks.first, tracks.last, GRADIENT_SPAN)
+    gx = along_track_derivative(front_x, t, tracks.first, tracks.last, span=GRADIENT_SPAN)
+    gy = along_track_derivative(front_y, t, tracks.first, tracks.last, span=GRADIENT_SPAN)
     moving = np.hypot(gx, gy) >= MIN_MOVING_SPEED
     motion_heading, known = _fill_within_track(np.arctan2(gy, gx), moving, tracks)
     direction = cols["direction"]
@@ -713,7 +626,7 @@ def _kinematics(
     arterial_heading = np.where(known, motion_heading, fallback)
 
     # Freeways: road frame, vx = v_Vel, vy from the lateral motion of y.
-    vy_road = track_gradient(front_y, t, tracks.first, tracks.last, GRADIENT_SPAN)
+    vy_road = along_track_derivative(front_y, t, tracks.first, tracks.last, span=GRADIENT_SPAN)
     road_heading = np.where(speed >= MIN_MOVING_SPEED, np.arctan2(vy_road, speed), 0.0)
 
     heading = np.where(freeway, road_heading, arterial_heading)

@@ -12,8 +12,10 @@ metadata (source, frame rate, units, recordings).
 
 from __future__ import annotations
 
+import functools
 import json
 from collections.abc import Callable
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -25,9 +27,16 @@ from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import atomic_path, bar
 from lanecast.io_adapters.logs import tracked_objects as to
 
-SCHEMA_JSON = Path(__file__).parents[1] / "data" / "foxglove" / "SceneUpdate.json"
 LIBRARY = "lanecast"
 ENCODINGS = ("protobuf", "json")
+
+
+@functools.cache
+def scene_update_jsonschema() -> bytes:
+    """Foxglove's published JSON schema of ``foxglove.SceneUpdate`` (shipped in io_adapters/data)."""
+    return (
+        resources.files("lanecast.io_adapters") / "data" / "foxglove" / "jsonschema" / "SceneUpdate.json"
+    ).read_bytes()
 
 
 class RowStrings:
@@ -183,7 +192,7 @@ def write(
                 "foxglove.SceneUpdate", "protobuf", build_file_descriptor_set(SceneUpdate).SerializeToString()
             )
         else:
-            schema_id = w.register_schema("foxglove.SceneUpdate", "jsonschema", SCHEMA_JSON.read_bytes())
+            schema_id = w.register_schema("foxglove.SceneUpdate", "jsonschema", scene_update_jsonschema())
         channels, encoders = [], []
         for name in names:
             channels.append(w.register_channel(topics[name], encoding, schema_id))

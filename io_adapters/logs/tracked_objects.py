@@ -47,6 +47,12 @@ import pyarrow as pa
 
 from lanecast.io_adapters import json_fields as jf
 from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.contracts.track_runs import (
+    along_track_derivative,
+    row_extent,
+    run_bounds,
+    run_starts,
+)
 from lanecast.io_adapters.errors import FrameError, LogError
 
 FIXED_FRAMES: frozenset[str] = frozenset({"map", "odom", "world", "road"})
@@ -421,27 +427,6 @@ class TopicData:
     columns: ObjectColumns = field(default_factory=ObjectColumns)
 
 
-def finite_difference(group: np.ndarray, t_ns: np.ndarray, values: np.ndarray) -> np.ndarray:
-    """d(values)/dt along groups; all arrays [n], rows sorted by (group, t).
-
-    Central differences inside a group, one-sided at its ends, 0 for a single-row group.
-    """
-    n = values.shape[0]
-    if n == 0:
-        return np.zeros(0)
-    idx = np.arange(n)
-    same_prev = np.zeros(n, dtype=bool)
-    same_prev[1:] = group[1:] == group[:-1]
-    same_next = np.zeros(n, dtype=bool)
-    same_next[:-1] = same_prev[1:]
-    prev = np.where(same_prev, idx - 1, idx)
-    nxt = np.where(same_next, idx + 1, idx)
-    dt = (t_ns[nxt] - t_ns[prev]).astype(np.float64) * 1e-9
-    with np.errstate(divide="ignore", invalid="ignore"):
-        out = np.where(dt > 0, (values[nxt] - values[prev]) / dt, 0.0)
-    return out
-
-
 def nominal_rate(msg_times: np.ndarray) -> float:
     """The nominal rate (Hz) of a topic from its distinct message stamps [n] (median interval)."""
     stamps = np.unique(msg_times)
@@ -684,8 +669,7 @@ def _derive(
     """
     order = _row_order(cols["track_id"], frames, cols["time_ns"])
     track, frame = cols["track_id"][order], frames[order]
-    keep = np.ones(order.size, dtype=bool)
-    keep[1:] = (track[1:] != track[:-1]) | (frame[1:] != frame[:-1])
+    keep = run_starts(track, frame)
     order = order[keep]
     dropped = int((~keep).sum())
     c = {k: v[order] for k, v in cols.items() if k != "msg_time"}
@@ -698,13 +682,18 @@ def _derive(
         ax, ay = rotate(c["ax"], c["ay"], np.nan_to_num(heading))
     else:
         ax, ay = c["ax"], c["ay"]
+    first, last = row_extent(run_starts(track))
+
+    def derivative(values: np.ndarray) -> np.ndarray:
+        return along_track_derivative(values, t, first, last, t_unit=1e-9)
+
     missing_v = np.isnan(vx) | np.isnan(vy)
     if missing_v.any():
-        vx = np.where(np.isnan(vx), finite_difference(track, t, c["x"]), vx)
-        vy = np.where(np.isnan(vy), finite_difference(track, t, c["y"]), vy)
+        vx = np.where(np.isnan(vx), derivative(c["x"]), vx)
+        vy = np.where(np.isnan(vy), derivative(c["y"]), vy)
     if (np.isnan(ax) | np.isnan(ay)).any():
-        ax = np.where(np.isnan(ax), finite_difference(track, t, vx), ax)
-        ay = np.where(np.isnan(ay), finite_difference(track, t, vy), ay)
+        ax = np.where(np.isnan(ax), derivative(vx), ax)
+        ay = np.where(np.isnan(ay), derivative(vy), ay)
     no_yaw = np.isnan(heading)
     out = {
         "track_id": track,
@@ -751,7 +740,7 @@ class FrameGroups:
 def frame_groups(frame: np.ndarray, track: np.ndarray, time_ns: np.ndarray) -> FrameGroups:
     order = np.lexsort((track, frame))
     f = frame[order]
-    starts = np.concatenate([[0], np.flatnonzero(f[1:] != f[:-1]) + 1, [f.size]]).astype(np.int64)
+    starts = run_bounds(f)
     stamp = np.minimum.reduceat(time_ns[order], starts[:-1]) if f.size else np.zeros(0, np.int64)
     return FrameGroups(order, starts, stamp, f[starts[:-1]])
 

@@ -49,6 +49,12 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.csv as pacsv
 
+from lanecast.io_adapters.contracts.track_runs import (
+    along_track_derivative,
+    lane_change_starts,
+    row_extent,
+    run_starts,
+)
 from lanecast.io_adapters.datasets.highd import NEIGHBOURS
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import bar
@@ -483,24 +489,6 @@ def highd_lane_id(lane_index: np.ndarray, direction: np.ndarray, lanes_per_direc
     return np.where(direction == 1, 2 + lane_index, 2 * n + 2 - lane_index).astype(np.int64)
 
 
-def _per_track_gradient(values: np.ndarray, new_track: np.ndarray) -> np.ndarray:
-    """d values / dt along each track (rows sorted by track then frame; new_track marks first rows).
-
-    Central differences inside a track, one-sided at its ends, 0 for single-frame tracks.
-    """
-    n = values.size
-    prev_i = np.arange(n) - 1
-    next_i = np.arange(n) + 1
-    last = np.zeros(n, dtype=bool)
-    last[:-1] = new_track[1:]
-    last[-1] = True
-    prev_i = np.where(new_track, np.arange(n), prev_i)
-    next_i = np.where(last, np.arange(n), next_i)
-    span = (next_i - prev_i) * STEP_S
-    diff = values[np.minimum(next_i, n - 1)] - values[np.maximum(prev_i, 0)]
-    return np.divide(diff, span, out=np.zeros(n), where=span > 0)
-
-
 def _round(values: np.ndarray, decimals: int) -> np.ndarray:
     return np.round(values, decimals) + 0.0  # + 0.0 turns -0.0 into 0.0
 
@@ -511,17 +499,12 @@ def to_highd(samples: Samples, cfg: HighwayConfig, recording_id: int = 1) -> dic
     veh = samples.vehicle[order]
     frame = samples.frame[order]
     # Keep each vehicle's first contiguous run of frames (a track never comes back).
-    new_track = np.ones(veh.size, dtype=bool)
-    new_track[1:] = veh[1:] != veh[:-1]
-    gap = np.zeros(veh.size, dtype=bool)
-    gap[1:] = ~new_track[1:] & (frame[1:] != frame[:-1] + 1)
-    run = np.cumsum(new_track | gap)
+    new_track = run_starts(veh)
+    run = np.cumsum(run_starts(veh, frame - np.arange(veh.size)))  # gap-free runs of frames
     first_run = run[new_track][np.cumsum(new_track) - 1]
     keep = run == first_run
     order, veh, frame = order[keep], veh[keep], frame[keep]
-    new_track = np.ones(veh.size, dtype=bool)
-    new_track[1:] = veh[1:] != veh[:-1]
-    starts = np.flatnonzero(new_track)
+    starts = np.flatnonzero(run_starts(veh))
 
     # highD ids: 1 … V in order of first frame, then of departure.
     first_frames = frame[starts]
@@ -533,8 +516,7 @@ def to_highd(samples: Samples, cfg: HighwayConfig, recording_id: int = 1) -> dic
     # From here on rows are in highD's own order: by highD id, then frame.
     final = np.lexsort((frame, track_id))
     order, veh, frame, track_id = order[final], veh[final], frame[final], track_id[final]
-    new_track = np.ones(veh.size, dtype=bool)
-    new_track[1:] = veh[1:] != veh[:-1]
+    first, last = row_extent(run_starts(veh))
 
     types = samples.types
     lengths = np.array([t[2] for t in types])[samples.type_index[veh]]
@@ -551,7 +533,7 @@ def to_highd(samples: Samples, cfg: HighwayConfig, recording_id: int = 1) -> dic
     x_vel = sign * samples.speed[order]
     y_vel = np.where(lower, -1.0, 1.0) * samples.speed_lat[order]
     x_acc = sign * samples.accel[order]
-    y_acc = _per_track_gradient(y_vel, new_track)
+    y_acc = along_track_derivative(y_vel, frame, first, last, t_unit=STEP_S)
     front_sight = np.where(lower, image_length - x_front, x_front)
     back_sight = np.where(lower, x_left, image_length - (x_left + lengths))
 
@@ -614,7 +596,8 @@ def _tracks_meta(tracks: pa.Table, samples: Samples, highd_id_of: np.ndarray) ->
     """One row per track, aggregated column-wise over the tracks table (rows sorted by id, frame)."""
     tid = tracks.column("id").to_numpy()
     frame = tracks.column("frame").to_numpy()
-    starts = np.flatnonzero(np.concatenate([[True], tid[1:] != tid[:-1]]))
+    new_track = run_starts(tid)
+    starts = np.flatnonzero(new_track)
     ends = np.concatenate([starts[1:], [tid.size]]) - 1
     counts = ends - starts + 1
     col = {
@@ -633,8 +616,7 @@ def _tracks_meta(tracks: pa.Table, samples: Samples, highd_id_of: np.ndarray) ->
         return np.where(np.isfinite(out), out, -1.0)
 
     lane = col["laneId"]
-    change = np.zeros(tid.size, dtype=np.int64)
-    change[1:] = (lane[1:] != lane[:-1]) & (tid[1:] == tid[:-1])
+    change = lane_change_starts(new_track, lane, np.ones(tid.size, dtype=bool)).astype(np.int64)
     return pa.table(
         {
             "id": tid[starts],

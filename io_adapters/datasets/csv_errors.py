@@ -1,0 +1,87 @@
+"""Where a bad text table goes wrong: line numbers and field counts of CSV and whitespace-separated
+files, and the error for the first line with the wrong number of fields (docs/design.md, "Errors").
+
+The readers parse with Arrow or pandas at full speed and come here only when that fails or a
+value is bad: these functions map a parsed row back to its line in an editor and find the first
+line whose field count is off, column-wise on the file's bytes. Line breaks are counted as the
+parsers count them: LF, CRLF and a lone CR.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from lanecast.io_adapters.errors import InputError
+
+
+def line_spans(data: bytes) -> tuple[np.ndarray, np.ndarray]:
+    """Start and end (exclusive, without the newline and any CR) byte offsets of every line [L]."""
+    arr = np.frombuffer(data, dtype=np.uint8)
+    lone_cr = (arr == 13) & np.concatenate([arr[1:] != 10, [True]])
+    newline = np.flatnonzero((arr == 10) | lone_cr)
+    starts = np.concatenate([[0], newline + 1])
+    ends = np.concatenate([newline, [arr.size]])
+    if starts[-1] == arr.size:  # the file ends with a newline: no line after it
+        starts, ends = starts[:-1], ends[:-1]
+    has_cr = (ends > starts) & (arr[np.maximum(ends - 1, 0)] == 13)
+    return starts, ends - has_cr
+
+
+def field_counts(data: bytes, starts: np.ndarray, ends: np.ndarray, whitespace: bool) -> np.ndarray:
+    """Number of fields on each line [L] (0 for a blank line), counted on the bytes."""
+    arr = np.frombuffer(data, dtype=np.uint8)
+    if whitespace:
+        space = np.isin(arr, np.frombuffer(b" \t\r\n", dtype=np.uint8))
+        marks = ~space
+        marks[1:] &= space[:-1]  # the first byte of every token
+    else:
+        marks = arr == ord(",")
+    # Each segment runs to the next line's start; its newline and CR are neither commas nor tokens.
+    counts = np.add.reduceat(marks.astype(np.int64), starts) if starts.size else np.zeros(0, np.int64)
+    if whitespace:
+        return counts
+    return np.where(ends > starts, counts + 1, 0)
+
+
+def blank_lines(data: bytes, starts: np.ndarray, ends: np.ndarray, whitespace: bool) -> np.ndarray:
+    """bool [L]: lines the parser skips: whitespace-only (pandas, whitespace-separated), empty (Arrow CSV)."""
+    if whitespace:
+        return field_counts(data, starts, ends, whitespace=True) == 0
+    return ends == starts
+
+
+def record_lines(data: bytes, whitespace: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """(1-based line numbers int64 [R], field counts int64 [R]) of the lines a parser reads, a header
+    included: ``lines[i]`` is the editor line of the parser's i-th record."""
+    starts, ends = line_spans(data)
+    keep = ~blank_lines(data, starts, ends, whitespace)
+    counts = field_counts(data, starts, ends, whitespace)
+    return np.flatnonzero(keep).astype(np.int64) + 1, counts[keep]
+
+
+def check_field_counts(path: Path, data: bytes, names: Sequence[str], *, whitespace: bool = False) -> None:
+    """Raise InputError at the first read line whose number of fields is not ``len(names)``.
+
+    The last line with too few fields is reported as truncated (a file cut short by a copy or a
+    kill); ``column`` names the first missing field.
+    """
+    expected = len(names)
+    lines, counts = record_lines(data, whitespace)
+    wrong = np.flatnonzero(counts != expected)
+    if wrong.size == 0:
+        return
+    i = int(wrong[0])
+    got = int(counts[i])
+    truncated = i == lines.size - 1 and got < expected
+    what = "truncated last line" if truncated else "wrong number of fields"
+    sep = "whitespace-separated" if whitespace else "comma-separated"
+    raise InputError(
+        path,
+        f"{what}: {got} fields, the header has {expected}" if not whitespace else f"{what}: {got} fields",
+        line=int(lines[i]),
+        column=names[got] if got < expected else None,
+        expected=f"{expected} {sep} fields",
+    )
