@@ -56,7 +56,7 @@ def json_log(
     """An MCAP of JSON SceneUpdates: (topic, log time ns, entities) per message."""
     from mcap.writer import Writer
 
-    schema = (REPO / "io_adapters/data/foxglove/SceneUpdate.json").read_bytes()
+    schema = (REPO / "io_adapters/data/foxglove/jsonschema/SceneUpdate.json").read_bytes()
     with path.open("wb") as f:
         w = Writer(f)
         w.start()
