@@ -407,3 +407,145 @@ def test_values_are_identical_after_reading(tmp_path: Path) -> None:
     path, table = _parquet(tmp_path)
     back = registry.read_any([path])
     assert np.array_equal(back.column("x").to_numpy(), table.column("x").to_numpy())
+
+
+# ------------------------------------------------------------------------------------------- highD
+
+HIGHD = REPO / "tests" / "data" / "highd"
+
+
+def _highd_variant(tmp_path: Path, line: int, column: str, value: str) -> Path:
+    """A copy of the highD fixture with one cell of 01_tracks.csv replaced (line 1 = header)."""
+    for kind in ("tracks", "tracksMeta", "recordingMeta"):
+        (tmp_path / f"01_{kind}.csv").write_bytes((HIGHD / f"01_{kind}.csv").read_bytes())
+    path = tmp_path / "01_tracks.csv"
+    lines = path.read_text().splitlines()
+    header = lines[0].split(",")
+    cells = lines[line - 1].split(",")
+    cells[header.index(column)] = value
+    lines[line - 1] = ",".join(cells)
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+@pytest.mark.parametrize(
+    ("column", "value", "expected"),
+    [
+        ("laneId", str(2**31), "within int32"),
+        ("laneId", str(2**40), "within int32"),
+        ("width", "0.0", "a length > 0"),
+        ("height", "-1.5", "a width > 0"),
+        ("frame", "-3", "a frame from 0"),
+        ("frame", str(2**62), "a frame from 0"),
+        ("id", str(2**63), "within int64"),
+    ],
+)
+def test_highd_values_out_of_range(tmp_path: Path, column: str, value: str, expected: str) -> None:
+    path = _highd_variant(tmp_path, 3, column, value)
+    with pytest.raises(InputError) as err:
+        registry.read_any([path])
+    assert err.value.path == str(path) and err.value.line == 3 and err.value.column == column
+    assert expected in (err.value.expected or "")
+
+
+# ------------------------------------------------------------------------------------------- NGSIM
+
+US101 = REPO / "tests" / "data" / "ngsim" / "us-101" / "trajectories-fixture.txt"
+PEACHTREE = REPO / "tests" / "data" / "ngsim" / "peachtree_sample.csv"
+
+
+def _txt_variant(tmp_path: Path, edits: dict[tuple[int, int], str]) -> Path:
+    """The US-101 fixture with cells replaced: (1-based line, 0-based field) → text."""
+    lines = [line.split() for line in US101.read_text().splitlines()]
+    for (line, field), value in edits.items():
+        lines[line - 1][field] = value
+    path = tmp_path / "us-101" / "trajectories-edit.txt"
+    path.parent.mkdir(exist_ok=True)
+    path.write_text("\n".join("  ".join(cells) for cells in lines) + "\n")
+    return path
+
+
+def test_ngsim_ids_beyond_2_53_stay_distinct(tmp_path: Path) -> None:
+    """Vehicles 2^53 and 2^53 + 1 are two vehicles (float64 would merge them and drop rows)."""
+    lines = US101.read_text().splitlines()
+    ids = {line.split()[0] for line in lines}
+    edits = {}
+    for i, line in enumerate(lines, start=1):
+        vid = line.split()[0]
+        if vid == "1":
+            edits[(i, 0)] = str(2**53)
+        elif vid == "2":
+            edits[(i, 0)] = str(2**53 + 1)
+    table = registry.read_any([_txt_variant(tmp_path, edits)])
+    original = registry.read_any([US101])
+    got = set(table.column("track_id").to_pylist())
+    assert {2**53, 2**53 + 1} <= got and len(got) == len(ids)
+    assert table.num_rows == original.num_rows
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "column", "expected"),
+    [
+        (1, str(2**62), "Frame_ID", "0 to"),
+        (1, "-5", "Frame_ID", "0 to"),
+        (3, "1e30", "Global_Time", "below 2^53"),
+        (3, str(2**60), "Global_Time", "0 to 2^53"),
+        (8, "0.0", "v_Length", "a length > 0"),
+        (9, "-6.0", "v_Width", "a width > 0"),
+        (11, "-40.0", "v_Vel", "a speed >= 0"),
+        (13, str(2**33), "Lane_ID", "within int32"),
+        (0, "9.3e18", "Vehicle_ID", "below 2^53"),
+    ],
+)
+def test_ngsim_values_out_of_range(
+    tmp_path: Path, field: int, value: str, column: str, expected: str
+) -> None:
+    path = _txt_variant(tmp_path, {(5, field): value})
+    with pytest.raises(InputError) as err:
+        registry.read_any([path])
+    assert err.value.path == str(path) and err.value.line == 5 and err.value.column == column
+    assert expected in (err.value.expected or "")
+
+
+def test_ngsim_stray_global_time_makes_no_phantom_recording(tmp_path: Path) -> None:
+    path = _txt_variant(tmp_path, {(5, 3): "1118846990000"})  # one row 9 s off its vehicle's epoch
+    with pytest.raises(InputError, match="another recording period") as err:
+        registry.read_any([path])
+    assert err.value.line == 5 and err.value.column == "Global_Time"
+
+
+def test_ngsim_conflicting_duplicates_are_reported(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = _txt_variant(tmp_path, {(4, 5): "109.000"})  # line 4 repeats line 3's (vehicle, frame)
+    original = registry.read_any([US101])
+    before = capsys.readouterr().err
+    table = registry.read_any([path])
+    after = capsys.readouterr().err
+    assert "rows repeat a (Vehicle_ID, Frame_ID)" in after and after != before
+    assert table.column("x").equals(original.column("x"))  # the first in file order is kept
+
+
+def test_peachtree_vehicle_570_heading_does_not_flip() -> None:
+    """Its front bumper first runs 4 m backwards (a tracking glitch), then it stops and drives
+    north: the heading stays north through the stop, so the centre does not jump a vehicle length
+    when it moves off (it did: 8.86 m between frames 3389 and 3390)."""
+    import pandas as pd
+
+    table = registry.read_any([PEACHTREE])
+    rows = table.filter(pa.compute.equal(table.column("track_id"), 570)).to_pandas()
+    rows = rows[rows.recording == rows.recording.iloc[0]].sort_values("frame")
+    assert rows.frame.iloc[0] == 3345 and rows.frame.iloc[-1] == 3439
+    heading = np.degrees(rows.heading.to_numpy())
+    assert np.abs(heading).max() < 30  # north (+x) all along
+    centre_step = np.hypot(np.diff(rows.x.to_numpy()), np.diff(rows.y.to_numpy()))
+    source = pd.read_csv(PEACHTREE)
+    src = source[source.Vehicle_ID == 570].sort_values("Frame_ID")
+    bumper_step = 0.3048 * np.hypot(np.diff(src.Local_X.to_numpy()), np.diff(src.Local_Y.to_numpy()))
+    frames = rows.frame.to_numpy()
+    at_3389 = int(np.flatnonzero(frames == 3389)[0])
+    assert centre_step[at_3389] < 0.5
+    # Per frame the centre moves < 0.5 m beyond what the front bumper itself moves (the source's
+    # own first steps are 2.3 m: the glitch) and < 0.5 m wherever the bumper moves < 0.45 m.
+    assert (centre_step - bumper_step).max() < 0.5
+    assert (centre_step[bumper_step < 0.45] < 0.5).all()

@@ -33,6 +33,26 @@ def _row(table: pa.Table, recording: str, track: int, frame: int) -> dict[str, A
     return {name: table.column(name)[int(index)].as_py() for name in table.column_names}
 
 
+def _heading_by_hand(vehicle: int, frame: int, epoch: int) -> float:
+    """The arterial heading from the raw CSV: the direction of the front bumper's motion over ±5
+    rows (here every row moves faster than 1 m/s, so all count), averaged as a direction over the
+    rows ±5 around ``frame`` (sin and cos means)."""
+    import pandas as pd
+
+    raw = pd.read_csv(SAMPLE)
+    rows = raw[(raw.Vehicle_ID == vehicle) & (raw.Global_Time - 100 * raw.Frame_ID == epoch)]
+    rows = rows.sort_values("Frame_ID").reset_index(drop=True)
+    x, y = rows.Local_Y.to_numpy() * FT, -rows.Local_X.to_numpy() * FT
+    last = len(rows) - 1
+    angles = []
+    for i in range(len(rows)):
+        lo, hi = max(i - 5, 0), min(i + 5, last)
+        angles.append(math.atan2(y[hi] - y[lo], x[hi] - x[lo]))
+    at = int(np.flatnonzero(rows.Frame_ID.to_numpy() == frame)[0])
+    window = angles[max(at - 5, 0) : min(at + 5, last) + 1]
+    return math.atan2(float(np.mean(np.sin(window))), float(np.mean(np.cos(window))))
+
+
 def _lines(path: Path) -> list[str]:
     return path.read_text().splitlines()
 
@@ -89,14 +109,16 @@ def test_peachtree_northbound_vehicle_values_by_hand(peachtree: pa.Table) -> Non
     # Vehicle 21, frame 100 (CSV line 1516): Local_X 23.518, Local_Y 47.663, v_length 18.0,
     # v_Width 7.0, v_Class 2, v_Vel 21.68, v_Acc 9.34, Lane_ID 2, Preceding 0, Following 0.
     row = _row(peachtree, "ngsim-peachtree-peachtree_sample-p2", 21, 100)
-    # heading: front bumper motion over ±5 rows, frames 95 (23.569, 38.472) and 105 (23.610, 57.413)
-    heading = math.atan2(-(23.610 - 23.569), 57.413 - 38.472)
-    assert heading == pytest.approx(-0.0021646, abs=1e-6)
+    # heading: front bumper motion over ±5 rows (frames 95 (23.569, 38.472) and 105 (23.610,
+    # 57.413) at frame 100), averaged over frames 95..105
+    assert math.atan2(-(23.610 - 23.569), 57.413 - 38.472) == pytest.approx(-0.0021646, abs=1e-6)
+    heading = _heading_by_hand(21, 100, 1163030300)
+    assert heading == pytest.approx(-0.0021646, abs=0.005)
     assert row["heading"] == pytest.approx(heading, abs=1e-6)
     assert row["x"] == pytest.approx(47.663 * FT - 9.0 * FT * math.cos(heading), abs=1e-6)
     assert row["x"] == pytest.approx(11.78449, abs=1e-4)  # ≈ (47.663 - 18/2) * 0.3048
     assert row["y"] == pytest.approx(-23.518 * FT - 9.0 * FT * math.sin(heading), abs=1e-6)
-    assert row["y"] == pytest.approx(-7.16235, abs=1e-4)
+    assert row["y"] == pytest.approx(-7.15666, abs=1e-4)
     assert row["length"] == pytest.approx(5.4864) and row["width"] == pytest.approx(2.1336)
     assert math.hypot(row["vx"], row["vy"]) == pytest.approx(21.68 * FT, rel=1e-6)  # 6.608064
     assert row["vx"] == pytest.approx(6.608064 * math.cos(heading), rel=1e-6)
@@ -111,7 +133,8 @@ def test_peachtree_southbound_centre_is_behind_the_front_bumper(peachtree: pa.Ta
     # Vehicle 352, frame 3361 (line 4474): Local_X -4.204, Local_Y 60.265, v_length 15, drives
     # towards -Local_Y (frame 3366: Local_X -4.173, Local_Y 45.047), so its centre is at +L/2.
     row = _row(peachtree, "ngsim-peachtree-peachtree_sample-p2", 352, 3361)
-    heading = math.atan2(-(-4.173 - -4.204), 45.047 - 60.265)
+    heading = _heading_by_hand(352, 3361, 1163030300)
+    assert abs(heading - math.atan2(-(-4.173 - -4.204), 45.047 - 60.265)) < 0.01
     assert row["heading"] == pytest.approx(heading, abs=1e-6)
     assert abs(row["heading"]) == pytest.approx(math.pi, abs=0.01)
     assert row["x"] == pytest.approx((60.265 + 7.5 * -math.cos(heading)) * FT, abs=1e-6)

@@ -106,7 +106,7 @@ DIRECTION_NAMES = {UPPER: "upper", LOWER: "lower"}
 HEADING_MIN_SPEED = 0.5  # m/s: below it the heading is 0 (direction of travel)
 
 _ARROW_TYPES = {"int": pa.int64(), "float": pa.float64(), "str": pa.string()}
-_EXPECTED = {"int": "an integer", "float": "a number", "str": "a non-empty value"}
+_EXPECTED = {"int": "an integer within int64", "float": "a number", "str": "a non-empty value"}
 _NULL_TOKENS = tuple(pacsv.ConvertOptions().null_values)
 _INT_RE = r"^\s*[-+]?\d+\s*$"
 _FLOAT_RE = r"^\s*[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?\s*$|^\s*[-+]?(inf|Inf|INF|infinity|Infinity)\s*$"
@@ -275,6 +275,8 @@ def _diagnose(path: Path, names: list[str], columns: Mapping[str, str]) -> None:
             pc.match_substring_regex(cells, _INT_RE if kind == "int" else _FLOAT_RE),
             pc.is_in(cells, value_set=pa.array(_NULL_TOKENS)),
         )
+        if kind == "int":  # digits that do not fit int64 (pyarrow's parse fails on them too)
+            ok = pc.and_(ok, pc.invert(pc.match_substring_regex(cells, r"\d{19}")))
         bad = np.flatnonzero(~np.asarray(ok))
         if bad.size and (first_bad is None or bad[0] < first_bad[0]):
             first_bad = (int(bad[0]), name)
@@ -421,6 +423,34 @@ def _dedupe(path: Path, cols: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarr
     return {name: values[keep] for name, values in cols.items()}, order[keep]
 
 
+INT32_MAX = 2**31 - 1
+MAX_TIME_NS = 2**62  # time_ns = frame / frameRate * 1e9 must stay well inside int64
+
+
+def _check_ranges(path: Path, cols: dict[str, np.ndarray], source_row: np.ndarray, frame_rate: float) -> None:
+    """Values that parse but cannot be right, refused at their line: a negative frame, a frame whose
+    time overflows ``time_ns``, a size that is not positive, a laneId outside int32.
+
+    ``cols`` are the tracks (arrays [N], any order), ``source_row`` [N] their rows in the file.
+    """
+    max_frame = MAX_TIME_NS / 1e9 * frame_rate
+    checks = (
+        ("frame", (cols["frame"] < 0) | (cols["frame"] > max_frame), f"a frame from 0 to {max_frame:.4g}"),
+        ("width", ~(cols["width"] > 0), "a length > 0 m"),
+        ("height", ~(cols["height"] > 0), "a width > 0 m"),
+        ("laneId", (cols["laneId"] < -INT32_MAX) | (cols["laneId"] > INT32_MAX), "a lane id within int32"),
+    )
+    first: tuple[int, str, str] | None = None
+    for name, bad, expected in checks:
+        rows = source_row[bad]
+        if rows.size and (first is None or int(rows.min()) < first[0]):
+            first = (int(rows.min()), name, expected)
+    if first is not None:
+        row, name, expected = first
+        value = cols[name][np.flatnonzero(source_row == row)[0]]
+        raise InputError(path, f"{name} is {value}", line=_line(path, row), column=name, expected=expected)
+
+
 def _check_meta(
     rec: Recording, meta_table: pa.Table, cols: dict[str, np.ndarray], source_row: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -552,6 +582,7 @@ def _read_one(
     cols, source_row = _dedupe(
         tracks_path, _numpy(_read_csv(tracks_path, TRACKS_COLUMNS, "tracks"), TRACKS_COLUMNS)
     )
+    _check_ranges(tracks_path, cols, source_row, meta.frame_rate)
     row_meta, direction = _check_meta(rec, meta_table, cols, source_row)
     class_names, class_codes = _classes(meta_table)
 

@@ -16,8 +16,10 @@ Conversion (all NGSIM is 10 Hz, in feet): positions, lengths, speeds and acceler
   ``heading = atan2(vy, vx)`` (0 below 0.5 m/s).
 * Arterials (Lankershim, Peachtree): vehicles drive both ways and turn, so the frame is ``local``
   (x = ``Local_Y``, y = ``-Local_X``), ``heading`` is the direction of motion of the front bumper
-  (differences over ±0.5 s; held through stops, ``Direction`` as a last resort) and the centre is the front
-  bumper moved back by half the length *along the heading* (for a southbound car that is +L/2 in x).
+  (differences over ±0.5 s, trusted above 1 m/s where it agrees with ``v_Vel`` and does not run
+  against the stated ``Direction``; held through stops and glitches, ``Direction`` as a last resort;
+  then averaged over ±0.5 s so that it turns, never flips) and the centre is the front bumper moved
+  back by half the length *along the heading* (for a southbound car that is +L/2 in x).
   ``vx, vy = v_Vel * (cos, sin)(heading)``.
 
 ``ax, ay`` are ``v_Acc`` along the heading. One recording per (location, source file, period):
@@ -26,14 +28,21 @@ Conversion (all NGSIM is 10 Hz, in feet): positions, lengths, speeds and acceler
 ``Global_Time - 100 * Frame_ID``. The CSV export needs this: its Peachtree rows have two epochs,
 11,700 apart (3 h 15 min if seconds: Peachtree's 12:45 and 16:00 periods), whose vehicle ids and
 frames overlap, so that one recording per location would merge different vehicles. Within a recording, exact duplicate (vehicle, frame) rows are
-dropped; duplicates with differing values keep the first row in file order; both are counted in the
-recording metadata.
+dropped; duplicates with differing values keep the first row in file order and are reported on
+stderr; both are counted in the recording metadata.
+
+Integer columns are read as int64 (ids beyond 2^53 stay exact). Values that parse but cannot be
+right are refused at their line and column: a Frame_ID whose time overflows, a Global_Time beyond
+2^53 or one that puts a stray row of a vehicle in another recording period, a size that is not
+positive, a negative speed, a Lane_ID outside int32.
 """
 
 from __future__ import annotations
 
 import math
 import re
+import sys
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -58,7 +67,11 @@ FRAME_NS = 100_000_000
 GLOBAL_TIME_PER_FRAME = 100  # Global_Time is in ms: 100 per 10 Hz frame
 PERIOD_GAP = 1_000  # epochs further apart than this (Global_Time units) are different periods
 MIN_MOVING_SPEED = 0.5  # m/s; below it the motion gives no reliable heading
+# m/s of front-bumper motion over ±0.5 s from which an arterial heading is taken: NGSIM positions
+# jitter by ~0.1 m, a few degrees at this speed; slower motion holds the last reliable heading.
+MIN_HEADING_SPEED = 1.0
 GRADIENT_SPAN = 5  # rows either side for velocity directions: differences over ±0.5 s
+MAX_TURN_FROM_DIRECTION = math.radians(135)  # motion further from the stated Direction is a glitch
 
 FREEWAYS = ("us-101", "i-80")
 ARTERIALS = ("lankershim", "peachtree")
@@ -194,8 +207,21 @@ def _parse_file(path: Path, location: str | None) -> _Parsed:
 def _parse_txt(path: Path, location: str | None) -> _Parsed:
     """The 18-column whitespace-separated form (no header)."""
     n_fields = len(TXT_COLUMNS)
+    # Integer columns as int64 where every cell is a plain integer (ids above 2^53 stay exact),
+    # else everything as float64 and the integers checked afterwards.
+    int_types = {
+        i: np.int64 if n.lower() in INTEGER_COLUMNS else np.float64 for i, n in enumerate(TXT_COLUMNS)
+    }
     try:
-        frame = pd.read_csv(path, sep=r"\s+", header=None, dtype=np.float64, engine="c")
+        with warnings.catch_warnings():  # pandas warns before it refuses a float cell as int64
+            warnings.simplefilter("ignore", RuntimeWarning)
+            frame = pd.read_csv(path, sep=r"\s+", header=None, dtype=int_types, engine="c")
+        ok, error = frame.shape[1] == n_fields, f"{frame.shape[1]} columns"
+    except (ValueError, OverflowError, pd.errors.ParserError):
+        ok = False
+    try:
+        if not ok:
+            frame = pd.read_csv(path, sep=r"\s+", header=None, dtype=np.float64, engine="c")
         ok, error = frame.shape[1] == n_fields, f"{frame.shape[1]} columns"
     except pd.errors.EmptyDataError as exc:
         raise InputError(path, "empty file", line=1, expected="NGSIM trajectory rows") from exc
@@ -213,12 +239,13 @@ def _parse_txt(path: Path, location: str | None) -> _Parsed:
         }
         _check_values(path, columns, TXT_COLUMNS, header=False)
         raise InputError(path, f"cannot parse: {error}", expected="18 whitespace-separated numbers a line")
-    columns = {name.lower(): frame[i].to_numpy(np.float64) for i, name in enumerate(TXT_COLUMNS)}
+    columns = {name.lower(): frame[i].to_numpy() for i, name in enumerate(TXT_COLUMNS)}
     columns = {name: columns[name] for name in USED_COLUMNS}
     short_line = bool(frame.isna().to_numpy().any())  # the parser pads short lines with NaN
     if short_line or not all(np.isfinite(v).all() for v in columns.values()) or not _integral(columns):
         check_field_counts(path, path.read_bytes(), TXT_COLUMNS, whitespace=True)
         _check_values(path, columns, TXT_COLUMNS, header=False)
+    columns = _checked_ranges(path, columns, TXT_COLUMNS, header=False)
     loc, source = (location, "option") if location else _location_from_path(path)
     n = len(columns["vehicle_id"])
     return _Parsed(path, columns, np.zeros(n, dtype=np.int64), [loc], source, None)
@@ -247,9 +274,22 @@ def _parse_csv(path: Path, first: str, location: str | None) -> _Parsed:
         types[by_lower["direction"]] = pa.float64()
     if "location" in by_lower:
         types[by_lower["location"]] = pa.string()
+    # Integer columns as int64 (ids 2^53 and 2^53 + 1 stay distinct); a file that writes them with a
+    # fraction ("12.0") is read as float64 and checked to hold exact whole numbers.
+    int_types = {**types, **{by_lower[n]: pa.int64() for n in INTEGER_COLUMNS}}
+    try:
+        table = pacsv.read_csv(
+            path,
+            convert_options=pacsv.ConvertOptions(
+                include_columns=wanted, column_types=int_types, strings_can_be_null=False
+            ),
+        )
+    except pa.ArrowInvalid:
+        table = None
     convert = pacsv.ConvertOptions(include_columns=wanted, column_types=types, strings_can_be_null=False)
     try:
-        table = pacsv.read_csv(path, convert_options=convert)
+        if table is None:
+            table = pacsv.read_csv(path, convert_options=convert)
     except pa.ArrowInvalid as exc:
         if record_lines(path.read_bytes())[0].size < 2:
             raise InputError(
@@ -278,6 +318,7 @@ def _parse_csv(path: Path, first: str, location: str | None) -> _Parsed:
     if not all(np.isfinite(v).all() for v in columns.values()) or not _integral(columns):
         check_field_counts(path, path.read_bytes(), header)
         _check_values(path, columns, header, header=True)
+    columns = _checked_ranges(path, columns, header, header=True)
     direction = table.column(by_lower["direction"]).to_numpy() if "direction" in by_lower else None
     n = table.num_rows
     if "location" not in by_lower:
@@ -411,6 +452,55 @@ def _check_values(path: Path, columns: dict[str, np.ndarray], names: Sequence[st
     )
 
 
+# ------------------------------------------------------------------------------- value ranges
+
+EXACT_FLOAT_INT = 2**53  # integers read through float64 are exact only below this
+MAX_FRAME_ID = 2**62 // FRAME_NS  # time_ns = Frame_ID * 1e8 stays well inside int64
+INT32_MAX = 2**31 - 1
+
+
+def _checked_ranges(
+    path: Path, columns: dict[str, np.ndarray], names: Sequence[str], *, header: bool
+) -> dict[str, np.ndarray]:
+    """The columns with the integer ones as int64, after refusing values that parse but cannot be
+    right: integers read through float64 beyond 2^53, a Frame_ID whose time overflows, a
+    Global_Time beyond 2^53 ms, a size that is not positive, a negative speed, a Lane_ID outside
+    int32. InputError at the first such cell (file order), naming its line and column."""
+    out = dict(columns)
+    bad_rows: list[tuple[int, str, str]] = []
+
+    def flag(name: str, bad: np.ndarray, expected: str) -> None:
+        rows = np.flatnonzero(bad)
+        if rows.size:
+            bad_rows.append((int(rows[0]), name, expected))
+
+    for name in INTEGER_COLUMNS:
+        values = out[name]
+        if values.dtype.kind == "f":
+            flag(
+                name,
+                np.abs(values) >= EXACT_FLOAT_INT,
+                "an integer written without a fraction, or below 2^53",
+            )
+    if not bad_rows:
+        for name in INTEGER_COLUMNS:
+            out[name] = out[name].astype(np.int64)
+        flag("frame_id", (out["frame_id"] < 0) | (out["frame_id"] > MAX_FRAME_ID), f"0 to {MAX_FRAME_ID}")
+        flag(
+            "global_time", (out["global_time"] < 0) | (out["global_time"] >= EXACT_FLOAT_INT), "0 to 2^53 ms"
+        )
+        flag("lane_id", np.abs(out["lane_id"]) > INT32_MAX, "a lane id within int32")
+        flag("v_length", ~(out["v_length"] > 0), "a length > 0 ft")
+        flag("v_width", ~(out["v_width"] > 0), "a width > 0 ft")
+        flag("v_vel", ~(out["v_vel"] >= 0), "a speed >= 0 ft/s")
+    if not bad_rows:
+        return out
+    row, name, expected = min(bad_rows)
+    line = int(record_lines(path.read_bytes(), whitespace=not header)[0][row + (1 if header else 0)])
+    column = next(n for n in names if n.strip().lower() == name)
+    raise InputError(path, f"{column} is {columns[name][row]}", line=line, column=column, expected=expected)
+
+
 # ------------------------------------------------------------------------------------------ assembly
 
 
@@ -434,6 +524,7 @@ def _assemble(files: list[_Parsed], split_periods: bool) -> pa.Table:
     for parsed in files:
         cols = parsed.columns
         period, epochs = _periods(cols, split_periods)
+        _check_period_continuity(parsed, period)
         key = parsed.location_code * len(epochs) + period
         n_rows = key.size
         code = np.empty(n_rows, dtype=np.int64)
@@ -471,6 +562,46 @@ def _assemble(files: list[_Parsed], split_periods: bool) -> pa.Table:
     return _to_track_table(merged, names, metas, [str(p.path) for p in files])
 
 
+MAX_STRAY_ROWS = 2  # rows of a vehicle in a period, next to its frames in another, taken as a bad cell
+
+
+def _check_period_continuity(parsed: _Parsed, period: np.ndarray) -> None:
+    """Refuse a Global_Time that puts one frame of a vehicle in another recording period than the
+    frame before it (a phantom recording made of one bad cell); ``period`` [n] per row of ``parsed``."""
+    cols = parsed.columns
+    order = np.lexsort((cols["frame_id"], cols["vehicle_id"], parsed.location_code))
+    vehicle, frame = cols["vehicle_id"][order], cols["frame_id"][order]
+    loc, per = parsed.location_code[order], period[order]
+    cut = (loc[1:] == loc[:-1]) & (vehicle[1:] == vehicle[:-1]) & (frame[1:] - frame[:-1] == 1)
+    cut &= per[1:] != per[:-1]
+    if not cut.any():
+        return
+    # One vehicle id may well drive in two periods (the CSV's Peachtree periods reuse ids and
+    # frames); a stray row or two of it in another period next to its own frames may not.
+    _, group = np.unique(np.stack([loc, vehicle, per]), axis=1, return_inverse=True)
+    size = np.bincount(group.ravel())[group.ravel()]
+    stray = cut & ((size[1:] <= MAX_STRAY_ROWS) | (size[:-1] <= MAX_STRAY_ROWS))
+    if not stray.any():
+        return
+    i = int(np.flatnonzero(stray)[0])
+    a, b = int(order[i]), int(order[i + 1])
+    odd, other = (a, b) if size[i] <= size[i + 1] else (b, a)
+    header = parsed.location_source == "column" or "," in parsed.path.open("rb").readline().decode(
+        errors="replace"
+    )
+    lines = record_lines(parsed.path.read_bytes(), whitespace=not header)[0]
+    line = int(lines[odd + (1 if header else 0)])
+    other_line = int(lines[other + (1 if header else 0)])
+    raise InputError(
+        parsed.path,
+        f"Global_Time {cols['global_time'][odd]} puts frame {cols['frame_id'][odd]} of vehicle "
+        f"{cols['vehicle_id'][odd]} in another recording period than its neighbouring frame (line {other_line})",
+        line=line,
+        column="Global_Time",
+        expected=f"Global_Time = epoch + 100 * Frame_ID with the epoch of line {other_line}",
+    )
+
+
 def _recording_extra(
     location: str, source: str, epoch: int, start: int, period: int, n_periods: int
 ) -> dict[str, Any]:
@@ -493,7 +624,8 @@ def _recording_extra(
         "heading": (
             "atan2(vy, vx); vy = gradient of y over +-0.5 s; 0 below 0.5 m/s"
             if freeway
-            else "direction of motion of the front bumper (differences over +-0.5 s), held through stops"
+            else "direction of motion of the front bumper (differences over +-0.5 s, above 1 m/s, agreeing "
+            "with v_Vel and Direction), held through stops, averaged over +-0.5 s"
         ),
         "lane_id": "NGSIM Lane_ID as given (arterials: 0 and >= 10 are intersections, turn bays)",
     }
@@ -524,6 +656,13 @@ def _to_track_table(
     n_rec = len(names)
     exact = np.bincount(rec[same_key & identical], minlength=n_rec)
     conflicting = np.bincount(rec[same_key & ~identical], minlength=n_rec)
+    for k in np.flatnonzero(conflicting).tolist():
+        source = ", ".join(metas[names[k]].source_files)
+        print(
+            f"lanecast: {source}: {conflicting[k]:,} rows repeat a (Vehicle_ID, Frame_ID) of recording "
+            f"{names[k]!r} with different values; kept the first of each in file order",
+            file=sys.stderr,
+        )
     rows_read = np.bincount(rec, minlength=n_rec)
     for i, name in enumerate(names):
         extra = metas[name].extra
@@ -550,8 +689,8 @@ def _to_track_table(
         "width": (cols["v_width"] * FEET).astype(np.float32),
         "lane_id": cols["lane_id"].astype(np.int32),
         "object_class": pa.DictionaryArray.from_arrays(pa.array(cls_code), pa.array(_CLASSES)),
-        "preceding_id": np.where(cols["preceding"] == 0, np.nan, cols["preceding"]),
-        "following_id": np.where(cols["following"] == 0, np.nan, cols["following"]),
+        "preceding_id": pa.array(cols["preceding"], mask=cols["preceding"] == 0, type=pa.int64()),
+        "following_id": pa.array(cols["following"], mask=cols["following"] == 0, type=pa.int64()),
     }
     meta = track_table.TableMeta(FORMAT, metas, files)
     table = track_table.build_table(columns, meta)
@@ -586,6 +725,15 @@ def _tracks(rec: np.ndarray, vehicle: np.ndarray) -> _Tracks:
     return _Tracks(*row_extent(run_starts(rec, vehicle)))
 
 
+def track_mean(values: np.ndarray, first: np.ndarray, last: np.ndarray, span: int) -> np.ndarray:
+    """Mean of ``values`` [n] over rows i-span … i+span clipped to each row's track [first, last]."""
+    i = np.arange(values.size)
+    lo = np.maximum(i - span, first)
+    hi = np.minimum(i + span, last)
+    total = np.concatenate([[0.0], np.cumsum(values)])
+    return (total[hi + 1] - total[lo]) / (hi - lo + 1)
+
+
 def _fill_within_track(
     values: np.ndarray, valid: np.ndarray, tracks: _Tracks
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -602,6 +750,11 @@ def _fill_within_track(
     return out, valid | use_before | use_after
 
 
+def _wrap(angle: np.ndarray) -> np.ndarray:
+    """Angles [n] wrapped into [-pi, pi)."""
+    return (angle + np.pi) % (2 * np.pi) - np.pi
+
+
 def _kinematics(
     cols: dict[str, np.ndarray], rec: np.ndarray, vehicle: np.ndarray, frame: np.ndarray, freeway: np.ndarray
 ) -> dict[str, np.ndarray]:
@@ -614,16 +767,30 @@ def _kinematics(
     front_x = cols["local_y"] * FEET
     front_y = -cols["local_x"] * FEET
 
-    # Arterials: heading from the motion of the front bumper, held through stops.
+    # Arterials: heading from the motion of the front bumper, held through stops. Motion is trusted
+    # only where it agrees with the recorded speed and, where the source gives Direction, is not
+    # backwards against it (tracking glitches at a track's start run the bumper backwards, and a
+    # heading of 180° held through a stop would flip, and swing the centre by a vehicle length,
+    # when the vehicle moves off).
     gx = along_track_derivative(front_x, t, tracks.first, tracks.last, span=GRADIENT_SPAN)
     gy = along_track_derivative(front_y, t, tracks.first, tracks.last, span=GRADIENT_SPAN)
-    moving = np.hypot(gx, gy) >= MIN_MOVING_SPEED
-    motion_heading, known = _fill_within_track(np.arctan2(gy, gx), moving, tracks)
+    motion = np.hypot(gx, gy)
+    motion_angle = np.arctan2(gy, gx)
     direction = cols["direction"]
     fallback = np.zeros(direction.size)
     for code, angle in _DIRECTION_HEADING.items():
         fallback[direction == code] = angle
+    stated = np.isin(direction, list(_DIRECTION_HEADING))
+    against = stated & (np.abs(_wrap(motion_angle - fallback)) > MAX_TURN_FROM_DIRECTION)
+    moving = (motion >= MIN_HEADING_SPEED) & (motion <= 2 * speed + 1.0) & ~against
+    motion_heading, known = _fill_within_track(motion_angle, moving, tracks)
     arterial_heading = np.where(known, motion_heading, fallback)
+    # Smoothed over ±0.5 s (mean direction): a held heading that meets the motion again after a
+    # stop turns over a second, not in one frame (the centre sits half a length behind the bumper).
+    arterial_heading = np.arctan2(
+        track_mean(np.sin(arterial_heading), tracks.first, tracks.last, GRADIENT_SPAN),
+        track_mean(np.cos(arterial_heading), tracks.first, tracks.last, GRADIENT_SPAN),
+    )
 
     # Freeways: road frame, vx = v_Vel, vy from the lateral motion of y.
     vy_road = along_track_derivative(front_y, t, tracks.first, tracks.last, span=GRADIENT_SPAN)
