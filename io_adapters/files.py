@@ -15,6 +15,7 @@ job still shows that it moves, without carriage returns or bar characters in the
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import os
 import shutil
 import stat
@@ -198,3 +199,16 @@ def bar(*, desc: str, total: int | float | None = None, unit: str = "it") -> tqd
     """A manual progress bar (``update(n)``): a bar on a terminal, a line every few seconds otherwise."""
     cls = tqdm if sys.stderr.isatty() else ProgressLines
     return cls(desc=desc, total=total, unit=unit, **_bar_kwargs(total))
+
+
+def checksum(path: Path) -> str:
+    """sha256 of a file, or of a directory's files (relative names and contents, in sorted order)."""
+    h = hashlib.sha256()
+    files = [path] if path.is_file() else sorted(p for p in path.rglob("*") if p.is_file())
+    for f in files:
+        if path.is_dir():
+            h.update(str(f.relative_to(path)).encode() + b"\0")
+        with open(f, "rb") as fh:
+            while block := fh.read(1 << 20):
+                h.update(block)
+    return h.hexdigest()

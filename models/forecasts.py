@@ -19,8 +19,9 @@ def forecasts_table(index: pa.Table, preds: Predictions) -> pa.Table:
     index: the windows' index (recording, track_id, t0_ns, origin_x, origin_y, origin_heading).
     Columns: recording, track_id, t0_ns, horizon_s list[5], x, y list[5] (m, source frame),
     maneuver_probs list[5] of list[3] (straight, left, right; null for baselines), maneuver list[5]
-    (null for baselines), and the K alternatives: alt_probs list[K], alt_maneuvers list[K] of
-    list[5], alt_x, alt_y list[K] of list[5].
+    (null for baselines), the K alternatives: alt_probs list[K], alt_maneuvers list[K] of list[5],
+    alt_x, alt_y list[K] of list[5], and origin_x, origin_y (m, source frame): the target's centre
+    at t0, where the drawn line starts (kept from the window, never interpolated again).
     """
     n = index.num_rows
     ox, oy, heading = (index.column(c).to_numpy() for c in ("origin_x", "origin_y", "origin_heading"))
@@ -40,6 +41,8 @@ def forecasts_table(index: pa.Table, preds: Predictions) -> pa.Table:
         "alt_maneuvers": nested(preds.top_sequences, n, (preds.top_probs.shape[1], 5), pa.int8()),
         "alt_x": nested(alt[..., 0]),
         "alt_y": nested(alt[..., 1]),
+        "origin_x": pa.array(ox, pa.float64()),
+        "origin_y": pa.array(oy, pa.float64()),
     }
     return pa.table(columns)
 

@@ -65,6 +65,7 @@ def make_windows(
     allow_empty: bool = False,
     max_rows: int = MAX_ROWS,
     workers: int = wt.WORKERS,
+    validated: bool = False,
 ) -> Windows:
     """Every window of ``table`` (a validated track table at any rate).
 
@@ -76,6 +77,9 @@ def make_windows(
     Recordings are processed in groups of at most ``max_rows`` input rows (a loop over
     recordings, so that memory stays bounded on whole datasets), on ``workers`` threads; each
     group is vectorised. The stage times in the manifest are summed over groups (CPU-like).
+    ``validated``: the caller vouches that ``table`` passed ``track_table.validate`` (every reader
+    validates what it returns), so it is not checked twice; the metadata is parsed once here and
+    handed to every stage.
     Raises InputError when no window results (unless ``allow_empty``), naming why.
     """
     if stride < 1:
@@ -85,7 +89,8 @@ def make_windows(
     if split not in SPLIT_METHODS:
         raise InputError(None, f"unknown split method {split!r}", expected=f"one of {SPLIT_METHODS}")
     timings = {"resample_s": 0.0, "neighbours_s": 0.0, "windows_s": 0.0}
-    track_table.validate(table)
+    if not validated:
+        track_table.validate(table)
     meta = track_table.read_meta(table)
     t0_frames = None
     if t0_ns is not None:
@@ -106,6 +111,7 @@ def make_windows(
         lo, hi = group
         return _prepare(
             table.slice(lo, hi - lo),
+            meta,
             stride,
             require_future,
             t0_frames,
@@ -243,6 +249,7 @@ class _Prep:
 
 def _prepare(
     table: pa.Table,
+    meta: track_table.TableMeta,
     stride: int,
     require_future: bool,
     t0_frames: np.ndarray | None,
@@ -253,10 +260,10 @@ def _prepare(
     """resample -> neighbours -> labels -> window rows for one group of recordings."""
     timings: dict[str, float] = {}
     t = time.perf_counter()
-    table10 = resample(table, RATE_HZ, GAP_FACTOR)
+    table10 = resample(table, RATE_HZ, GAP_FACTOR, meta=meta)
     timings["resample_s"] = time.perf_counter() - t
     t = time.perf_counter()
-    cols = nb_mod.columns(table10)
+    cols = nb_mod.columns(table10, meta=meta)  # resampling changes rates, not coordinate frames
     nb = nb_mod.neighbour_rows(
         table10, cols, method=neighbours, lane_width=lane_width, max_range_m=neighbour_range
     )

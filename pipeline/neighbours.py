@@ -86,9 +86,10 @@ class Columns:
         return int(self.track.size)
 
 
-def columns(table: pa.Table) -> Columns:
-    """Pull the stage columns out of a (sorted, validated) track table."""
-    meta = track_table.read_meta(table)
+def columns(table: pa.Table, *, meta: track_table.TableMeta | None = None) -> Columns:
+    """Pull the stage columns out of a (sorted, validated) track table (``meta``: its metadata when
+    the caller has parsed it already)."""
+    meta = meta or track_table.read_meta(table)
     names, rec = track_table.recording_codes(table)
     lane_col = table.column("lane_id")
 

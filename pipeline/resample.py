@@ -85,13 +85,20 @@ def wrap_angle(a: np.ndarray) -> np.ndarray:
     return (a + np.pi) % (2 * np.pi) - np.pi
 
 
-def resample(table: pa.Table, rate_hz: float = RATE_HZ, gap_factor: float = GAP_FACTOR) -> pa.Table:
+def resample(
+    table: pa.Table,
+    rate_hz: float = RATE_HZ,
+    gap_factor: float = GAP_FACTOR,
+    *,
+    meta: track_table.TableMeta | None = None,
+) -> pa.Table:
     """A track table at ``rate_hz`` (same schema; metadata frame_rate = rate_hz per recording).
 
     The recording's native rate (metadata) defines the gap threshold; the native rate is kept in
-    each recording's ``extra["native_frame_rate"]``.
+    each recording's ``extra["native_frame_rate"]``. ``meta``: the table's metadata when the caller
+    has parsed it already.
     """
-    meta = track_table.read_meta(table)
+    meta = meta or track_table.read_meta(table)
     step = step_ns(rate_hz)
     uniq, rec_code = track_table.recording_codes(table)
     missing = [name for name in uniq if name not in meta.recordings]

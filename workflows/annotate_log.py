@@ -13,6 +13,7 @@ calls ``annotate_log`` for each log. This module is not a command: it has no ``r
 
 from __future__ import annotations
 
+import hashlib
 import os
 import time
 from collections.abc import Callable, Iterator
@@ -31,7 +32,8 @@ from lanecast.io_adapters.annotations import forecast_messages as fm
 from lanecast.io_adapters.annotations import mcap_copy
 from lanecast.io_adapters.contracts.track_table import read_meta
 from lanecast.io_adapters.errors import InputError, LogError
-from lanecast.io_adapters.files import atomic_path, check_input
+from lanecast.io_adapters.files import atomic_path, check_input, checksum
+from lanecast.workflows.forecast import forecast_table
 
 LOG_KINDS = ("mcap", "ros2", "ros1")
 MCAP_MAGIC = b"\x89MCAP0\r\n"
@@ -80,15 +82,18 @@ def output_name(src: Path) -> str:
     return f"{src.stem}.mcap"
 
 
-def choose_encoding(kind: str, src: Path, requested: str = "auto") -> str:
+def choose_encoding(
+    kind: str, src: Path, requested: str = "auto", *, info: mcap_copy.McapSummaryInfo | None = None
+) -> str:
     """The forecast encoding a log gets: CDR for ROS 2 (bag or ``ros2`` MCAP), else protobuf or JSON.
 
-    ``auto`` picks JSON for an MCAP whose channels are all JSON, protobuf otherwise.
+    ``auto`` picks JSON for an MCAP whose channels are all JSON, protobuf otherwise. ``info``: the
+    MCAP's summary when the caller has read it already.
     """
     if kind == "ros2":
         return "cdr"
     if kind == "mcap":
-        info = mcap_copy.summary_info(src)
+        info = info or mcap_copy.summary_info(src)
         if info.profile == "ros2":
             return "cdr"
         if requested == "auto":
@@ -100,10 +105,10 @@ def choose_encoding(kind: str, src: Path, requested: str = "auto") -> str:
     return requested
 
 
-def log_topics(src: Path, kind: str) -> frozenset[str]:
+def log_topics(src: Path, kind: str, *, info: mcap_copy.McapSummaryInfo | None = None) -> frozenset[str]:
     """The topics of a log, from its summary (MCAP) or its connections (bags), without reading messages."""
     if kind == "mcap":
-        return mcap_copy.summary_info(src).topics
+        return (info or mcap_copy.summary_info(src)).topics
     try:
         if kind == "ros2":
             with Reader2(src) as r2:
@@ -114,9 +119,9 @@ def log_topics(src: Path, kind: str) -> frozenset[str]:
         raise LogError(src, f"cannot open the bag: {exc}") from exc
 
 
-def refuse_annotated(src: Path, kind: str) -> None:
+def refuse_annotated(src: Path, kind: str, *, info: mcap_copy.McapSummaryInfo | None = None) -> None:
     """An already annotated log is refused before any work: annotate the original instead."""
-    clash = sorted(log_topics(src, kind) & {fm.FORECAST_TOPIC, fm.PREDICTION_TOPIC})
+    clash = sorted(log_topics(src, kind, info=info) & {fm.FORECAST_TOPIC, fm.PREDICTION_TOPIC})
     if clash:
         raise LogError(
             src, f"the log already has topic(s) {clash}", expected="a log that is not yet annotated"
@@ -142,16 +147,17 @@ def forecast_times(tracks: pa.Table, every_s: float) -> np.ndarray:
     return np.arange(first, int(t.max()) + 1, step, dtype=np.int64)
 
 
-def predict(tracks: pa.Table, options: AnnotateOptions) -> pa.Table:
-    """Forecasts for every vehicle with 3 s of history at every forecast time (lanecast.workflows.forecast)."""
-    from lanecast.workflows.forecast import forecast_table  # torch: kept off `lanecast --help`'s path
+def predict(tracks: pa.Table, options: AnnotateOptions, *, validated: bool = False) -> pa.Table:
+    """Forecasts for every vehicle with 3 s of history at every forecast time (lanecast.workflows.forecast).
 
+    ``validated``: the tracks come from a reader (validated there, not checked again)."""
     return forecast_table(
         tracks,
         options.model_dir,
         every_s=options.every_s,
         top_k=options.top_k,
         t0_ns=forecast_times(tracks, options.every_s),
+        validated=validated,
     )
 
 
@@ -183,30 +189,34 @@ def annotate_log(
 
     ``forecasts`` (and ``tracks``) may be given; otherwise pass 1 reads the tracks and the model
     predicts. Counts: messages copied, forecast messages added, forecast frames and targets, bytes
-    in/out, and the seconds spent reading tracks, predicting and writing.
+    in/out, the seconds spent reading tracks, predicting and writing, and ``sha256``, the checksum
+    of the input (for MCAP taken from the bytes the copy reads: no extra pass over the log).
+    The MCAP summary is read once and shared by the checks, the encoding and the copy.
     """
     src, out = Path(src), Path(out)
     options = options or AnnotateOptions()
     if os.path.realpath(out) == os.path.realpath(check_input(src)):
         raise InputError(out, "the output would overwrite the input log", expected="another output path")
     kind = log_kind(src)
-    refuse_annotated(src, kind)
+    info = mcap_copy.summary_info(src) if kind == "mcap" else None
+    refuse_annotated(src, kind, info=info)
     started = time.perf_counter()
     if forecasts is None and options.forecasts is not None:
         forecasts = precomputed_forecasts(src, options.forecasts)
     need_tracks = forecasts is None or not {"origin_x", "origin_y"} <= set(forecasts.column_names)
-    if tracks is None and need_tracks:
+    read_here = tracks is None and need_tracks
+    if read_here:
         tracks = read_tracks(src, options.topic)
     read_s = time.perf_counter() - started
     if forecasts is None:
         assert tracks is not None
-        forecasts = predict(tracks, options)
+        forecasts = predict(tracks, options, validated=read_here)
     model_s = time.perf_counter() - started - read_s
 
     frame_ids: str | dict[str, str] = options.frame_id
     if tracks is not None:
         frame_ids = {name: rec.coordinate_frame for name, rec in read_meta(tracks).recordings.items()}
-    encoding = choose_encoding(kind, src, options.encoding)
+    encoding = choose_encoding(kind, src, options.encoding, info=info)
     specs = fm.channel_specs(encoding)
     n_frames = 0
 
@@ -222,6 +232,7 @@ def annotate_log(
             yield frame.t0_ns, 1, prediction
 
     write_started = time.perf_counter()
+    digest = hashlib.sha256()
     if kind == "ros2":
         with atomic_path(out, directory=True) as tmp:
             inner = tmp / out.name  # rosbags creates the bag directory and names its files after it
@@ -236,9 +247,13 @@ def annotate_log(
             inner.rmdir()
             _readable(tmp)
     else:
-        copy = mcap_copy.copy_mcap if kind == "mcap" else mcap_copy.copy_ros1_to_mcap
         with atomic_path(out) as tmp, open(tmp, "wb") as f:
-            stats = copy(src, f, channels=specs, extra=extra(), progress=progress)
+            if kind == "mcap":
+                stats = mcap_copy.copy_mcap(
+                    src, f, channels=specs, extra=extra(), progress=progress, info=info, digest=digest
+                )
+            else:
+                stats = mcap_copy.copy_ros1_to_mcap(src, f, channels=specs, extra=extra(), progress=progress)
             f.flush()
             os.fsync(f.fileno())
             _readable(tmp)
@@ -252,4 +267,5 @@ def annotate_log(
         "read_s": round(read_s, 3),
         "model_s": round(model_s, 3),
         "write_s": round(write_s, 3),
+        "sha256": digest.hexdigest() if kind == "mcap" else checksum(src),
     }

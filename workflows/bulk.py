@@ -37,7 +37,7 @@ from pathlib import Path
 from typing import Any
 
 from lanecast.io_adapters.errors import InputError, LanecastError
-from lanecast.io_adapters.files import bar, check_input
+from lanecast.io_adapters.files import bar, check_input, checksum
 from lanecast.workflows.annotate_log import AnnotateOptions, annotate_log, output_name
 
 MANIFEST = "manifest.jsonl"
@@ -139,19 +139,6 @@ def stat_signature(path: Path) -> list[int]:
     return [sum(st.st_size for st in stats), max((st.st_mtime_ns for st in stats), default=0)]
 
 
-def checksum(path: Path) -> str:
-    """sha256 of a file, or of a directory's files (relative names and contents, in sorted order)."""
-    h = hashlib.sha256()
-    files = [path] if path.is_file() else sorted(p for p in path.rglob("*") if p.is_file())
-    for f in files:
-        if path.is_dir():
-            h.update(str(f.relative_to(path)).encode() + b"\0")
-        with open(f, "rb") as fh:
-            while block := fh.read(1 << 20):
-                h.update(block)
-    return h.hexdigest()
-
-
 # --------------------------------------------------------------------------------------- manifest
 
 
@@ -251,8 +238,8 @@ def annotate_task(task: Task, options: AnnotateOptions, catch_all: bool = True) 
 
     try:
         entry["stat"] = stat_signature(task.input)
-        entry["sha256"] = checksum(task.input)
         counts = annotate_log(task.input, task.output, options, progress=progress)
+        entry["sha256"] = counts.pop("sha256")  # of the bytes read: the log is read once (the copy)
         entry.update(status="done", counts=counts, error=None)
     except LanecastError as exc:
         entry.update(status="failed", counts=None, error=str(exc))

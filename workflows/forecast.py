@@ -47,16 +47,19 @@ def forecast_table(
     batch_size: int = 4096,
     t0_ns: np.ndarray | None = None,
     forecaster: Forecaster | None = None,
+    validated: bool = False,
 ) -> pa.Table:
     """Forecast every target with 3 s of history, every ``every_s`` seconds of its track.
 
-    table: a track table (any rate, validated by make_windows). model_dir: a model directory or file
+    table: a track table (any rate, validated by make_windows unless ``validated``: a reader's
+    table is, and is not checked twice). model_dir: a model directory or file
     (None: the shipped model); ``forecaster`` (an already loaded forecaster or baseline)
     takes precedence. ``t0_ns``: forecast only at these times instead.
     Returns columns recording, track_id, t0_ns, horizon_s list[5] (s), x, y list[5] (m, source frame),
     maneuver_probs list[5] of list[3] (straight, left, right), maneuver list[5] (0 straight, 1 left,
     2 right), alt_probs list[K], alt_maneuvers list[K] of list[5], alt_x, alt_y list[K] of list[5]
-    (the K most probable maneuver sequences and their trajectories, most probable first).
+    (the K most probable maneuver sequences and their trajectories, most probable first), origin_x,
+    origin_y (the target's centre at t0).
     An empty table (0 rows, same columns) when no target has 3 s of history.
     """
     stride = round(every_s * WINDOW_RATE_HZ)
@@ -73,5 +76,6 @@ def forecast_table(
         t0_ns=t0_ns,
         allow_empty=True,
         neighbour_range=float(neighbour_range),
+        validated=validated,
     )
     return forecast_windows(windows, model_dir, top_k=top_k, batch_size=batch_size, forecaster=forecaster)

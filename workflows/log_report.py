@@ -157,7 +157,12 @@ def score_log(log: Path, topic: str | None) -> dict[str, Any]:
     fc = log_forecasts(prediction_documents(log))
     tracks = registry.read_any([log], topic=topic) if topic else registry.read_any([log])
     windows = make_windows(
-        tracks, require_future=True, split="none", t0_ns=np.unique(fc.t0_ns), allow_empty=True
+        tracks,
+        require_future=True,
+        split="none",
+        t0_ns=np.unique(fc.t0_ns),
+        allow_empty=True,
+        validated=True,  # the readers validate
     )
     fc_rows, win_rows = match(fc, windows.index)
     future = np.asarray(windows.future)[win_rows]

@@ -76,6 +76,7 @@ def run(args: argparse.Namespace) -> int:
         seed=args.seed,
         neighbours=args.neighbours,
         neighbour_range=args.neighbour_range,
+        validated=True,  # every reader validates what it returns
     )
     windows.manifest["sources"]["inputs"] = [str(Path(p)) for p in args.table]
     path = save_windows(windows, args.out)
