@@ -78,7 +78,7 @@ class FormatNotRecognisedError(InputError):
 
 
 class TrackTableError(LanecastError):
-    """A track table that breaks the contract of DESIGN.md §1 (see lanecast.io_adapters.contracts.track_table)."""
+    """A track table that breaks the contract of docs/design.md §1 (see lanecast.io_adapters.contracts.track_table)."""
 
 
 class LogError(InputError):

@@ -1,1 +1,1 @@
-"""Stages that turn a track table into windows the network learns from (DESIGN.md §2)."""
+"""Stages that turn a track table into windows the network learns from (docs/design.md §2)."""

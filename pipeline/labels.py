@@ -1,4 +1,4 @@
-"""Maneuver labels (DESIGN.md §2): 0 straight, 1 left, 2 right, -1 unknown, per row of a 10 Hz table.
+"""Maneuver labels (docs/design.md §2): 0 straight, 1 left, 2 right, -1 unknown, per row of a 10 Hz table.
 
 A lane change happens where ``lane_id`` changes between two consecutive rows of a track (both
 known); the change's instant is the first row in the new lane. Every row of that track within

@@ -1,4 +1,4 @@
-"""The seven neighbours of every row (DESIGN.md §2), in slot order FL, F, FR, L, R, RL, RR.
+"""The seven neighbours of every row (docs/design.md §2), in slot order FL, F, FR, L, R, RL, RR.
 
 Three ways, chosen per recording by :func:`neighbour_rows` (``method="auto"``):
 

@@ -1,4 +1,4 @@
-"""Resample every track to 10 Hz (DESIGN.md §2): one vectorised pass over all tracks at once.
+"""Resample every track to 10 Hz (docs/design.md §2): one vectorised pass over all tracks at once.
 
 Per recording and track, every numeric column is linearly interpolated onto the multiples of 0.1 s
 of ``time_ns`` that lie inside the track's time span; ``heading`` is interpolated along the shorter

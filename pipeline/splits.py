@@ -1,4 +1,4 @@
-"""Train/val/test splits by track, never by window (DESIGN.md §2): 70/10/20.
+"""Train/val/test splits by track, never by window (docs/design.md §2): 70/10/20.
 
 - ``pip``: the PiP convention (Song et al., ECCV 2020), per source recording by vehicle id:
   id <= round(0.7 * max id) train, <= round(0.8 * max id) val, the rest test. Recordings that

@@ -1,4 +1,4 @@
-"""Window tensors (DESIGN.md §2): gather history, neighbours and future of every window at once.
+"""Window tensors (docs/design.md §2): gather history, neighbours and future of every window at once.
 
 A window at t0 of target T takes T's 30 history frames (t0-2.9 s … t0) and, at every history
 frame k, whoever occupies each neighbour slot at that frame, with its state at that frame. All in

@@ -1,6 +1,6 @@
 """Runs of rows that belong together (a track, a recording, a gap-free stretch of frames) and what
 is computed along them: the one place where lanecast finds track boundaries, differentiates along a
-track and finds lane changes (docs/design.md, "Track table").
+track and finds lane changes (docs/design.md §1).
 
 Every function takes columns [n] whose rows are sorted so that each run is contiguous (a track
 table is sorted by recording, track_id, frame) and works column-wise: no loop over rows.
@@ -71,7 +71,7 @@ def along_track_derivative(
 def lane_change_starts(new_track: np.ndarray, lane: np.ndarray, known: np.ndarray) -> np.ndarray:
     """bool [n]: rows whose lane differs from the previous row of the same track, both lanes known.
 
-    The row marked is the first one in the new lane (docs/design.md, "Maneuver labels").
+    The row marked is the first one in the new lane (docs/design.md §1, §2).
     ``new_track`` from ``run_starts``; ``lane`` [n] any value where ``known`` [n] is False.
     """
     change = np.zeros(lane.shape[0], dtype=bool)

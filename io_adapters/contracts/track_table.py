@@ -1,4 +1,4 @@
-"""The track table: lanecast's one common format (DESIGN.md §1), defined here and nowhere else.
+"""The track table: lanecast's one common format (docs/design.md §1), defined here and nowhere else.
 
 One row per object per frame, an Arrow table, Parquet (zstd) on disk. Units are part of the schema:
 every physical column carries its unit in its field metadata, and the table carries a JSON document
@@ -389,7 +389,7 @@ def read_parquet(path: str | Path) -> pa.Table:
 def lane_change_rows(table: pa.Table) -> np.ndarray:
     """Rows whose ``lane_id`` differs from the previous row of the same track (both known).
 
-    This is where a lane change happens (docs/design.md, "Maneuver labels"); the row returned is
+    This is where a lane change happens (docs/design.md §1, §2); the row returned is
     the first frame in the new lane.
     """
     if table.num_rows < 2:

@@ -1,4 +1,4 @@
-"""The windows dataset: what the network learns from, in memory and on disk (DESIGN.md §2).
+"""The windows dataset: what the network learns from, in memory and on disk (docs/design.md §2).
 
 On disk a windows dataset is a directory that training memory-maps:
 

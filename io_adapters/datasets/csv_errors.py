@@ -1,5 +1,5 @@
 """Where a bad text table goes wrong: line numbers and field counts of CSV and whitespace-separated
-files, and the error for the first line with the wrong number of fields (docs/design.md, "Errors").
+files, and the error for the first line with the wrong number of fields (docs/design.md §6).
 
 The readers parse with Arrow or pandas at full speed and come here only when that fails or a
 value is bad: these functions map a parsed row back to its line in an editor and find the first

@@ -3,7 +3,7 @@
 One highD recording is three CSV files sharing a prefix in one directory. Each recording is split
 by ``drivingDirection`` into two track-table recordings, ``highd-NN-upper`` (direction 1, drives
 towards −x in the image) and ``highd-NN-lower`` (direction 2, towards +x), each in its road frame
-(DESIGN.md §1: x along the direction of travel, y to the left):
+(docs/design.md §1: x along the direction of travel, y to the left):
 
 * highD ``x, y`` are the bounding box's top-left corner in image-like coordinates (y down),
   ``width`` is the extent along x (vehicle length), ``height`` along y (vehicle width);

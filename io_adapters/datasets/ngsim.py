@@ -1,4 +1,4 @@
-"""NGSIM reader: US-101, I-80, Lankershim and Peachtree trajectories into the track table (DESIGN.md §1).
+"""NGSIM reader: US-101, I-80, Lankershim and Peachtree trajectories into the track table (docs/design.md §1).
 
 Two source forms are read:
 
