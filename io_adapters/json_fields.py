@@ -104,8 +104,14 @@ def _is_number(v: Any) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
+def check_int(value: Any, low: int, high: int) -> bool:
+    """``value`` is an integer (not bool) from ``low`` to ``high``."""
+    return _is_int(value) and low <= value <= high
+
+
 _CHECKS = {
     "object": lambda v: isinstance(v, dict),
+    "list": lambda v: isinstance(v, list),
     "str": lambda v: isinstance(v, str),
     "int": _is_int,
     "count": lambda v: _is_int(v) and v >= 0,
@@ -119,6 +125,7 @@ _CHECKS = {
 }
 _EXPECTED = {
     "object": "a JSON object",
+    "list": "a list",
     "str": "a string",
     "int": "an integer",
     "count": "an integer >= 0",

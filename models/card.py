@@ -14,6 +14,7 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
+from lanecast.io_adapters import json_fields as jf
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import atomic_path
 
@@ -51,19 +52,96 @@ def resolve(model: Path | str | None) -> tuple[Path, Path]:
 
 
 def read_card(path: Path) -> dict[str, Any]:
-    """Parse and check a model card."""
+    """Parse and check a model card: every field a model is built or used from, for type and range.
+
+    A card is input: ``format_version: "1"``, ``hidden: 2**40``, a negative channel count or a NaN
+    normalisation is an InputError naming the card and the field, before anything is built from it.
+    """
     try:
-        card = json.loads(Path(path).read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(path, f"unreadable model card: {exc}", expected="JSON") from exc
+        text = Path(path).read_bytes()
+    except OSError as exc:
+        raise InputError(path, f"unreadable model card: {exc.strerror or exc}", expected="JSON") from exc
+    try:
+        card = jf.loads(text, "card")
+    except jf.FieldError as exc:
+        raise jf.as_input_error(path, "unreadable model card", exc) from exc
     if not isinstance(card, dict) or card.get("format") != FORMAT:
         raise InputError(path, "not a lanecast model card", column="format", expected=repr(FORMAT))
-    if card.get("format_version", 0) > FORMAT_VERSION:
-        raise InputError(path, f"card format {card['format_version']} is newer than this lanecast reads")
-    for key in ("architecture", "normalisation"):
-        if key not in card:
-            raise InputError(path, "incomplete model card", column=key, expected="present")
+    try:
+        version = jf.get(card, "format_version", "", "count", 0)
+        if version > FORMAT_VERSION:
+            raise InputError(path, f"card format {version} is newer than this lanecast reads")
+        for key in ("architecture", "normalisation"):
+            if key not in card:
+                raise InputError(path, "incomplete model card", column=key, expected="present")
+        check_card_fields(card)
+    except jf.FieldError as exc:
+        raise jf.as_input_error(path, "bad model card", exc) from exc
     return card
+
+
+#: Largest sizes a card may state (the paper's network: 4 channels, 8 vehicles, 30 frames, 5 steps,
+#: 3 classes, hidden 40, convolutions of at most 56 channels): generous bounds that keep a card from
+#: allocating more than a few hundred MB of weights.
+_SIZE_LIMITS = {
+    "channels": 64,
+    "vehicles": 64,
+    "history": 1024,
+    "horizon": 64,
+    "classes": 16,
+    "hidden": 4096,
+}
+_CONV_CHANNELS_MAX = 1024
+_KERNEL_MAX = 1024
+
+
+def check_card_fields(card: dict[str, Any]) -> None:
+    """FieldError at the first field of ``architecture.config`` or ``normalisation`` of the wrong
+    type or range (absent config fields take the network's defaults)."""
+    arch = jf.get(card, "architecture", "", "object")
+    config = jf.get(arch, "config", "architecture", "object")
+    where = "architecture.config"
+    for key, limit in _SIZE_LIMITS.items():
+        value = jf.get(config, key, where, "positive_int", None)
+        if value is not None and value > limit:
+            raise jf.FieldError(f"{where}.{key}", f"{value}", f"an integer from 1 to {limit}")
+    channels = jf.get(config, "conv_channels", where, "int_list", None)
+    if channels is not None and not all(0 < c <= _CONV_CHANNELS_MAX for c in channels):
+        raise jf.FieldError(
+            f"{where}.conv_channels", f"{channels}", f"integers from 1 to {_CONV_CHANNELS_MAX}"
+        )
+    for key in ("conv_kernels", "conv_dilations"):
+        pairs = jf.get(config, key, where, "list", None)
+        if pairs is not None and not all(
+            isinstance(p, list) and len(p) == 2 and all(jf.check_int(v, 1, _KERNEL_MAX) for v in p)
+            for p in pairs
+        ):
+            raise jf.FieldError(
+                f"{where}.{key}", f"{pairs}"[:60], f"pairs of integers from 1 to {_KERNEL_MAX}"
+            )
+    jf.get(config, "negative_slope", where, "number", None)
+    jf.get(config, "maneuver_input", where, "bool", None)
+    norm = jf.get(card, "normalisation", "", "object")
+    inputs = jf.get(norm, "inputs", "normalisation", "object")
+    for key in ("mean", "std"):
+        values = jf.get(inputs, key, "normalisation.inputs", "number_list")
+        if len(values) != 4 or (key == "std" and not all(v > 0 for v in values)):
+            raise jf.FieldError(
+                f"normalisation.inputs.{key}",
+                f"{values}",
+                "4 finite numbers" + (" > 0" if key == "std" else ""),
+            )
+    future = jf.get(norm, "future", "normalisation", "object")
+    horizon = config.get("horizon", 5)
+    mean = jf.get(future, "mean", "normalisation.future", "list")
+    if all(isinstance(row, list) for row in mean):  # [horizon][2], or flat
+        mean = [v for row in mean for v in row]
+    jf.check(mean, "normalisation.future.mean", "number_list")
+    if len(mean) != 2 * horizon:
+        raise jf.FieldError(
+            "normalisation.future.mean", f"{len(mean)} numbers", f"{2 * horizon} finite numbers"
+        )
+    jf.get(future, "std", "normalisation.future", "positive")
 
 
 def write_card(card_path: Path, card: dict[str, Any]) -> None:

@@ -78,12 +78,17 @@ def load_checkpoint(model: Path | str | None = None) -> tuple[STCNN, dict[str, A
     try:
         config = STCNNConfig.from_dict(card["architecture"]["config"])
         net = STCNN(config)
-    except (KeyError, TypeError, ValueError) as exc:
+    except (KeyError, TypeError, ValueError, RuntimeError) as exc:
         raise InputError(card_path, f"bad architecture: {exc}", column="architecture") from exc
     try:
         state = load_file(str(weights_path), device="cpu")
     except (SafetensorError, OSError) as exc:
         raise InputError(weights_path, f"unreadable weights: {exc}", expected="safetensors") from exc
+    for name, tensor in state.items():
+        if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
+            raise InputError(
+                weights_path, f"tensor {name!r} holds NaN or infinite values", expected="finite weights"
+            )
     try:
         net.load_state_dict(state, strict=True)
     except RuntimeError as exc:

@@ -10,6 +10,7 @@ import numpy as np
 import pyarrow as pa
 
 from lanecast.io_adapters.contracts.windows import HORIZON_S, to_source_frame
+from lanecast.io_adapters.errors import InputError
 from lanecast.models.forecaster import Predictions
 
 
@@ -27,6 +28,15 @@ def forecasts_table(index: pa.Table, preds: Predictions) -> pa.Table:
     ox, oy, heading = (index.column(c).to_numpy() for c in ("origin_x", "origin_y", "origin_heading"))
     xy = to_source_frame(preds.offsets, ox, oy, heading)  # [N, 5, 2]
     alt = to_source_frame(preds.top_offsets, ox, oy, heading)  # [N, K, 5, 2]
+    bad = ~np.isfinite(alt).all(axis=(1, 2, 3)) | ~np.isfinite(xy).all(axis=(1, 2))
+    if bad.any():  # a forecast is never NaN (nor written as NaN into a log)
+        i = int(np.flatnonzero(bad)[0])
+        raise InputError(
+            None,
+            f"{int(bad.sum()):,} of {n:,} windows give forecasts that are not finite (first: recording "
+            f"{index.column('recording')[i]}, track {index.column('track_id')[i]}, t0 {index.column('t0_ns')[i]} ns)",
+            expected="positions and speeds the model's normalisation can represent",
+        )
     horizon = np.broadcast_to(np.asarray(HORIZON_S, np.float32), (n, len(HORIZON_S)))
     columns: dict[str, pa.Array] = {
         "recording": index.column("recording").combine_chunks(),

@@ -549,3 +549,118 @@ def test_peachtree_vehicle_570_heading_does_not_flip() -> None:
     # own first steps are 2.3 m: the glitch) and < 0.5 m wherever the bumper moves < 0.45 m.
     assert (centre_step - bumper_step).max() < 0.5
     assert (centre_step[bumper_step < 0.45] < 0.5).all()
+
+
+# ------------------------------------------------------------------------------------- model cards
+
+
+def _model_copy(tmp_path: Path, edit: object = None) -> Path:
+    from lanecast.models.card import SHIPPED_STEM, WEIGHTS_DIR
+
+    out = tmp_path / "model"
+    out.mkdir()
+    for suffix in (".safetensors", ".json"):
+        (out / f"stcnn{suffix}").write_bytes((WEIGHTS_DIR / f"{SHIPPED_STEM}{suffix}").read_bytes())
+    if edit is not None:
+        card = json.loads((out / "stcnn.json").read_text())
+        edit(card)  # type: ignore[operator]
+        (out / "stcnn.json").write_text(json.dumps(card))
+    return out
+
+
+def _set(path: str, value: object) -> object:
+    def edit(card: dict[str, object]) -> None:
+        *parents, last = path.split(".")
+        node = card
+        for key in parents:
+            node = node[key]  # type: ignore[index, assignment]
+        node[last] = value  # type: ignore[index]
+
+    return edit
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [
+        ("format_version", "1"),
+        ("architecture.config.hidden", 2**40),
+        ("architecture.config.conv_channels", [24, -40, 56, 24]),
+        ("architecture.config.conv_kernels", [[5, 10], [3], [2, 3], [1, 1]]),
+        ("architecture.config.channels", 0),
+        ("normalisation.inputs.std", [1.0, 1.0, 0.0, 1.0]),
+        ("normalisation.inputs.mean", [1.0, "x", 0.0, 1.0]),
+        ("normalisation.future.std", -1.0),
+        ("normalisation.future.mean", [1.0, 2.0]),
+        ("normalisation", []),
+    ],
+)
+def test_model_card_with_wrong_types_is_refused_naming_the_card(
+    tmp_path: Path, field: str, value: object
+) -> None:
+    from lanecast.models.checkpoint import load_checkpoint
+
+    model = _model_copy(tmp_path, _set(field, value))
+    with pytest.raises(InputError) as err:
+        load_checkpoint(model)
+    assert err.value.path == str(model / "stcnn.json")
+    assert err.value.column is not None and err.value.column.startswith(field.split(".")[0])
+
+
+def test_model_card_nan_is_not_json_and_nan_weights_are_refused(tmp_path: Path) -> None:
+    import torch
+    from safetensors.torch import load_file, save_file
+
+    from lanecast.models.checkpoint import load_checkpoint
+
+    model = _model_copy(tmp_path)
+    card = (model / "stcnn.json").read_text()
+    (model / "stcnn.json").write_text(card.replace('"std": [', '"std": [NaN, ', 1))
+    with pytest.raises(InputError, match="model card") as err:
+        load_checkpoint(model)
+    assert err.value.path == str(model / "stcnn.json")
+    (model / "stcnn.json").write_text(card)
+    state = load_file(str(model / "stcnn.safetensors"))
+    name = sorted(state)[0]
+    state[name] = state[name].clone()
+    state[name].view(-1)[0] = torch.nan
+    save_file(state, str(model / "stcnn.safetensors"))
+    with pytest.raises(InputError, match=f"tensor '{name}' holds NaN") as err:
+        load_checkpoint(model)
+    assert err.value.path == str(model / "stcnn.safetensors")
+
+
+def test_annotate_with_a_bad_card_is_one_clean_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    model = _model_copy(tmp_path, _set("architecture.config.hidden", 2**40))
+    log = json_log(tmp_path / "in.mcap", straight_messages(n=60))
+    status, err = cli(["annotate", str(log), "--model", str(model), "--out", str(tmp_path / "out")], capsys)
+    assert status == 2 and "stcnn.json" in err and "hidden" in err
+    assert "Traceback" not in err
+
+
+# --------------------------------------------------------------------------------------- ROS bags
+
+
+def test_ros2_mcap_bags_are_written_with_crcs_and_checked(tmp_path: Path) -> None:
+    from mcap.reader import make_reader
+
+    from lanecast.io_adapters.logs import rosbag_reader, rosbag_writer
+
+    table = registry.read_any([US101])
+    bag = rosbag_writer.write(table, tmp_path / "bag", "ros2", storage="mcap")
+    (storage,) = bag.glob("*.mcap")
+    data = storage.read_bytes()
+    with storage.open("rb") as f:  # the mcap library checks every CRC
+        assert sum(1 for _ in make_reader(f, validate_crcs=True).iter_messages()) > 0
+    chunk = data.index(b"\x06", 8)  # the first chunk record
+    (crc,) = struct.unpack_from("<I", data, chunk + 9 + 24)
+    assert crc != 0
+    back = rosbag_reader.read(bag)
+    assert back.num_rows == table.num_rows
+    bad = bytearray(data)
+    bad[chunk + 9 + 60] ^= 0x01  # inside the chunk's records
+    storage.write_bytes(bytes(bad))
+    with pytest.raises(LogError, match=r"CRC mismatch|corrupt chunk") as err:
+        rosbag_reader.read(bag)
+    assert err.value.path == str(storage)

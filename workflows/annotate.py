@@ -10,6 +10,7 @@ import argparse
 from pathlib import Path
 
 from lanecast.io_adapters.errors import InputError
+from lanecast.models.card import read_card, resolve
 from lanecast.workflows import bulk
 from lanecast.workflows.annotate_log import AnnotateOptions
 from lanecast.workflows.vocabulary import HelpFormatter, add_model_option
@@ -67,6 +68,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.every <= 0:
         raise InputError(None, f"--every must be positive, got {args.every}", expected="seconds > 0")
+    if args.forecasts is None:
+        read_card(resolve(args.model)[1])  # a bad model is one error up front, not one per log
     options = AnnotateOptions(
         model_dir=args.model,
         topic=args.topic,

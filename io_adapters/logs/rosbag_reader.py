@@ -19,6 +19,7 @@ from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.errors import LogError
 from lanecast.io_adapters.logs import ros_types
 from lanecast.io_adapters.logs import tracked_objects as to
+from lanecast.io_adapters.logs.mcap_crc import verify_crcs
 
 FORMAT = "rosbag"
 ROS1_MAGIC = b"#ROSBAG V2.0\n"
@@ -65,6 +66,9 @@ def read_log(
             expected="a ROS 1 .bag (#ROSBAG V2.0) or a ROS 2 bag directory with metadata.yaml",
         )
     ros1 = target.suffix == ".bag"
+    if target.is_dir():  # rosbags does not check MCAP CRCs: check them first (sqlite3 has none)
+        for storage_file in sorted(target.glob("*.mcap")):
+            verify_crcs(storage_file)
     topics: dict[str, to.TopicData] = {}
     transforms = to.Transforms()
     log_meta: dict[str, Any] | None = None

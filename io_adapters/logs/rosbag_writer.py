@@ -23,6 +23,7 @@ from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import atomic_path, bar
 from lanecast.io_adapters.logs import ros_types
 from lanecast.io_adapters.logs import tracked_objects as to
+from lanecast.io_adapters.logs.mcap_crc import fill_crcs
 
 STORAGES = ("sqlite3", "mcap")
 
@@ -233,6 +234,8 @@ def write(table: pa.Table, out: Path, fmt: str = "ros2", *, storage: str = "sqli
         with w2:
             conns = {t: w2.add_connection(t, ty, typestore=builder.store) for t, ty in connections}
             emit(w2, conns)
+        for item in inner.glob("*.mcap"):
+            fill_crcs(item)  # rosbags writes CRC 0 everywhere: make the bag checkable
         for item in inner.iterdir():
             shutil.move(str(item), tmp / item.name)
         inner.rmdir()
