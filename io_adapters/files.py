@@ -126,7 +126,9 @@ def atomic_path(target: str | Path, *, directory: bool = False) -> Iterator[Path
     tmp.chmod((0o777 if directory else 0o666) & ~_umask())
     try:
         yield tmp
-        if directory and target.exists():
+        if target.is_symlink():  # replace a link itself, never what it points to
+            target.unlink()
+        elif directory and target.exists():
             shutil.rmtree(target)
         os.replace(tmp, target)
     except BaseException:

@@ -664,3 +664,55 @@ def test_ros2_mcap_bags_are_written_with_crcs_and_checked(tmp_path: Path) -> Non
     with pytest.raises(LogError, match=r"CRC mismatch|corrupt chunk") as err:
         rosbag_reader.read(bag)
     assert err.value.path == str(storage)
+
+
+# ------------------------------------------------------------------------- the output directory
+
+
+def test_planted_lock_and_manifest_symlinks_touch_nothing_outside(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    log = json_log(tmp_path / "in.mcap", straight_messages(n=60))
+    victim = tmp_path / "victim.txt"
+    victim.write_text("precious\n")
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / ".lanecast-annotate.lock").symlink_to(victim)
+    status, err = cli(["annotate", str(log), "--out", str(out)], capsys)
+    assert_one_line_error(status, err, "annotate", ".lanecast-annotate.lock")
+    assert "symlink" in err and victim.read_text() == "precious\n"
+    (out / ".lanecast-annotate.lock").unlink()
+    (out / "manifest.jsonl").symlink_to(victim)
+    status, err = cli(["annotate", str(log), "--out", str(out)], capsys)
+    assert_one_line_error(status, err, "annotate", "manifest.jsonl")
+    assert victim.read_text() == "precious\n"
+
+
+def test_forged_manifest_entry_does_not_skip_a_log(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    log = json_log(tmp_path / "in.mcap", straight_messages(n=60))
+    out = tmp_path / "out"
+    assert main(["annotate", str(log), "--out", str(out)]) == 0
+    capsys.readouterr()
+    manifest = out / "manifest.jsonl"
+    (entry,) = [json.loads(line) for line in manifest.read_text().splitlines()]
+    assert entry["status"] == "done" and isinstance(entry["output_sha256"], str)
+    # a second run skips the log: its output is there with the recorded checksum
+    assert main(["annotate", str(log), "--out", str(out)]) == 0
+    assert len(manifest.read_text().splitlines()) == 1
+    # a forged line: the output is elsewhere (a system file), size and mtime as recorded
+    outside = tmp_path / "system-file"
+    outside.write_bytes((out / "in.mcap").read_bytes())
+    (out / "in.mcap").unlink()
+    forged = {**entry, "output": str(outside)}
+    manifest.write_text(json.dumps(forged) + "\n")
+    assert main(["annotate", str(log), "--out", str(out)]) == 0
+    assert (out / "in.mcap").is_file() and len(manifest.read_text().splitlines()) == 2
+    # an output changed since it was recorded is redone
+    data = bytearray((out / "in.mcap").read_bytes())
+    data[100] ^= 1
+    (out / "in.mcap").write_bytes(bytes(data))
+    assert main(["annotate", str(log), "--out", str(out)]) == 0
+    assert len(manifest.read_text().splitlines()) == 3
+    assert (out / "in.mcap").read_bytes() != bytes(data)

@@ -149,16 +149,24 @@ class Manifest:
         self.path = Path(out_dir) / MANIFEST
 
     def entries(self) -> list[dict[str, Any]]:
-        """Every complete entry (a line cut short by a kill is ignored)."""
-        if not self.path.exists():
+        """Every complete entry that is a JSON object with a string ``input`` (a line cut short by
+        a kill, or one that is not an entry, is ignored). The manifest itself is never followed
+        through a symlink."""
+        try:
+            fd = os.open(self.path, os.O_RDONLY | os.O_NOFOLLOW)
+        except FileNotFoundError:
             return []
+        except OSError as exc:
+            raise _not_ours(self.path, exc) from exc
         out = []
-        with open(self.path, encoding="utf-8") as f:
+        with open(fd, encoding="utf-8", errors="replace") as f:
             for line in f:
                 if not line.endswith("\n"):
                     continue
-                with contextlib.suppress(json.JSONDecodeError):
-                    out.append(json.loads(line))
+                with contextlib.suppress(json.JSONDecodeError, RecursionError):
+                    entry = json.loads(line)
+                    if isinstance(entry, dict) and isinstance(entry.get("input"), str):
+                        out.append(entry)
         return out
 
     def latest(self) -> dict[str, dict[str, Any]]:
@@ -168,7 +176,10 @@ class Manifest:
     def append(self, entry: dict[str, Any]) -> None:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         data = (json.dumps(entry, sort_keys=True) + "\n").encode()
-        fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+        try:
+            fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_NOFOLLOW, 0o644)
+        except OSError as exc:
+            raise _not_ours(self.path, exc) from exc
         try:
             # a line cut short by an earlier kill would swallow this entry: start on a fresh line
             size = os.fstat(fd).st_size
@@ -195,11 +206,31 @@ def clean_temporaries(out_dir: Path) -> list[Path]:
     return removed
 
 
+def _not_ours(path: Path, exc: OSError) -> InputError:
+    """The error for a manifest or lock that cannot be opened as lanecast's own regular file."""
+    if path.is_symlink():
+        return InputError(
+            path,
+            "is a symlink; lanecast does not follow symlinks in its output directory",
+            expected="remove it",
+        )
+    return InputError(path, f"cannot open: {exc.strerror or exc}")
+
+
 @contextlib.contextmanager
 def locked(out_dir: Path) -> Iterator[None]:
-    """Hold an exclusive lock on ``out_dir`` (released by the OS if the process dies)."""
+    """Hold an exclusive lock on ``out_dir`` (released by the OS if the process dies).
+
+    The lock file is opened without following a symlink and without truncating: a planted
+    ``OUT_DIR/.lanecast-annotate.lock`` symlink can neither redirect nor empty another file.
+    """
     out_dir.mkdir(parents=True, exist_ok=True)
-    with open(out_dir / LOCK, "w") as f:
+    lock = out_dir / LOCK
+    try:
+        fd = os.open(lock, os.O_WRONLY | os.O_CREAT | os.O_NOFOLLOW, 0o644)
+    except OSError as exc:
+        raise _not_ours(lock, exc) from exc
+    with open(fd, "w") as f:
         try:
             fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError as exc:
@@ -240,6 +271,7 @@ def annotate_task(task: Task, options: AnnotateOptions, catch_all: bool = True) 
         entry["stat"] = stat_signature(task.input)
         counts = annotate_log(task.input, task.output, options, progress=progress)
         entry["sha256"] = counts.pop("sha256")  # of the bytes read: the log is read once (the copy)
+        entry["output_sha256"] = checksum(task.output)  # what a resumed run trusts (see _own_output)
         entry.update(status="done", counts=counts, error=None)
     except LanecastError as exc:
         entry.update(status="failed", counts=None, error=str(exc))
@@ -283,13 +315,30 @@ def plan(inputs: Sequence[Path], out_dir: Path, manifest: Manifest) -> tuple[lis
         if (
             last is not None
             and last.get("status") == "done"
-            and (out_dir / last["output"]).exists()
+            and _own_output(last, task, out_dir)
             and (last.get("stat") == stat_signature(task.input) or last.get("sha256") == checksum(task.input))
         ):
             skipped.append(task.input)
         else:
             todo.append(task)
     return todo, skipped
+
+
+def _own_output(entry: dict[str, Any], task: Task, out_dir: Path) -> bool:
+    """An entry's output is trusted only as this task's own output inside ``out_dir`` (no symlink on
+    the way) whose checksum is the one recorded when it was written: a forged or stale line that
+    points elsewhere, or at a file changed since, does not make a log "done"."""
+    recorded = entry.get("output")
+    if not isinstance(recorded, str) or not isinstance(entry.get("output_sha256"), str):
+        return False
+    output = out_dir / recorded
+    if os.path.normpath(output.absolute()) != os.path.normpath(task.output.absolute()):
+        return False
+    if output.is_symlink() or not output.exists():
+        return False
+    if os.path.realpath(output) != os.path.join(os.path.realpath(out_dir), output.name):
+        return False
+    return bool(checksum(output) == entry["output_sha256"])
 
 
 def run_bulk(
