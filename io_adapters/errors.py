@@ -36,6 +36,7 @@ class InputError(LanecastError):
         self.offset = offset
         self.column = column
         self.expected = expected
+        message = " ".join(str(message).split())  # one line, whatever a library's message holds
         self.reason = message
         where = [self.path or "<input>"]
         if line is not None:
