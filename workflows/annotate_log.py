@@ -223,13 +223,11 @@ def annotate_log(
     def extra() -> Iterator[mcap_copy.ExtraMessage]:
         nonlocal n_frames
         assert forecasts is not None
-        for frame in fm.frames_from_table(
-            forecasts, frame_id=frame_ids, tracks=tracks, lifetime_s=options.every_s
-        ):
-            scene, prediction = fm.encode_frame(frame, encoding)
+        batch = fm.batch_from_table(forecasts, frame_id=frame_ids, tracks=tracks, lifetime_s=options.every_s)
+        for t0_ns, scene, prediction in fm.encode_batch(batch, encoding):
             n_frames += 1
-            yield frame.t0_ns, 0, scene
-            yield frame.t0_ns, 1, prediction
+            yield t0_ns, 0, scene
+            yield t0_ns, 1, prediction
 
     write_started = time.perf_counter()
     digest = hashlib.sha256()

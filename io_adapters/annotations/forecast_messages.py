@@ -34,6 +34,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
+from lanecast.io_adapters.annotations import byte_rows as br
+from lanecast.io_adapters.annotations.byte_rows import ByteRows
 from lanecast.io_adapters.contracts.windows import MANEUVERS
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.logs.mcap_writer import scene_update_jsonschema
@@ -117,6 +119,94 @@ class ForecastFrame:
     alt_prob: np.ndarray  # float64 [M, K]
     alt_maneuver: np.ndarray  # int64 [M, K, 5]
     lifetime_ns: int = 0
+
+
+@dataclass(frozen=True)
+class ForecastBatch:
+    """F forecast frames with their targets' rows concatenated: frame f is rows ``bounds[f]:bounds[f + 1]``.
+
+    The arrays are those of :class:`ForecastFrame` over all N rows; what the bulk encoders take.
+    """
+
+    bounds: np.ndarray  # int64 [F + 1]
+    t0_ns: np.ndarray  # int64 [F]
+    recording: list[str]  # [F]
+    frame_id: list[str]  # [F]
+    horizon_s: np.ndarray  # float64 [5]
+    track_id: np.ndarray  # int64 [N]
+    origin: np.ndarray  # float64 [N, 2], NaN where unknown
+    points: np.ndarray  # float64 [N, 5, 2]
+    probs: np.ndarray  # float64 [N, 5, 3]
+    maneuver: np.ndarray  # int64 [N, 5]
+    alt_points: np.ndarray  # float64 [N, K, 5, 2]
+    alt_prob: np.ndarray  # float64 [N, K]
+    alt_maneuver: np.ndarray  # int64 [N, K, 5]
+    lifetime_ns: int = 0
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.bounds) - 1
+
+    @classmethod
+    def empty(cls, lifetime_ns: int = 0) -> ForecastBatch:
+        return cls(
+            bounds=np.zeros(1, np.int64),
+            t0_ns=np.zeros(0, np.int64),
+            recording=[],
+            frame_id=[],
+            horizon_s=np.arange(1, N_STEPS + 1, dtype=np.float64),
+            track_id=np.zeros(0, np.int64),
+            origin=np.zeros((0, 2)),
+            points=np.zeros((0, N_STEPS, 2)),
+            probs=np.zeros((0, N_STEPS, 3)),
+            maneuver=np.zeros((0, N_STEPS), np.int64),
+            alt_points=np.zeros((0, 0, N_STEPS, 2)),
+            alt_prob=np.zeros((0, 0)),
+            alt_maneuver=np.zeros((0, 0, N_STEPS), np.int64),
+            lifetime_ns=lifetime_ns,
+        )
+
+    @classmethod
+    def of(cls, frame: ForecastFrame) -> ForecastBatch:
+        """A batch of one frame."""
+        return cls(
+            bounds=np.array([0, frame.track_id.size], np.int64),
+            t0_ns=np.array([frame.t0_ns], np.int64),
+            recording=[frame.recording],
+            frame_id=[frame.frame_id],
+            **{name: getattr(frame, name) for name in _ROW_FIELDS},
+            horizon_s=frame.horizon_s,
+            lifetime_ns=frame.lifetime_ns,
+        )
+
+    def slice(self, first: int, last: int) -> ForecastBatch:
+        """Frames ``first`` to ``last`` (exclusive) as a batch."""
+        lo, hi = int(self.bounds[first]), int(self.bounds[last])
+        return ForecastBatch(
+            bounds=self.bounds[first : last + 1] - lo,
+            t0_ns=self.t0_ns[first:last],
+            recording=self.recording[first:last],
+            frame_id=self.frame_id[first:last],
+            horizon_s=self.horizon_s,
+            **{name: getattr(self, name)[lo:hi] for name in _ROW_FIELDS},
+            lifetime_ns=self.lifetime_ns,
+        )
+
+    def frames(self) -> Iterator[ForecastFrame]:
+        """The frames one by one (arrays are views)."""
+        for f in range(self.n_frames):
+            lo, hi = int(self.bounds[f]), int(self.bounds[f + 1])
+            yield ForecastFrame(
+                t0_ns=int(self.t0_ns[f]),
+                recording=self.recording[f],
+                frame_id=self.frame_id[f],
+                horizon_s=self.horizon_s,
+                **{name: getattr(self, name)[lo:hi] for name in _ROW_FIELDS},
+                lifetime_ns=self.lifetime_ns,
+            )
+
+
+_ROW_FIELDS = ("track_id", "origin", "points", "probs", "maneuver", "alt_points", "alt_prob", "alt_maneuver")
 
 
 @dataclass(frozen=True)
@@ -212,6 +302,20 @@ def frames_from_table(
 ) -> Iterator[ForecastFrame]:
     """Group a forecasts table by (t0, recording) (t0 ascending) into frames; targets by track id.
 
+    ``frame_id``: the log's fixed frame, or one per recording. See :func:`batch_from_table`.
+    """
+    yield from batch_from_table(forecasts, frame_id=frame_id, tracks=tracks, lifetime_s=lifetime_s).frames()
+
+
+def batch_from_table(
+    forecasts: pa.Table,
+    *,
+    frame_id: str | Mapping[str, str],
+    tracks: pa.Table | None = None,
+    lifetime_s: float = 0.0,
+) -> ForecastBatch:
+    """A forecasts table as one batch of frames: rows sorted by (t0, recording, track id).
+
     ``frame_id``: the log's fixed frame, or one per recording.
 
     Origins come from ``origin_x``/``origin_y`` when present, else from ``tracks`` (interpolated at
@@ -222,7 +326,7 @@ def frames_from_table(
             raise InputError(None, "forecasts table lacks a column", column=name)
     n = forecasts.num_rows
     if n == 0:
-        return
+        return ForecastBatch.empty(lifetime_ns=round(lifetime_s * 1e9))
     t0 = forecasts.column("t0_ns").to_numpy().astype(np.int64)
     tid = forecasts.column("track_id").to_numpy().astype(np.int64)
     recording = forecasts.column("recording").cast(pa.string()).to_numpy(zero_copy_only=False).astype(str)
@@ -280,25 +384,24 @@ def frames_from_table(
         alt_points = np.zeros((n, 0, N_STEPS, 2))
         alt_maneuver = np.zeros((n, 0, N_STEPS), dtype=np.int64)
     cuts = np.flatnonzero((np.diff(t0) != 0) | (np.diff(rec_code) != 0)) + 1
-    lifetime_ns = round(lifetime_s * 1e9)
-    for lo, hi in zip(np.r_[0, cuts], np.r_[cuts, n], strict=True):
-        yield ForecastFrame(
-            t0_ns=int(t0[lo]),
-            recording=str(rec_names[rec_code[lo]]),
-            frame_id=frame_id
-            if isinstance(frame_id, str)
-            else frame_id.get(str(rec_names[rec_code[lo]]), "map"),
-            horizon_s=horizon,
-            track_id=tid[lo:hi],
-            origin=origin[lo:hi],
-            points=points[lo:hi],
-            probs=probs[lo:hi],
-            maneuver=maneuver[lo:hi],
-            alt_points=alt_points[lo:hi],
-            alt_prob=alt_prob[lo:hi],
-            alt_maneuver=alt_maneuver[lo:hi],
-            lifetime_ns=lifetime_ns,
-        )
+    bounds = np.r_[0, cuts, n].astype(np.int64)
+    names = [str(rec_names[c]) for c in rec_code[bounds[:-1]].tolist()]
+    return ForecastBatch(
+        bounds=bounds,
+        t0_ns=t0[bounds[:-1]],
+        recording=names,
+        frame_id=[frame_id if isinstance(frame_id, str) else frame_id.get(r, "map") for r in names],
+        horizon_s=horizon,
+        track_id=tid,
+        origin=origin,
+        points=points,
+        probs=probs,
+        maneuver=maneuver,
+        alt_points=alt_points,
+        alt_prob=alt_prob,
+        alt_maneuver=alt_maneuver,
+        lifetime_ns=round(lifetime_s * 1e9),
+    )
 
 
 # ------------------------------------------------------------------------------------ neutral scene
@@ -313,207 +416,303 @@ def dominant_maneuver(maneuver: np.ndarray) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class _Line:
-    points: list[list[float]]  # [P][3] (x, y, z)
-    rgba: tuple[float, float, float, float]
+class _Drawing:
+    """The drawing of a batch, independent of the encoding: N entities of L = 1 + K lines of 6 points.
+
+    Line 0 is the main forecast, lines 1… the alternatives; point 0 of a line is the target's
+    position at t0, dropped (``keep`` False) where it is unknown so that the line starts at the
+    first predicted point. ``metadata``: (key, text per entity), in the entity's order.
+    """
+
+    row_frame: np.ndarray  # int64 [N]: frame of each entity
+    ids: ByteRows  # [N] track ids as text
+    xy: np.ndarray  # float64 [N, L, 6, 2]
+    keep: np.ndarray  # bool [N, L, 6]
+    rgba: np.ndarray  # float64 [N, L, 4]
+    metadata: list[tuple[str, ByteRows]]
 
 
-@dataclass(frozen=True)
-class _Entity:
-    id: str
-    metadata: list[tuple[str, str]]
-    lines: list[_Line]
-
-
-def _entities(frame: ForecastFrame) -> list[_Entity]:
-    """The drawing of a frame, independent of the encoding (arrays converted once per frame)."""
-    m, k = frame.track_id.size, frame.alt_prob.shape[1]
-    has_origin = ~np.isnan(frame.origin).any(axis=1)  # [M]
-    start = np.where(has_origin, 0, 1).tolist()  # without an origin the line starts at the first point
-    origin = np.where(has_origin[:, None], frame.origin, 0.0)
-    main_xy = np.concatenate([origin[:, None, :], frame.points], axis=1)  # [M, 6, 2]
-    main_pts = np.concatenate([main_xy, np.zeros((m, N_STEPS + 1, 1))], axis=-1).tolist()  # [M][6][3]
-    alt_xy = np.concatenate(
-        [np.broadcast_to(origin[:, None, None, :], (m, k, 1, 2)), frame.alt_points], axis=2
+def _drawing(batch: ForecastBatch) -> _Drawing:
+    n, k = batch.track_id.size, batch.alt_prob.shape[1]
+    row_frame = np.repeat(np.arange(batch.n_frames), np.diff(batch.bounds))
+    has_origin = ~np.isnan(batch.origin).any(axis=1)
+    origin = np.where(has_origin[:, None], batch.origin, 0.0)
+    lines = np.concatenate([batch.points[:, None], batch.alt_points], axis=1)  # [N, L, 5, 2]
+    start = np.broadcast_to(origin[:, None, None, :], (n, k + 1, 1, 2))
+    xy = np.concatenate([start, lines], axis=2)
+    keep = np.ones((n, k + 1, N_STEPS + 1), bool)
+    keep[:, :, 0] = has_origin[:, None]
+    main = dominant_maneuver(batch.maneuver)  # [N]
+    alt = dominant_maneuver(batch.alt_maneuver)  # [N, K]
+    rgba = np.concatenate(
+        [
+            np.concatenate([COLOURS[main], np.full((n, 1), MAIN_ALPHA)], axis=-1)[:, None],
+            np.concatenate([COLOURS[alt], np.full((n, k, 1), ALT_ALPHA)], axis=-1),
+        ],
+        axis=1,
     )
-    alt_pts = np.concatenate([alt_xy, np.zeros((m, k, N_STEPS + 1, 1))], axis=-1).tolist()  # [M][K][6][3]
-    main = dominant_maneuver(frame.maneuver)  # [M]
-    alt = dominant_maneuver(frame.alt_maneuver)  # [M, K]
-    main_rgba = [(*c, MAIN_ALPHA) for c in COLOURS[main].tolist()]
-    alt_rgba = [[(*c, ALT_ALPHA) for c in row] for row in COLOURS[alt].tolist()]
-    ids = frame.track_id.astype(str).tolist()
-    names = [LABELS[j] for j in main.tolist()]
-    sequences = [_sequence_json(tuple(row)) for row in frame.maneuver.tolist()]
-    probs = _json_rows(np.round(frame.probs, 4))
-    top_k = _json_rows(np.round(frame.alt_prob, 4))
-    horizon = json.dumps(frame.horizon_s.tolist())
-    entities = []
-    for i in range(m):
-        s = start[i]
-        lines = [_Line(main_pts[i][s:], main_rgba[i])]
-        lines += [_Line(alt_pts[i][j][s:], alt_rgba[i][j]) for j in range(k)]
-        metadata = [
-            ("track_id", ids[i]),
-            ("maneuver", names[i]),
-            ("maneuver_sequence", sequences[i]),
-            ("maneuver_probs", probs[i]),
-            ("horizon_s", horizon),
-            ("top_k_probs", top_k[i]),
-        ]
-        entities.append(_Entity(ids[i], metadata, lines))
-    return entities
+    ids = br.json_ints(batch.track_id)
+    labels = ByteRows.from_strings(np.array(LABELS, dtype="S"))
+    horizon = json.dumps(batch.horizon_s.tolist()).encode()
+    metadata = [
+        ("track_id", ids),
+        ("maneuver", labels.take(main % len(LABELS))),
+        ("maneuver_sequence", _sequence_texts(batch.maneuver)),
+        ("maneuver_probs", _probability_texts(np.round(batch.probs, 4), batch.bounds, row_frame)),
+        ("horizon_s", ByteRows.constant(horizon, n)),
+        ("top_k_probs", _probability_texts(np.round(batch.alt_prob, 4), batch.bounds, row_frame)),
+    ]
+    return _Drawing(row_frame, ids, xy, keep, rgba, metadata)
 
 
 @functools.lru_cache(maxsize=1024)
-def _sequence_json(row: tuple[int, ...]) -> str:
-    return json.dumps([LABELS[j] for j in row])
+def _sequence_json(code: int) -> bytes:
+    """JSON of the maneuver names of a sequence coded base 4 (digit i = step i's maneuver, 3 = unknown)."""
+    return json.dumps([LABELS[(code >> (2 * i)) & 3] for i in range(N_STEPS)]).encode()
 
 
-def _json_rows(values: np.ndarray) -> list[str]:
-    """One JSON text per row of ``values`` [M, ...] (NaN as null); finite rows take a fast path
-    (Python's text of a list of finite floats is JSON)."""
-    if np.isfinite(values).all():
-        return [str(row) for row in values.tolist()]
-    return [json.dumps(_nan_to_none(row)) for row in values]
+def _sequence_texts(maneuver: np.ndarray) -> ByteRows:
+    """``["straight", "left", …]`` per row of maneuver [N, 5] (-1: "unknown")."""
+    codes = ((maneuver % len(LABELS)) << (2 * np.arange(N_STEPS))).sum(axis=1)
+    unique, inverse = np.unique(codes, return_inverse=True)
+    table = np.array([_sequence_json(int(c)) for c in unique.tolist()] or [b""], dtype="S")
+    return ByteRows.from_strings(table).take(inverse.reshape(-1))
 
 
-def _nan_to_none(values: np.ndarray | np.floating) -> Any:
-    """Nested lists (or a float) with NaN as None: JSON has no NaN."""
-    arr = np.asarray(values, dtype=np.float64)
-    nan = np.isnan(arr)
-    if nan.all():
-        return None
+def _probability_texts(values: np.ndarray, bounds: np.ndarray, row_frame: np.ndarray) -> ByteRows:
+    """Python's text of each row of ``values`` [N, ...] as a (nested) list, ``", "`` between items.
+
+    As the metadata always wrote it: in a frame that holds a NaN, NaN is ``null`` and a row of
+    NaN only (or no values) is ``null`` itself.
+    """
+    n = values.shape[0]
+    flat = values.reshape(n, -1)
+    text = _four_decimals(flat.reshape(-1))
+    rows = flat.size
+    for width in reversed(values.shape[1:]):
+        rows //= max(width, 1)
+        text = br.json_lists(text, rows if width else n, width, b", ")
+    nan_rows = np.isnan(flat).all(axis=1)  # True for rows without values too
+    if n and (frame_nan := np.add.reduceat(~np.isfinite(flat).all(axis=1), bounds[:-1]) > 0).any():
+        null = nan_rows & frame_nan[row_frame]
+        text = br.concat(n, text.blank(~null), ByteRows.constant(b"null", n).blank(null))
+    return text
+
+
+@functools.cache
+def _four_decimal_table() -> ByteRows:
+    """Python's text of k / 10,000 for k = 0 … 10,000 (the probabilities as the metadata rounds them)."""
+    return br.json_numbers(np.arange(10_001) / 10_000)
+
+
+def _four_decimals(values: np.ndarray) -> ByteRows:
+    """Like ``br.json_numbers`` for values rounded to 4 decimals in [0, 1] (a table look-up), NaN → null."""
+    k = np.rint(values * 10_000)
+    exact = (k >= 0) & (k <= 10_000) & (k / 10_000 == values)
+    if not (exact | np.isnan(values)).all():
+        return br.json_numbers(values)
+    text = _four_decimal_table().take(np.where(exact, k, 0).astype(np.int64))
+    nan = ~exact
     if nan.any():
-        boxed = arr.astype(object)
-        boxed[nan] = None
-        return boxed.tolist()
-    return arr.tolist()
+        text = br.concat(len(values), text.blank(exact), ByteRows.constant(b"null", len(values)).blank(nan))
+    return text
+
+
+def _sec_nsec(ns: np.ndarray | int) -> tuple[np.ndarray, np.ndarray]:
+    sec, nsec = np.divmod(np.asarray(ns, np.int64), 1_000_000_000)
+    return np.atleast_1d(sec), np.atleast_1d(nsec)
+
+
+# ------------------------------------------------------------------------------ /lanecast/prediction
+
+
+def prediction_texts(batch: ForecastBatch) -> list[bytes]:
+    """The /lanecast/prediction JSON document of each frame (:data:`PREDICTION_SCHEMA`), compact.
+
+    Text equal to ``json.dumps(document, separators=(",", ":"))``; NaN (baselines) is null, a
+    target's probabilities that are all NaN are null.
+    """
+    n, k = batch.track_id.size, batch.alt_prob.shape[1]
+    has_origin = ~np.isnan(batch.origin).any(axis=1)
+    origin = br.json_lists(br.json_numbers(batch.origin), n, 2)
+    origin = br.concat(n, origin.blank(has_origin), ByteRows.constant(b"null", n).blank(~has_origin))
+    probs = br.json_lists(br.json_lists(br.json_numbers(batch.probs), n * N_STEPS, 3), n, N_STEPS)
+    all_nan = np.isnan(batch.probs.reshape(n, -1)).all(axis=1)
+    probs = br.concat(n, probs.blank(~all_nan), ByteRows.constant(b"null", n).blank(all_nan))
+    if k:
+        alt = br.concat(
+            n * k,
+            b'{"prob":',
+            br.json_numbers(batch.alt_prob),
+            b',"x":',
+            br.json_lists(br.json_numbers(batch.alt_points[..., 0]), n * k, N_STEPS),
+            b',"y":',
+            br.json_lists(br.json_numbers(batch.alt_points[..., 1]), n * k, N_STEPS),
+            b',"maneuver":',
+            br.json_lists(br.json_ints(batch.alt_maneuver), n * k, N_STEPS),
+            b"}",
+        )
+        alternatives = br.json_lists(alt, n, k)
+    else:
+        alternatives = ByteRows.constant(b"[]", n)
+    targets = br.concat(
+        n,
+        b'{"track_id":',
+        br.json_ints(batch.track_id),
+        b',"origin":',
+        origin,
+        b',"x":',
+        br.json_lists(br.json_numbers(batch.points[..., 0]), n, N_STEPS),
+        b',"y":',
+        br.json_lists(br.json_numbers(batch.points[..., 1]), n, N_STEPS),
+        b',"maneuver":',
+        br.json_lists(br.json_ints(batch.maneuver), n, N_STEPS),
+        b',"maneuver_probs":',
+        probs,
+        b',"alternatives":',
+        alternatives,
+        b"}",
+    )
+    horizon = json.dumps(batch.horizon_s.tolist(), separators=(",", ":"))
+    names = json.dumps(list(MANEUVERS), separators=(",", ":"))
+    heads = [
+        f'{{"recording":{json.dumps(r)},"frame_id":{json.dumps(i)},"t0_ns":{t},'
+        f'"horizon_s":{horizon},"maneuver_names":{names},"targets":['.encode()
+        for r, i, t in zip(batch.recording, batch.frame_id, batch.t0_ns.tolist(), strict=True)
+    ]
+    bodies = targets.join(batch.bounds, b",")
+    return [head + body + b"]}" for head, body in zip(heads, bodies, strict=True)]
 
 
 def prediction_dict(frame: ForecastFrame) -> dict[str, Any]:
     """The /lanecast/prediction document of a frame (follows :data:`PREDICTION_SCHEMA`)."""
-    m, k = frame.track_id.size, frame.alt_prob.shape[1]
-    has_origin = ~np.isnan(frame.origin).any(axis=1)
-    origin = frame.origin.tolist()
-    xs, ys = frame.points[..., 0].tolist(), frame.points[..., 1].tolist()
-    maneuver = frame.maneuver.tolist()
-    if np.isfinite(frame.probs).all() and np.isfinite(frame.alt_prob).all():
-        probs, alt_prob = frame.probs.tolist(), frame.alt_prob.reshape(-1).tolist()
-    else:
-        probs = [_nan_to_none(p) for p in frame.probs]
-        alt_prob = [_nan_to_none(p) for p in frame.alt_prob.reshape(-1)]
-    alt_x, alt_y = frame.alt_points[..., 0].tolist(), frame.alt_points[..., 1].tolist()
-    alt_maneuver = frame.alt_maneuver.tolist()
-    targets = [
-        {
-            "track_id": tid,
-            "origin": origin[i] if has_origin[i] else None,
-            "x": xs[i],
-            "y": ys[i],
-            "maneuver": maneuver[i],
-            "maneuver_probs": probs[i],
-            "alternatives": [
-                {
-                    "prob": alt_prob[i * k + j],
-                    "x": alt_x[i][j],
-                    "y": alt_y[i][j],
-                    "maneuver": alt_maneuver[i][j],
-                }
-                for j in range(k)
-            ],
-        }
-        for i, tid in zip(range(m), frame.track_id.tolist(), strict=True)
-    ]
-    return {
-        "recording": frame.recording,
-        "frame_id": frame.frame_id,
-        "t0_ns": frame.t0_ns,
-        "horizon_s": frame.horizon_s.tolist(),
-        "maneuver_names": list(MANEUVERS),
-        "targets": targets,
-    }
-
-
-def _sec_nsec(ns: int) -> tuple[int, int]:
-    return ns // 1_000_000_000, ns % 1_000_000_000
+    doc: dict[str, Any] = json.loads(prediction_texts(ForecastBatch.of(frame))[0])
+    return doc
 
 
 # ------------------------------------------------------------------------------------------- JSON
 
 
-def scene_update_dict(frame: ForecastFrame) -> dict[str, Any]:
-    """Foxglove's JSON form of the frame's ``foxglove.SceneUpdate``."""
-    sec, nsec = _sec_nsec(frame.t0_ns)
-    lsec, lnsec = _sec_nsec(frame.lifetime_ns)
-    identity = {
-        "position": {"x": 0.0, "y": 0.0, "z": 0.0},
-        "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0},
-    }
-    entities = []
-    for e in _entities(frame):
-        entities.append(
-            {
-                "timestamp": {"sec": sec, "nsec": nsec},
-                "frame_id": frame.frame_id,
-                "id": e.id,
-                "lifetime": {"sec": lsec, "nsec": lnsec},
-                "frame_locked": False,
-                "metadata": [{"key": k, "value": v} for k, v in e.metadata],
-                "arrows": [],
-                "cubes": [],
-                "spheres": [],
-                "cylinders": [],
-                "lines": [
-                    {
-                        "type": 0,
-                        "pose": identity,
-                        "thickness": LINE_THICKNESS_M,
-                        "scale_invariant": False,
-                        "points": [{"x": x, "y": y, "z": z} for x, y, z in line.points],
-                        "color": dict(zip("rgba", line.rgba, strict=True)),
-                        "colors": [],
-                        "indices": [],
-                    }
-                    for line in e.lines
-                ],
-                "triangles": [],
-                "texts": [],
-                "lanecast.models": [],
-            }
-        )
-    return {"deletions": [], "entities": entities}
+def _json_string_rows(values: list[str]) -> ByteRows:
+    """JSON string literals (quotes included) of a few values, e.g. one per frame."""
+    return ByteRows.from_strings(np.array([json.dumps(v).encode() for v in values] or [b'""'], dtype="S"))
+
+
+def scene_update_json(batch: ForecastBatch, drawing: _Drawing) -> list[bytes]:
+    """Foxglove's JSON form of each frame's ``foxglove.SceneUpdate`` (compact, one row per frame)."""
+    n, lines_per = drawing.xy.shape[0], drawing.xy.shape[1]
+    f = batch.n_frames
+    m = n * lines_per
+    xy = drawing.xy.reshape(m * (N_STEPS + 1), 2)
+    points = br.concat(
+        len(xy), b'{"x":', br.json_numbers(xy[:, 0]), b',"y":', br.json_numbers(xy[:, 1]), b',"z":0.0}'
+    )
+    keep = drawing.keep.reshape(m, N_STEPS + 1)
+    comma = keep & (np.cumsum(keep, axis=1) > 1)  # before every kept point but the line's first
+    points = br.concat(
+        len(xy), ByteRows.constant(b",", len(xy)).blank(comma.reshape(-1)), points.blank(keep.reshape(-1))
+    ).group_every(N_STEPS + 1)
+    rgba = drawing.rgba.reshape(m, 4)
+    identity = b'{"position":{"x":0.0,"y":0.0,"z":0.0},"orientation":{"x":0.0,"y":0.0,"z":0.0,"w":1.0}}'
+    lines = br.concat(
+        m,
+        b'{"type":0,"pose":' + identity + b',"thickness":' + repr(LINE_THICKNESS_M).encode(),
+        b',"scale_invariant":false,"points":[',
+        points,
+        b'],"color":{"r":',
+        br.json_numbers(rgba[:, 0]),
+        b',"g":',
+        br.json_numbers(rgba[:, 1]),
+        b',"b":',
+        br.json_numbers(rgba[:, 2]),
+        b',"a":',
+        br.json_numbers(rgba[:, 3]),
+        b'},"colors":[],"indices":[]}',
+    )
+    metadata: list[br.Column] = []
+    for i, (key, value) in enumerate(drawing.metadata):
+        metadata += [(b"," if i else b"") + b'{"key":' + json.dumps(key).encode() + b',"value":"']
+        metadata += [br.escape_quotes(value), b'"}']
+    sec, nsec = _sec_nsec(batch.t0_ns)
+    lsec, lnsec = _sec_nsec(batch.lifetime_ns)
+    stamp = br.concat(f, b'{"timestamp":{"sec":', br.json_ints(sec), b',"nsec":', br.json_ints(nsec), b"}")
+    entities = br.concat(
+        n,
+        stamp.take(drawing.row_frame),
+        b',"frame_id":',
+        _json_string_rows(batch.frame_id).take(drawing.row_frame),
+        b',"id":"',
+        drawing.ids,
+        f'","lifetime":{{"sec":{int(lsec[0])},"nsec":{int(lnsec[0])}}},"frame_locked":false,"metadata":['.encode(),
+        *metadata,
+        b'],"arrows":[],"cubes":[],"spheres":[],"cylinders":[],"lines":',
+        br.json_lists(lines, n, lines_per),
+        b',"triangles":[],"texts":[],"models":[]}',
+    )
+    return [b'{"deletions":[],"entities":[' + body + b"]}" for body in entities.join(batch.bounds, b",")]
 
 
 # --------------------------------------------------------------------------------------- protobuf
 
+# Constant parts of a LINE_STRIP (type 0 is the default: not written): pose = identity orientation,
+# thickness. Field numbers from foxglove's LinePrimitive, SceneEntity and SceneUpdate .proto files.
+_PB_POSE = br.length_delimited(2, br.length_delimited(2, br.doubles(4, np.ones(1)))).join()[0]
+_PB_THICKNESS = br.doubles(3, np.array([LINE_THICKNESS_M])).join()[0]
 
-def _scene_update_protobuf(frame: ForecastFrame) -> bytes:
-    from foxglove_schemas_protobuf.LinePrimitive_pb2 import LinePrimitive
-    from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 
-    msg = SceneUpdate()
-    sec, nsec = _sec_nsec(frame.t0_ns)
-    lsec, lnsec = _sec_nsec(frame.lifetime_ns)
-    for e in _entities(frame):
-        ent = msg.entities.add()
-        ent.timestamp.seconds, ent.timestamp.nanos = sec, nsec
-        ent.frame_id = frame.frame_id
-        ent.id = e.id
-        ent.lifetime.seconds, ent.lifetime.nanos = lsec, lnsec
-        ent.frame_locked = False
-        for k, v in e.metadata:
-            kv = ent.metadata.add()
-            kv.key, kv.value = k, v
-        for line in e.lines:
-            lp = ent.lines.add()
-            lp.type = LinePrimitive.LINE_STRIP
-            lp.pose.orientation.w = 1.0
-            lp.thickness = LINE_THICKNESS_M
-            lp.scale_invariant = False
-            for x, y, z in line.points:
-                lp.points.add(x=x, y=y, z=z)
-            lp.color.r, lp.color.g, lp.color.b, lp.color.a = line.rgba
-    return msg.SerializeToString()
+def _pb_time(sec: np.ndarray, nsec: np.ndarray) -> ByteRows:
+    """google.protobuf.Timestamp/Duration payloads (seconds 1, nanos 2; zeros not written)."""
+    return br.concat(len(sec), br.int_field(1, sec), br.int_field(2, nsec))
+
+
+def _pb_string(field: int, rows: ByteRows) -> ByteRows:
+    """A proto3 string field per row; empty strings are not written."""
+    return br.length_delimited(field, rows).blank(rows.lengths > 0)
+
+
+@functools.cache
+def _pb_key(key: str) -> bytes:
+    """A KeyValuePair's key field (1)."""
+    return br.length_delimited(1, ByteRows.constant(key.encode(), 1)).join()[0]
+
+
+def scene_update_protobuf(batch: ForecastBatch, drawing: _Drawing) -> list[bytes]:
+    """Each frame's ``foxglove.SceneUpdate`` serialized (protobuf wire format, one row per frame).
+
+    Byte for byte what ``SceneUpdate.SerializeToString()`` writes for the same message: fields in
+    number order, proto3 defaults (0, +0.0, false, "") omitted, sub-messages that were set kept.
+    """
+    n, lines_per = drawing.xy.shape[0], drawing.xy.shape[1]
+    m = n * lines_per
+    xy = drawing.xy.reshape(-1, 2)
+    points = br.length_delimited(5, br.concat(len(xy), br.doubles(1, xy[:, 0]), br.doubles(2, xy[:, 1])))
+    points = points.blank(drawing.keep.reshape(-1)).group_every(N_STEPS + 1)
+    rgba = drawing.rgba.reshape(m, 4)
+    color = br.length_delimited(6, br.concat(m, *(br.doubles(i + 1, rgba[:, i]) for i in range(4))))
+    lines = br.length_delimited(11, br.concat(m, _PB_POSE, _PB_THICKNESS, points, color))
+    sec, nsec = _sec_nsec(batch.t0_ns)
+    lsec, lnsec = _sec_nsec(batch.lifetime_ns)
+    frame_ids = ByteRows.from_strings(np.array([f.encode() for f in batch.frame_id] or [b""], dtype="S"))
+    metadata = [
+        br.length_delimited(
+            6,
+            br.concat(n, _pb_key(key), _pb_string(2, value)),
+        )
+        for key, value in drawing.metadata
+    ]
+    entities = br.length_delimited(
+        2,
+        br.concat(
+            n,
+            br.length_delimited(1, _pb_time(sec, nsec)).take(drawing.row_frame),
+            _pb_string(2, frame_ids).take(drawing.row_frame),
+            _pb_string(3, drawing.ids),
+            br.length_delimited(4, _pb_time(lsec, lnsec)).join()[0],
+            *metadata,
+            lines.group_every(lines_per),
+        ),
+    )
+    return entities.join(batch.bounds)
 
 
 @functools.cache
@@ -546,62 +745,143 @@ SCENE_UPDATE_ROS2 = "foxglove_msgs/msg/SceneUpdate"
 STRING_ROS2 = "std_msgs/msg/String"
 
 
-def _scene_update_cdr(frame: ForecastFrame) -> bytes:
-    store = ros2_typestore()
-    T = store.types
-    Time, Duration = T["builtin_interfaces/msg/Time"], T["builtin_interfaces/msg/Duration"]
-    Pose, Point, Quat = (
-        T["geometry_msgs/msg/Pose"],
-        T["geometry_msgs/msg/Point"],
-        T["geometry_msgs/msg/Quaternion"],
-    )
-    Color, KV = T["foxglove_msgs/msg/Color"], T["foxglove_msgs/msg/KeyValuePair"]
-    Line, Entity, Update = (
-        T["foxglove_msgs/msg/LinePrimitive"],
-        T["foxglove_msgs/msg/SceneEntity"],
-        T[SCENE_UPDATE_ROS2],
-    )
-    sec, nsec = _sec_nsec(frame.t0_ns)
-    lsec, lnsec = _sec_nsec(frame.lifetime_ns)
-    identity = Pose(position=Point(x=0.0, y=0.0, z=0.0), orientation=Quat(x=0.0, y=0.0, z=0.0, w=1.0))
-    no_indices = np.zeros(0, dtype=np.uint32)
-    entities = [
-        Entity(
-            timestamp=Time(sec=sec, nanosec=nsec),
-            frame_id=frame.frame_id,
-            id=e.id,
-            lifetime=Duration(sec=lsec, nanosec=lnsec),
-            frame_locked=False,
-            metadata=[KV(key=k, value=v) for k, v in e.metadata],
-            arrows=[],
-            cubes=[],
-            spheres=[],
-            cylinders=[],
-            lines=[
-                Line(
-                    type=0,
-                    pose=identity,
-                    thickness=LINE_THICKNESS_M,
-                    scale_invariant=False,
-                    points=[Point(x=x, y=y, z=z) for x, y, z in line.points],
-                    color=Color(r=line.rgba[0], g=line.rgba[1], b=line.rgba[2], a=line.rgba[3]),
-                    colors=[],
-                    indices=no_indices,
-                )
-                for line in e.lines
-            ],
-            triangles=[],
-            texts=[],
-            models=[],
-        )
-        for e in _entities(frame)
-    ]
-    return bytes(store.serialize_cdr(Update(deletions=[], entities=entities), SCENE_UPDATE_ROS2))
+CDR_HEADER = b"\x00\x01\x00\x00"  # XCDR1, little endian: what rosbags' serialize_cdr writes
+_CDR_POSE = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], "<f8").tobytes()  # position 0, identity orientation
+_CDR_LINE_HEAD = b"\x00"  # type LINE_STRIP (uint8)
 
 
-def _string_cdr(text: str) -> bytes:
-    store = ros2_typestore()
-    return bytes(store.serialize_cdr(store.types[STRING_ROS2](data=text), STRING_ROS2))
+class _CdrLayout:
+    """Columns of N CDR serializations written side by side, with each row's position (mod 8) tracked.
+
+    Alignment (padding with zeros to a multiple of the field's size, counted from the start of the
+    payload after the 4-byte header) depends on what came before, so every row has its own cursor.
+    ``build`` False only tracks positions (to learn a row's size for a given start).
+    """
+
+    def __init__(self, start: np.ndarray, build: bool = True) -> None:
+        self.pos = np.asarray(start, np.int64).copy()
+        self.n = len(self.pos)
+        self.build = build
+        self.columns: list[br.Column] = []
+
+    def pad(self, align: int) -> None:
+        padding = (-self.pos) % align
+        if self.build and padding.any():
+            self.columns.append(ByteRows.from_matrix(np.zeros((self.n, 8), np.uint8), padding))
+        self.pos += padding
+
+    def put(self, column: br.Column | None, size: np.ndarray | int) -> None:
+        if self.build and column is not None:
+            self.columns.append(column)
+        self.pos += size
+
+    def u32(self, value: int) -> None:
+        self.pad(4)
+        self.put(np.uint32(value).tobytes(), 4)
+
+    def string(self, rows: ByteRows | None, lengths: np.ndarray) -> None:
+        """A string: uint32 length with the NUL, the bytes, NUL."""
+        self.pad(4)
+        if self.build and rows is not None:
+            self.put(br.concat(self.n, _u32_rows(lengths + 1), rows, b"\x00"), 5 + lengths)
+        else:
+            self.pos += 5 + lengths
+
+    def rows(self) -> ByteRows:
+        return br.concat(self.n, *self.columns)
+
+
+def _u32_rows(values: np.ndarray) -> ByteRows:
+    """Little-endian uint32 per row."""
+    return br.fixed(np.asarray(values)[:, None], "<u4")
+
+
+def _cdr_entities(batch: ForecastBatch, drawing: _Drawing, start: np.ndarray, build: bool) -> _CdrLayout:
+    """The SceneEntity of every target, each starting at payload position ``start`` (mod 8)."""
+    n, lines_per = drawing.xy.shape[0], drawing.xy.shape[1]
+    sec, nsec = _sec_nsec(batch.t0_ns)
+    lsec, lnsec = _sec_nsec(batch.lifetime_ns)
+    frame_ids = ByteRows.from_strings(np.array([f.encode() for f in batch.frame_id] or [b""], dtype="S"))
+    frame_ids = frame_ids.take(drawing.row_frame)
+    out = _CdrLayout(start, build)
+    out.pad(4)
+    stamp = np.stack([sec.astype("<i4").view("<u4"), nsec.astype("<u4")], axis=1)[drawing.row_frame]
+    out.put(ByteRows.from_matrix(stamp.view(np.uint8).reshape(n, 8), np.full(n, 8)) if build else None, 8)
+    out.string(frame_ids, frame_ids.lengths)
+    out.string(drawing.ids, drawing.ids.lengths)
+    out.pad(4)
+    out.put(
+        np.array([lsec[0], lnsec[0]], "<i8").astype("<i4").tobytes() + b"\x00", 9
+    )  # lifetime, frame_locked
+    out.u32(len(drawing.metadata))
+    for key, value in drawing.metadata:
+        out.string(ByteRows.constant(key.encode(), n), np.full(n, len(key.encode())))
+        out.string(value, value.lengths)
+    for _ in range(4):  # arrows, cubes, spheres, cylinders
+        out.u32(0)
+    out.u32(lines_per)
+    keep = drawing.keep
+    for j in range(lines_per):
+        out.put(_CDR_LINE_HEAD, 1)
+        out.pad(8)
+        out.put(
+            _CDR_POSE + np.float64(LINE_THICKNESS_M).tobytes() + b"\x00", 65
+        )  # pose, thickness, scale_invariant
+        count = keep[:, j].sum(axis=1)
+        out.pad(4)
+        out.put(_u32_rows(count) if build else None, 4)
+        out.pad(8)
+        if build:
+            xyz = np.zeros((n, N_STEPS + 1, 3), "<f8")
+            xyz[..., :2] = drawing.xy[:, j]
+            points = ByteRows.from_matrix(
+                xyz.view(np.uint8).reshape(n * (N_STEPS + 1), 24), np.full(n * (N_STEPS + 1), 24)
+            )
+            out.put(points.blank(keep[:, j].reshape(-1)).group_every(N_STEPS + 1), 24 * count)
+            rgba = np.ascontiguousarray(drawing.rgba[:, j], "<f8")
+            out.put(ByteRows.from_matrix(rgba.view(np.uint8).reshape(n, 32), np.full(n, 32)), 32)
+        else:
+            out.put(None, 24 * count + 32)
+        out.u32(0)  # colors
+        out.u32(0)  # indices
+    for _ in range(3):  # triangles, texts, models
+        out.u32(0)
+    return out
+
+
+def scene_update_cdr(batch: ForecastBatch, drawing: _Drawing) -> list[bytes]:
+    """Each frame's ROS 2 ``foxglove_msgs/msg/SceneUpdate`` as CDR (one row per frame).
+
+    Byte for byte what rosbags' ``serialize_cdr`` writes. An entity's padding depends on where it
+    starts (mod 8), which depends on every entity before it in its message: the start of each
+    entity is found with a parallel prefix scan over the two possible residues (0 or 4).
+    """
+    n, f = drawing.xy.shape[0], batch.n_frames
+    size0 = _cdr_entities(batch, drawing, np.zeros(n, np.int64), build=False).pos
+    size4 = _cdr_entities(batch, drawing, np.full(n, 4, np.int64), build=False).pos - 4
+    # state = start residue / 4 (0 or 1); after entity i: (state*4 + size_state) mod 8 / 4
+    after = np.stack([(size0 % 8) // 4, ((4 + size4) % 8) // 4], axis=1)  # [N, 2]
+    entering = np.empty((n, 2), np.int64)  # map from "state entering the previous entity" to mine
+    entering[1:] = after[:-1]
+    first = np.asarray(batch.bounds[:-1], np.int64)[np.diff(batch.bounds) > 0]
+    entering[first] = 0  # the first entity of a message starts at payload offset 8
+    scan = entering.copy()
+    step = 1
+    while step < n:  # inclusive prefix composition: scan[i] = entering[i] ∘ … ∘ entering[0]
+        scan[step:] = np.take_along_axis(scan[step:], scan[:-step], axis=1)
+        step *= 2
+    start = scan[:, 0] * 4
+    entities = _cdr_entities(batch, drawing, start, build=True).rows()
+    counts = np.diff(batch.bounds)
+    head = np.zeros((f, 12), np.uint8)
+    head[:, :4] = np.frombuffer(CDR_HEADER, np.uint8)
+    head[:, 8:] = counts.astype("<u4").view(np.uint8).reshape(f, 4)
+    return [h.tobytes() + body for h, body in zip(head, entities.join(batch.bounds), strict=True)]
+
+
+def strings_cdr(texts: list[bytes]) -> list[bytes]:
+    """Each text as a ROS 2 ``std_msgs/msg/String`` in CDR (one header and length per message)."""
+    return [CDR_HEADER + np.uint32(len(t) + 1).tobytes() + t + b"\x00" for t in texts]
 
 
 # -------------------------------------------------------------------------------------------- API
@@ -634,13 +914,36 @@ def channel_specs(encoding: str) -> list[ChannelSpec]:
     return [scene, pred]
 
 
+#: Targets encoded per bulk pass: bounds the memory of the encoded messages, not their speed.
+BULK_ROWS = 20_000
+
+
+def encode_batch(batch: ForecastBatch, encoding: str) -> Iterator[tuple[int, bytes, bytes]]:
+    """(t0 in ns, /lanecast/forecast payload, /lanecast/prediction payload) of each frame, in order.
+
+    Frames are encoded in bulk, up to :data:`BULK_ROWS` targets at a time.
+    """
+    if encoding not in ENCODINGS:
+        raise InputError(None, f"unknown forecast encoding {encoding!r}", expected=f"one of {ENCODINGS}")
+    first = 0
+    while first < batch.n_frames:
+        last = int(np.searchsorted(batch.bounds, batch.bounds[first] + BULK_ROWS, side="right")) - 1
+        last = min(max(last, first + 1), batch.n_frames)
+        part = batch.slice(first, last)
+        drawing = _drawing(part)
+        predictions = prediction_texts(part)
+        if encoding == "protobuf":
+            scenes = scene_update_protobuf(part, drawing)
+        elif encoding == "json":
+            scenes = scene_update_json(part, drawing)
+        else:
+            scenes = scene_update_cdr(part, drawing)
+            predictions = strings_cdr(predictions)
+        yield from zip(part.t0_ns.tolist(), scenes, predictions, strict=True)
+        first = last
+
+
 def encode_frame(frame: ForecastFrame, encoding: str) -> tuple[bytes, bytes]:
     """(/lanecast/forecast payload, /lanecast/prediction payload) of one frame in ``encoding``."""
-    prediction = json.dumps(prediction_dict(frame), separators=(",", ":"))
-    if encoding == "protobuf":
-        return _scene_update_protobuf(frame), prediction.encode()
-    if encoding == "json":
-        return json.dumps(scene_update_dict(frame), separators=(",", ":")).encode(), prediction.encode()
-    if encoding == "cdr":
-        return _scene_update_cdr(frame), _string_cdr(prediction)
-    raise InputError(None, f"unknown forecast encoding {encoding!r}", expected=f"one of {ENCODINGS}")
+    ((_, scene, prediction),) = encode_batch(ForecastBatch.of(frame), encoding)
+    return scene, prediction
