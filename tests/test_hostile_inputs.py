@@ -716,3 +716,14 @@ def test_forged_manifest_entry_does_not_skip_a_log(
     assert main(["annotate", str(log), "--out", str(out)]) == 0
     assert len(manifest.read_text().splitlines()) == 3
     assert (out / "in.mcap").read_bytes() != bytes(data)
+
+
+def test_values_beyond_float32_are_refused_at_their_line(tmp_path: Path) -> None:
+    path = _highd_variant(tmp_path, 3, "xVelocity", "1e300")
+    with pytest.raises(InputError) as err:
+        registry.read_any([path])
+    assert (err.value.line, err.value.column) == (3, "xVelocity")
+    path = _txt_variant(tmp_path, {(5, 12): "-1e308"})  # v_Acc
+    with pytest.raises(InputError) as err:
+        registry.read_any([path])
+    assert (err.value.line, err.value.column) == (5, "v_Acc")

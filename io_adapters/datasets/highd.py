@@ -424,6 +424,7 @@ def _dedupe(path: Path, cols: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarr
 
 
 INT32_MAX = 2**31 - 1
+FLOAT32_MAX = float(np.finfo(np.float32).max)  # sizes, velocities, accelerations are float32
 MAX_TIME_NS = 2**62  # time_ns = frame / frameRate * 1e9 must stay well inside int64
 
 
@@ -439,6 +440,10 @@ def _check_ranges(path: Path, cols: dict[str, np.ndarray], source_row: np.ndarra
         ("width", ~(cols["width"] > 0), "a length > 0 m"),
         ("height", ~(cols["height"] > 0), "a width > 0 m"),
         ("laneId", (cols["laneId"] < -INT32_MAX) | (cols["laneId"] > INT32_MAX), "a lane id within int32"),
+        *(
+            (name, np.abs(cols[name]) > FLOAT32_MAX, "a value within float32")
+            for name in ("width", "height", "xVelocity", "yVelocity", "xAcceleration", "yAcceleration")
+        ),
     )
     first: tuple[int, str, str] | None = None
     for name, bad, expected in checks:
@@ -668,7 +673,7 @@ def read(paths: Sequence[str | Path], *, recording_prefix: str = "highd", **_: A
         _concat(parts),
         track_table.TableMeta(FORMAT, recording_meta, [f for rec in recs for f in map(str, rec.paths)]),
     )
-    track_table.validate(table)
+    track_table.validate(table, source=", ".join(str(p) for p in paths))
     return table
 
 

@@ -457,6 +457,7 @@ def _check_values(path: Path, columns: dict[str, np.ndarray], names: Sequence[st
 EXACT_FLOAT_INT = 2**53  # integers read through float64 are exact only below this
 MAX_FRAME_ID = 2**62 // FRAME_NS  # time_ns = Frame_ID * 1e8 stays well inside int64
 INT32_MAX = 2**31 - 1
+FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
 def _checked_ranges(
@@ -493,6 +494,10 @@ def _checked_ranges(
         flag("v_length", ~(out["v_length"] > 0), "a length > 0 ft")
         flag("v_width", ~(out["v_width"] > 0), "a width > 0 ft")
         flag("v_vel", ~(out["v_vel"] >= 0), "a speed >= 0 ft/s")
+        for name in ("v_length", "v_width", "v_vel", "v_acc"):  # float32 in the table
+            flag(name, np.abs(out[name]) > FLOAT32_MAX / FEET, "a value within float32")
+        for name in ("local_x", "local_y"):  # the centre is the bumper moved by half a length
+            flag(name, np.abs(out[name]) > 1e300, "a position within ±1e300 ft")
     if not bad_rows:
         return out
     row, name, expected = min(bad_rows)
@@ -694,7 +699,7 @@ def _to_track_table(
     }
     meta = track_table.TableMeta(FORMAT, metas, files)
     table = track_table.build_table(columns, meta)
-    track_table.validate(table)
+    track_table.validate(table, source=", ".join(files))
     return table
 
 
