@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 import pytest
 import torch
-from test_train import synthetic_windows
+from conftest import synthetic_windows
 
 from lanecast.io_adapters.contracts.windows import TARGET_ROW, NormStats, normalise, save_windows
 from lanecast.models.ablation import (
@@ -75,6 +75,7 @@ def test_input_ablations_value_by_value() -> None:
     assert InputAblation().is_identity()
 
 
+@pytest.mark.slow
 def test_without_neighbourhood_trains_and_predicts_on_the_target_row_alone() -> None:
     windows = synthetic_windows(200, seed=3)
     variant = variants()["no_neighbourhood"]

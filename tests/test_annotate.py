@@ -14,9 +14,9 @@ import jsonschema
 import numpy as np
 import pyarrow as pa
 import pytest
+from conftest import S, assert_all_original_records_equal, forecasts_for, make_mcap, records
 from mcap.reader import make_reader
-from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader
+from mcap.records import Message
 from mcap.writer import Writer
 
 from lanecast.io_adapters.annotations import forecast_messages as fm
@@ -29,127 +29,6 @@ from lanecast.workflows.annotate_log import (
     forecast_times,
     log_kind,
 )
-
-S = 1_000_000_000
-
-
-# ------------------------------------------------------------------------------------ test inputs
-
-
-def make_mcap(
-    path: Path,
-    *,
-    n: int = 300,
-    profile: str = "",
-    json_only: bool = False,
-    payload: int = 16,
-    chunk_size: int = 2000,
-) -> Path:
-    """A real MCAP in log-time order: 2 schemas, 3 channels (one schemaless), n messages at 10 Hz
-    from t=0.05 s, one on every whole second (the forecast ticks), an attachment and a metadata record, several zstd chunks."""
-    with open(path, "wb") as f:
-        w = Writer(f, chunk_size=chunk_size)
-        w.start(profile=profile, library="test-writer")
-        s1 = w.register_schema("test.Pose", "jsonschema", b'{"type":"object"}')
-        s2 = w.register_schema("test.Blob", "jsonschema" if json_only else "protobuf", b"\x0a\x03abc")
-        c1 = w.register_channel("/pose", "json", s1, {"qos": "reliable"})
-        c2 = w.register_channel("/blob", "json" if json_only else "protobuf", s2)
-        c3 = w.register_channel("/raw", "json" if json_only else "cbor", 0)
-        rng = np.random.default_rng(0)
-        for i in range(n):
-            t = 50_000_000 + i * 100_000_000
-            if i % 10 == 0:
-                t_tick = i * 100_000_000  # exactly on the 1 s forecast ticks
-                w.add_message(c2, t_tick, rng.bytes(payload), t_tick, 0)
-            w.add_message(c1, t, json.dumps({"i": i, "pad": "x" * payload}).encode(), t - 7, i)
-            if i % 7 == 0:
-                w.add_message(c3, t, b'{"r":1}', t, 3)
-        w.add_attachment(11, 22, "calib.yaml", "application/yaml", b"k: 1\n")
-        w.add_metadata("drive", {"vehicle": "ego-7", "site": "A9"})
-        w.finish()
-    return path
-
-
-def forecasts_for(recording: str, t0_s: list[int], tracks: list[int], k: int = 2) -> pa.Table:
-    """Hand-made forecasts: target i at t0 starts at (10 t0 + i, 3.5 i), moves 10 m/s along x;
-    track 1 changes lane left (maneuver 0,0,1,1,1), others go straight; K alternatives offset in y."""
-    rows: dict[str, list] = {
-        c: [] for c in ("recording", "track_id", "t0_ns", "x", "y", "maneuver_probs", "maneuver")
-    }
-    extra: dict[str, list] = {
-        c: [] for c in ("origin_x", "origin_y", "alt_x", "alt_y", "alt_probs", "alt_maneuvers")
-    }
-    for t0 in t0_s:
-        for i in tracks:
-            ox, oy = 10.0 * t0 + i, 3.5 * i
-            left = i == 1
-            man = [0, 0, 1, 1, 1] if left else [0] * 5
-            probs = [[0.9, 0.05, 0.05] if m == 0 else [0.2, 0.7, 0.1] for m in man]
-            xs = [ox + 10.0 * h for h in range(1, 6)]
-            ys = [oy + (0.7 * h if left else 0.0) for h in range(1, 6)]
-            rows["recording"].append(recording)
-            rows["track_id"].append(i)
-            rows["t0_ns"].append(t0 * S)
-            rows["x"].append(xs)
-            rows["y"].append(ys)
-            rows["maneuver_probs"].append(probs)
-            rows["maneuver"].append(man)
-            extra["origin_x"].append(ox)
-            extra["origin_y"].append(oy)
-            extra["alt_x"].append([xs] * k)
-            extra["alt_y"].append([[y + 0.5 * (j + 1) for y in ys] for j in range(k)])
-            extra["alt_probs"].append([0.2 / (j + 1) for j in range(k)])
-            extra["alt_maneuvers"].append([[0, 2, 2, 2, 2]] * k)
-    return pa.table({**rows, **extra})
-
-
-def records(path: Path) -> dict[str, Any]:
-    """Every record of an MCAP by kind (schemas, channels by id; messages in file order)."""
-    out: dict[str, Any] = {
-        "schemas": {},
-        "channels": {},
-        "messages": [],
-        "attachments": [],
-        "metadata": [],
-    }
-    with open(path, "rb") as f:
-        for r in StreamReader(f, validate_crcs=True).records:
-            if isinstance(r, Header):
-                out["header"] = r
-            elif isinstance(r, Schema):
-                out["schemas"][r.id] = r
-            elif isinstance(r, Channel):
-                out["channels"][r.id] = r
-            elif isinstance(r, Message):
-                out["messages"].append(r)
-            elif isinstance(r, Attachment):
-                out["attachments"].append(r)
-            elif isinstance(r, Metadata):
-                out["metadata"].append(r)
-    return out
-
-
-def assert_all_original_records_equal(src: Path, dst: Path) -> tuple[dict[int, Channel], list[Message]]:
-    """Every original schema, channel (same id), message (bytes, times, sequence, order), attachment
-    and metadata record of ``src`` is in ``dst``; returns (dst channels, forecast messages)."""
-    a, b = records(src), records(dst)
-    assert b["header"].profile == a["header"].profile
-    for sid, schema in a["schemas"].items():
-        assert b["schemas"][sid] == schema
-    for cid, channel in a["channels"].items():
-        assert b["channels"][cid] == channel
-    original_ids = set(a["channels"])
-    copied = [m for m in b["messages"] if m.channel_id in original_ids]
-    assert copied == a["messages"]  # dataclass equality: channel, sequence, log/publish time, data bytes
-    assert b["attachments"] == a["attachments"]
-    assert b["metadata"] == a["metadata"]
-    added = [m for m in b["messages"] if m.channel_id not in original_ids]
-    times = [m.log_time for m in b["messages"]]
-    assert times == sorted(times)  # the input is in log-time order, so the merge must be too
-    return b["channels"], added
-
-
-# -------------------------------------------------------------------------------------------- MCAP
 
 
 def test_mcap_protobuf_copy_is_byte_for_byte_and_forecasts_decode(tmp_path: Path) -> None:

@@ -16,8 +16,8 @@ from pathlib import Path
 
 import pyarrow.parquet as pq
 import pytest
+from conftest import assert_all_original_records_equal, forecasts_for, make_mcap
 from mcap.reader import make_reader
-from test_annotate import assert_all_original_records_equal, forecasts_for, make_mcap
 
 from lanecast.workflows.annotate_log import AnnotateOptions
 from lanecast.workflows.bulk import Manifest, checksum, clean_temporaries, discover, plan_outputs, run_bulk
@@ -132,6 +132,7 @@ def test_manifest_survives_a_line_cut_short_and_temporaries_are_cleaned(tmp_path
     assert sorted(p.name for p in tmp_path.iterdir()) == ["keep.mcap", "manifest.jsonl"]
 
 
+@pytest.mark.slow
 def test_two_worker_processes_annotate_every_log_once(tmp_path: Path) -> None:
     logs, fc = make_fleet(tmp_path, 4, messages=40)
     out = tmp_path / "out"
@@ -154,19 +155,39 @@ def _cli(*args: str) -> list[str]:
     return [sys.executable, "-m", "lanecast.workflows.cli", "annotate", *args]
 
 
+# The real command, paused inside the copy of its third log until it is killed: the kill lands
+# mid-log at a known point (two logs done) instead of racing a poll against the run.
+_PAUSE_IN_THIRD_LOG = """
+import sys, time
+from pathlib import Path
+from lanecast.io_adapters.annotations import mcap_copy
+from lanecast.workflows.cli import main
+ready, copy_mcap, calls = Path(sys.argv[1]), mcap_copy.copy_mcap, []
+def pausing_copy(src, out, **kwargs):
+    calls.append(src)
+    if len(calls) == 3:
+        out.write(b"half a log")
+        ready.write_text(str(src))
+        time.sleep(600)
+    return copy_mcap(src, out, **kwargs)
+mcap_copy.copy_mcap = pausing_copy
+sys.exit(main(sys.argv[2:]))
+"""
+
+
+@pytest.mark.slow
 def test_sigkill_mid_run_then_rerun_annotates_every_log_exactly_once(tmp_path: Path) -> None:
     n = 8
-    logs, fc = make_fleet(tmp_path, n, messages=6000, payload=200)
+    logs, fc = make_fleet(tmp_path, n, messages=600, payload=200)
     out = tmp_path / "out"
     args = _cli(str(logs), "--out", str(out), "--forecasts", str(fc))
     env = {**os.environ, "PYTHONPATH": str(REPO)}
-    proc = subprocess.Popen(args, cwd=REPO, env=env, start_new_session=True, stderr=subprocess.PIPE)
-    manifest = out / "manifest.jsonl"
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline and proc.poll() is None:
-        if manifest.exists() and manifest.read_text().count("\n") >= 2:
-            break
-        time.sleep(0.01)
+    ready = tmp_path / "paused"
+    paused = [sys.executable, "-c", _PAUSE_IN_THIRD_LOG, str(ready), *args[3:]]
+    proc = subprocess.Popen(paused, cwd=REPO, env=env, start_new_session=True, stderr=subprocess.PIPE)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None and not ready.exists():
+        time.sleep(0.1)
     assert proc.poll() is None, "the run ended before it could be killed"
     os.killpg(proc.pid, signal.SIGKILL)
     proc.wait()
@@ -199,6 +220,7 @@ def test_bad_input_list_is_reported_clearly(tmp_path: Path) -> None:
     assert "nope: no such file or directory" in result.stderr and "Traceback" not in result.stderr
 
 
+@pytest.mark.slow
 def test_ray_engine_annotates_logs_on_a_local_ray(tmp_path: Path) -> None:
     pytest.importorskip("ray")
     logs, fc = make_fleet(tmp_path, 3, messages=30)

@@ -60,6 +60,7 @@ def test_model_means_the_same_everywhere(capsys: pytest.CaptureFixture[str]) -> 
         assert " ".join(MODEL_HELP.split()) in help_of(command, capsys)
 
 
+@pytest.mark.slow
 def test_a_closed_stdout_ends_quietly(tmp_path: Path) -> None:
     """`lanecast info … | head`: the reader is gone before lanecast writes; no traceback."""
     from lanecast.io_adapters.contracts import track_table

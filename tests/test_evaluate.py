@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_train import synthetic_windows
+from conftest import synthetic_windows
 
 from lanecast.io_adapters.contracts.track_table import RecordingMeta, TableMeta, build_table
 from lanecast.io_adapters.contracts.windows import save_windows, to_source_frame

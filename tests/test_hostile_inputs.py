@@ -133,6 +133,7 @@ def test_unreadable_input_and_read_only_output(tmp_path: Path, capsys: pytest.Ca
     assert_one_line_error(status, err, "convert", str(ro))
 
 
+@pytest.mark.slow
 def test_cli_subprocess_prints_no_traceback(tmp_path: Path) -> None:
     """End to end through the installed entry point: exit 2 and one line."""
     bad = tmp_path / "bad.mcap"
@@ -276,6 +277,7 @@ def test_protobuf_scene_update_wire_faults(tmp_path: Path, message: bytes, match
     assert err.value.path == str(path) and err.value.offset is not None
 
 
+@pytest.mark.slow
 def test_long_run_of_tiny_fields_is_read_in_bounded_work(tmp_path: Path) -> None:
     """1M two-byte unknown fields (valid protobuf): decoded by the scalar walk, no objects in it."""
     path = _protobuf_log(tmp_path / "tiny.mcap", b"\x18\x00" * 1_000_000)

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pyarrow as pa
 import pytest
+from conftest import make_track_table
 
-from lanecast.io_adapters.contracts.track_table import RecordingMeta, TableMeta, build_table, validate
 from lanecast.pipeline.labels import lane_changes, row_labels
 from lanecast.pipeline.make_windows import make_windows
 from lanecast.pipeline.neighbours import columns
@@ -27,7 +27,6 @@ def track_table(
     c, s = np.cos(rotate), np.sin(rotate)
     along = rotate + (np.arctan2(np.gradient(y, t), 30.0) if steer else np.zeros(n))
     cols = {
-        "recording": ["r"] * n,
         "track_id": np.full(n, 1),
         "frame": np.arange(n),
         "time_ns": np.rint(t * 1e9).astype(np.int64),
@@ -36,17 +35,9 @@ def track_table(
         "heading": along,
         "vx": np.full(n, 30.0 * c),
         "vy": np.full(n, 30.0 * s),
-        "ax": np.zeros(n),
-        "ay": np.zeros(n),
-        "length": np.full(n, 4.5),
-        "width": np.full(n, 1.8),
         "lane_id": lane,
-        "object_class": ["car"] * n,
     }
-    frame = "road" if rotate == 0.0 else "odom"
-    table = build_table(cols, TableMeta("test", {"r": RecordingMeta(rate, coordinate_frame=frame)}))
-    validate(table)
-    return table
+    return make_track_table(cols, rate=rate, coordinate_frame="road" if rotate == 0.0 else "odom")
 
 
 def change_at(

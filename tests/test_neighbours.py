@@ -9,12 +9,11 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 import pytest
+from conftest import LANE, SEVEN, SEVEN_EXPECTED, make_track_table
 
-from lanecast.io_adapters.contracts.track_table import RecordingMeta, TableMeta, build_table, validate
+from lanecast.io_adapters.contracts.track_table import RecordingMeta, TableMeta, build_table
 from lanecast.io_adapters.errors import TrackTableError
 from lanecast.pipeline import neighbours as nbm
-
-LANE = 3.75
 
 
 def scene(
@@ -61,25 +60,7 @@ def scene(
         "object_class": ["car"] * n,
     }
     cols.update(extra or {})
-    frame = "road" if rotate == 0.0 else "map"
-    table = build_table(cols, TableMeta("test", {"r": RecordingMeta(10.0, coordinate_frame=frame)}))
-    validate(table)
-    return table
-
-
-# target 1 in lane 2; lane 3 is on the left (+y), lane 1 on the right
-SEVEN = {
-    1: (2, 0.0),
-    2: (2, 30.0),
-    3: (3, 25.0),
-    4: (3, 0.5),
-    5: (3, -25.0),
-    6: (1, 25.0),
-    7: (1, -1.0),
-    8: (1, -25.0),
-}
-# slot order FL, F, FR, L, R, RL, RR
-SEVEN_EXPECTED = [3, 2, 6, 4, 7, 5, 8]
+    return make_track_table(cols, coordinate_frame="road" if rotate == 0.0 else "map")
 
 
 def ids_of(table: pa.Table, track: int, method: str = "auto") -> np.ndarray:

@@ -147,6 +147,7 @@ def test_empty_and_top_zero_predictions_have_the_torch_shapes() -> None:
             assert getattr(a, name).shape == getattr(b, name).shape, (n, k, name)
 
 
+@pytest.mark.slow
 def test_forecasting_with_onnx_runtime_never_imports_torch(sim_recording_dir: Path) -> None:
     code = (
         "import sys\n"

@@ -23,6 +23,7 @@ def annotated(sim_recording_dir: Path, tmp_path_factory: pytest.TempPathFactory)
     return log, work / "annotated"
 
 
+@pytest.mark.slow
 def test_report_scores_logged_forecasts_like_batch_prediction(
     annotated: tuple[Path, Path], tmp_path: Path
 ) -> None:
@@ -69,6 +70,7 @@ def test_report_refuses_a_log_without_forecasts(annotated: tuple[Path, Path], tm
     assert not (tmp_path / "r" / "metrics.json").exists()
 
 
+@pytest.mark.slow
 def test_demo_runs_the_whole_pipeline(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:

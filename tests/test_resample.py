@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pyarrow as pa
 import pytest
+from conftest import make_track_table
 
 from lanecast.io_adapters.contracts.track_table import (
     RecordingMeta,
@@ -23,12 +24,10 @@ def one_track(time_s: np.ndarray, rate: float, **values: np.ndarray | float) -> 
     """A one-track table sampled at ``time_s``; columns default to 0 (lane 2, length 4.5)."""
     n = time_s.size
     cols: dict[str, object] = {
-        "recording": ["r"] * n,
         "track_id": np.full(n, 7),
         "frame": np.arange(n),
         "time_ns": np.rint(time_s * 1e9).astype(np.int64),
         "lane_id": np.full(n, 2),
-        "object_class": ["car"] * n,
     }
     for name in COLUMNS:
         cols[name] = np.broadcast_to(np.asarray(values.get(name, 0.0), dtype=np.float64), (n,)).copy()
@@ -36,9 +35,7 @@ def one_track(time_s: np.ndarray, rate: float, **values: np.ndarray | float) -> 
     for name in ("lane_id", "preceding_id"):
         if name in values:
             cols[name] = values[name]
-    table = build_table(cols, TableMeta("test", {"r": RecordingMeta(rate)}))
-    validate(table)
-    return table
+    return make_track_table(cols, rate=rate)
 
 
 def col(table: pa.Table, name: str) -> np.ndarray:

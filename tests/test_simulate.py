@@ -194,6 +194,7 @@ def test_subscription_constants_are_tracis() -> None:
     assert (sumo_highway.VAR_LEADER, sumo_highway.VAR_FOLLOWER) == (tc.VAR_LEADER, tc.VAR_FOLLOWER)
 
 
+@pytest.mark.slow
 def test_same_seed_same_bytes_through_the_command(tmp_path: Path) -> None:
     """One run through the API, one through `lanecast simulate`: identical files; another seed differs."""
     args = {
@@ -266,6 +267,7 @@ def test_bad_parameters_raise_input_error(tmp_path: Path, kwargs: dict[str, obje
     assert not (tmp_path / "x").exists()
 
 
+@pytest.mark.slow
 def test_libsumo_imported_before_pyarrow_works(tmp_path: Path) -> None:
     """libsumo bundles libarrow 23 and warns about pyarrow 26; with libsumo loaded first, a simulation,
     the highD read and a Parquet write still work in one process (a fresh interpreter)."""

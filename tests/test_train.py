@@ -9,6 +9,7 @@ import numpy as np
 import pyarrow as pa
 import pytest
 import torch
+from conftest import synthetic_windows
 
 from lanecast.io_adapters.contracts.windows import Windows
 from lanecast.io_adapters.errors import InputError
@@ -27,60 +28,6 @@ from lanecast.models.train import (
     select_epoch,
     train,
 )
-
-LANE = 3.75
-HIST_T = (np.arange(30) - 29) * 0.1  # s, oldest → t0
-FUT_T = np.arange(1.0, 6.0)  # s
-
-
-def _lateral(t: np.ndarray, side: np.ndarray, tc: np.ndarray) -> np.ndarray:
-    """Lateral position [N, T] of a lane change of ``side`` (+1 left, -1 right, 0 none) centred at tc."""
-    s = 1.0 / (1.0 + np.exp(-(t[None, :] - tc[:, None]) / 0.5))
-    s0 = 1.0 / (1.0 + np.exp(tc[:, None] / 0.5))
-    return side[:, None] * LANE * (s - s0)
-
-
-def synthetic_windows(n: int = 600, seed: int = 0, lane_change_share: float = 0.4) -> Windows:
-    """Windows of straight and lane-changing targets at 20–35 m/s with a front vehicle F.
-
-    Lane changers (left or right, crossing the lane boundary 0.5–2.5 s after t0) follow a slower F,
-    straight drivers a faster one. Labels: every step within ±2 s of the crossing is the lane change.
-    Each window is its own track, split 70/10/20 by track id; origins and headings are random.
-    """
-    rng = np.random.default_rng(seed)
-    speed = rng.uniform(20, 35, n)
-    side = np.where(rng.random(n) < lane_change_share, rng.choice([-1.0, 1.0], n), 0.0)
-    tc = rng.uniform(0.5, 2.5, n)
-    inputs = np.zeros((n, 4, 8, 30), np.float32)
-    present = np.zeros((n, 8, 30), bool)
-    inputs[:, 0, 4] = speed[:, None] * HIST_T
-    inputs[:, 1, 4] = _lateral(HIST_T, side, tc)
-    inputs[:, 2, 4] = speed[:, None]
-    present[:, 4] = True
-    f_speed = speed + np.where(side != 0, -6.0, 3.0)
-    gap = rng.uniform(25, 40, n)
-    inputs[:, 0, 1] = gap[:, None] + f_speed[:, None] * HIST_T
-    inputs[:, 2, 1] = f_speed[:, None]
-    present[:, 1] = True
-    future = np.stack([speed[:, None] * FUT_T, _lateral(FUT_T, side, tc)], axis=-1).astype(np.float32)
-    near = np.abs(FUT_T[None, :] - tc[:, None]) <= 2.0
-    maneuver = np.where(near & (side[:, None] > 0), 1, np.where(near & (side[:, None] < 0), 2, 0)).astype(
-        np.int64
-    )
-    ids = np.arange(n)
-    split = np.where(ids % 10 < 7, "train", np.where(ids % 10 < 8, "val", "test"))
-    index = pa.table(
-        {
-            "recording": pa.array(np.where(ids < n // 2, "syn-a", "syn-b")),
-            "track_id": pa.array(ids, pa.int64()),
-            "t0_ns": pa.array(np.full(n, 3_000_000_000), pa.int64()),
-            "split": pa.array(split),
-            "origin_x": pa.array(rng.uniform(-500, 500, n)),
-            "origin_y": pa.array(rng.uniform(-500, 500, n)),
-            "origin_heading": pa.array(rng.uniform(-np.pi, np.pi, n)),
-        }
-    )
-    return Windows(inputs, present, future, maneuver, index, {"sources": ["synthetic"]})
 
 
 @pytest.fixture(scope="module")
@@ -146,6 +93,7 @@ def test_select_epoch_on_constructed_history() -> None:
     assert old.class_weight_power == 0.0 and old.select_classifier == "nll"
 
 
+@pytest.mark.slow
 def test_weighted_loss_and_macro_f1_selection(windows: Windows) -> None:
     cfg = TrainConfig(epochs=4, batch_size=32, lr=2e-3, seed=1, threads=1)
     plain = train(windows, cfg)
@@ -201,6 +149,7 @@ def test_labelled_skips_unknown_futures(windows: Windows) -> None:
     assert len(train_idx) == 420 - 2
 
 
+@pytest.mark.slow
 def test_training_reduces_both_losses(windows: Windows) -> None:
     result = train(windows, TrainConfig(epochs=6, batch_size=32, lr=2e-3, seed=1, threads=1))
     first, last = result.history[0], result.history[-1]
@@ -213,6 +162,7 @@ def test_training_reduces_both_losses(windows: Windows) -> None:
     assert count_parameters(result.model) == 65_721
 
 
+@pytest.mark.slow
 def test_overfits_a_few_windows(windows: Windows) -> None:
     few = Windows(
         windows.inputs[:6],

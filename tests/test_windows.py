@@ -10,13 +10,10 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 import pytest
+from conftest import LANE, ROW_OF_ID, SEVEN, straight, table_of
 
 from lanecast.io_adapters.contracts.track_table import (
-    RecordingMeta,
-    TableMeta,
-    build_table,
     concat,
-    validate,
     write_parquet,
 )
 from lanecast.io_adapters.contracts.windows import (
@@ -34,81 +31,6 @@ from lanecast.io_adapters.contracts.windows import (
 from lanecast.io_adapters.errors import InputError, TrackTableError
 from lanecast.pipeline.make_windows import make_windows
 from lanecast.workflows.cli import main as cli_main
-
-LANE = 3.75
-
-
-def table_of(
-    tracks: dict[int, dict[str, Any]], *, rotate: float = 0.0, rate: float = 10.0, recording: str = "r"
-) -> pa.Table:
-    """Tracks {id: {frame, x, y, lane, [vx, vy, ax, ay, heading, length]}} in a road frame (rotated
-    by ``rotate`` into a world frame if not 0)."""
-    parts: dict[str, list[np.ndarray]] = {}
-    c, s = np.cos(rotate), np.sin(rotate)
-    for tid, tr in tracks.items():
-        n = tr["frame"].size
-        vx = np.broadcast_to(tr.get("vx", 30.0), (n,)).astype(float)
-        vy = np.broadcast_to(tr.get("vy", 0.0), (n,)).astype(float)
-        ax = np.broadcast_to(tr.get("ax", 0.0), (n,)).astype(float)
-        ay = np.broadcast_to(tr.get("ay", 0.0), (n,)).astype(float)
-        values = {
-            "track_id": np.full(n, tid),
-            "frame": tr["frame"],
-            "time_ns": np.rint(tr["frame"] / rate * 1e9).astype(np.int64),
-            "x": c * tr["x"] - s * tr["y"],
-            "y": s * tr["x"] + c * tr["y"],
-            "heading": np.broadcast_to(tr.get("heading", 0.0), (n,)) + rotate,
-            "vx": c * vx - s * vy,
-            "vy": s * vx + c * vy,
-            "ax": c * ax - s * ay,
-            "ay": s * ax + c * ay,
-            "length": np.broadcast_to(tr.get("length", 4.5), (n,)).astype(float),
-            "width": np.full(n, 1.8),
-            "lane_id": tr["lane"].astype(float),
-        }
-        for k, v in values.items():
-            parts.setdefault(k, []).append(np.asarray(v))
-    cols: dict[str, object] = {k: np.concatenate(v) for k, v in parts.items()}
-    n_rows = len(cols["track_id"])  # type: ignore[arg-type]
-    cols["recording"] = [recording] * n_rows
-    cols["object_class"] = ["car"] * n_rows
-    frame = "road" if rotate == 0.0 else "map"
-    table = build_table(cols, TableMeta("test", {recording: RecordingMeta(rate, coordinate_frame=frame)}))
-    validate(table)
-    return table
-
-
-def straight(
-    tid_lane_dx: dict[int, tuple[int, float]], frames: np.ndarray, **per_id: dict[int, float]
-) -> dict[int, dict[str, Any]]:
-    """Vehicles at 30 m/s (3 m per frame) in lane k at y = (k - 2) * 3.75 starting dx ahead of 0."""
-    out = {}
-    for tid, (lane, dx) in tid_lane_dx.items():
-        tr = {
-            "frame": frames,
-            "x": dx + 3.0 * frames,
-            "y": np.full(frames.size, (lane - 2) * LANE),
-            "lane": np.full(frames.size, lane),
-        }
-        for name, values in per_id.items():
-            if tid in values:
-                tr[name] = np.full(frames.size, values[tid])
-        out[tid] = tr
-    return out
-
-
-# T = 1 in lane 2; lane 3 left (+y), lane 1 right. Row order FL, F, FR, L, T, R, RL, RR.
-SEVEN = {
-    1: (2, 0.0),
-    2: (2, 30.0),
-    3: (3, 25.0),
-    4: (3, 0.5),
-    5: (3, -25.0),
-    6: (1, 25.0),
-    7: (1, -1.0),
-    8: (1, -25.0),
-}
-ROW_OF_ID = {3: "FL", 2: "F", 6: "FR", 4: "L", 1: "T", 7: "R", 5: "RL", 8: "RR"}
 
 
 def test_seven_slots_every_value() -> None:
