@@ -22,6 +22,9 @@ Three ways, chosen per recording by :func:`neighbour_rows` (``method="auto"``):
 Everything is vectorised over rows and frames (sorting and searchsorted; the band method works on
 all pairs of vehicles in a frame, in chunks of frames). Results are row indices into the table
 (-1 = none) so that the window stage can gather with fancy indexing.
+
+Size: the three selection methods share the columns, the row index and the slot rules; a little
+over 500 lines.
 """
 
 from __future__ import annotations

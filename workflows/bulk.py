@@ -14,6 +14,10 @@ into place, so at any moment of a kill:
 Engines: ``local`` runs the per-log task in-process (1 worker) or in a ``ProcessPoolExecutor``;
 ``ray`` submits the same task as ``@ray.remote(max_retries=...)`` to ``--address`` or a local Ray.
 On a cluster, inputs and OUT_DIR must be on storage every node sees.
+
+Size: inputs, manifest, output-directory safety and the three engines of one bulk run; the
+manifest and engines are being reworked this wave (issues 12, 13, 14), after which the manifest
+is the natural module of its own.
 """
 
 from __future__ import annotations

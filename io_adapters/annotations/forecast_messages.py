@@ -19,6 +19,11 @@ Drawing: one entity per target (id = track id), a LINE_STRIP from the target's p
 the 5 predicted points, coloured by the maneuver it predicts — the first lane change in the predicted
 sequence, else straight: straight blue, left green, right orange, unknown (baselines) grey — and the top-K alternatives as
 fainter lines (alpha 0.35). Entity metadata holds the maneuver and the probabilities as JSON text.
+
+Size: one module because every encoding (protobuf, JSON, CDR, the prediction JSON) renders the same
+:class:`ForecastFrame` with the same colours and entity layout, and they are read side by side. The
+natural cut, one module per wire format beside the frame grouping, waits until this wave's other
+changes to it (issues 10, 11) have landed.
 """
 
 from __future__ import annotations

@@ -14,6 +14,9 @@ towards −x in the image) and ``highd-NN-lower`` (direction 2, towards +x), eac
 Parsing is vectorised (pyarrow.csv with explicit column types). Only after the fast parse or a
 check fails does a second, equally vectorised pass locate the offending line, so that every error
 names the file, the 1-based line (header = line 1), the column and what was expected.
+
+Size: one reader, most of it the line-exact diagnosis of bad files that the format needs
+(the line finder itself is shared: ``datasets/csv_errors.py``).
 """
 
 from __future__ import annotations

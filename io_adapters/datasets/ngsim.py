@@ -35,6 +35,10 @@ Integer columns are read as int64 (ids beyond 2^53 stay exact). Values that pars
 right are refused at their line and column: a Frame_ID whose time overflows, a Global_Time beyond
 2^53 or one that puts a stray row of a vehicle in another recording period, a size that is not
 positive, a negative speed, a Lane_ID outside int32.
+
+Size: one reader for NGSIM's two file forms, its four locations and its data repairs (repeated
+rows, mixed locations, heading flips), which are read together; the bad-line finder is shared
+(``datasets/csv_errors.py``).
 """
 
 from __future__ import annotations

@@ -29,6 +29,11 @@ Conventions of the logs lanecast writes (documented here, used by both writers):
   The MarkerArray companion: cube marker per object, id = track id, ``ns`` = lanecast's class
   string, ``text`` = ``lane_id=<n>`` (empty = null): this is where the lane and the exact class
   round-trip.
+
+Size: reading (decoders, transforms, :func:`assemble`) and the conventions of the logs lanecast
+writes (topics, metadata, frame groups) share the column helpers above; they stay together this
+wave while the hostile-input work (issue 13) edits both; the cut is the writing conventions into
+their own module.
 """
 
 from __future__ import annotations

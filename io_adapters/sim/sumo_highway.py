@@ -27,6 +27,10 @@ leader (follower) of that alongside vehicle. Ids of vehicles not in the section 
 ``dhw`` is the bumper-to-bumper gap to the preceding vehicle, ``thw = dhw / |xVelocity|``, ``ttc =
 dhw / closing speed`` (0 where undefined, as in highD); ``yAcceleration`` is the finite difference of
 ``yVelocity`` (SUMO's lateral speed), so it spikes at the start and end of a lane change.
+
+Size: the simulation (network, routes, the libsumo loop) and the conversion of its samples into
+highD's files are two halves; they stay in one file while the scenario work of this wave (issue 10)
+changes both; the cut is ``to_highd`` and its helpers into ``sim/to_highd.py``.
 """
 
 from __future__ import annotations
