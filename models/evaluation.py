@@ -74,28 +74,66 @@ def evaluate(
     return metrics, preds, idx
 
 
-def example_scenes(windows: Windows, idx: np.ndarray, pred: Predictions, count: int) -> list[Scene]:
-    """Up to ``count`` scenes: a correctly predicted left and right lane change, a straight window,
-    and the largest 5 s error (deterministic choices)."""
-    if count <= 0 or pred.maneuver is None or pred.probs is None:
+def _distinct_tracks(
+    candidates: np.ndarray, vehicle: np.ndarray, order_key: np.ndarray, count: int
+) -> list[int]:
+    """Up to ``count`` of ``candidates`` (indices) with the largest ``order_key``, one per vehicle."""
+    picked: list[int] = []
+    seen: set[int] = set()
+    for i in candidates[np.argsort(-order_key[candidates], kind="stable")]:
+        if int(vehicle[i]) not in seen:
+            picked.append(int(i))
+            seen.add(int(vehicle[i]))
+        if len(picked) == count:
+            break
+    return picked
+
+
+def example_scenes(
+    windows: Windows, idx: np.ndarray, pred: Predictions, count: int, *, failures: int = 6
+) -> list[Scene]:
+    """Scenes for the report (deterministic choices): up to ``count`` examples (a correctly predicted
+    left and right lane change, a straight window, the largest 5 s error), then a failure gallery of up
+    to ``failures`` scenes (kind "failure"): the largest errors at 5 s, false lane changes (a lane
+    change predicted in a window whose future is straight, most confident first) and missed ones
+    (a lane change in the future, straight predicted throughout), at most one scene per vehicle."""
+    if pred.maneuver is None or pred.probs is None or (count <= 0 and failures <= 0):
         return []
     true = np.asarray(windows.maneuver[idx])
     future = np.asarray(windows.future[idx])
     err5 = np.hypot(*(pred.offsets[:, -1] - future[:, -1]).T)
-    picks: list[tuple[str, int]] = []
+    picks: list[tuple[str, str, int]] = []
     for cls, label in ((1, "left lane change"), (2, "right lane change")):
         hit = np.flatnonzero(np.any(true == cls, axis=1) & np.any(pred.maneuver == cls, axis=1))
         if hit.size:
-            picks.append((f"{label}, predicted", int(hit[np.argmax(pred.probs[hit, :, cls].max(axis=1))])))
+            picks.append(
+                ("example", f"{label}, predicted", int(hit[np.argmax(pred.probs[hit, :, cls].max(axis=1))]))
+            )
     straight = np.flatnonzero(np.all(true == 0, axis=1))
     if straight.size:
-        picks.append(("straight driving", int(straight[straight.size // 2])))
-    picks.append(("largest error at 5 s", int(np.argmax(err5))))
+        picks.append(("example", "straight driving", int(straight[straight.size // 2])))
+    picks.append(("example", "largest error at 5 s", int(np.argmax(err5))))
+    picks = picks[: max(count, 0)]
+    if failures > 0:
+        vehicle = vehicle_ids(windows.index.take(idx))
+        lane_change_prob = 1.0 - pred.probs[:, :, 0].min(axis=1)  # the most confident lane-change step
+        false_change = np.flatnonzero(np.all(true == 0, axis=1) & np.any(pred.maneuver > 0, axis=1))
+        missed = np.flatnonzero(np.any(true > 0, axis=1) & np.all(pred.maneuver == 0, axis=1))
+        n_false = min(2, failures // 3) if false_change.size else 0
+        n_missed = min(1, failures // 3) if missed.size else 0
+        for i in _distinct_tracks(false_change, vehicle, lane_change_prob, n_false):
+            picks.append(("failure", "false lane change", i))
+        for i in _distinct_tracks(missed, vehicle, err5, n_missed):
+            picks.append(("failure", "missed lane change", i))
+        shown = {i for _, _, i in picks}
+        rest = np.setdiff1d(np.arange(len(idx)), list(shown))
+        for i in _distinct_tracks(rest, vehicle, err5, failures - n_false - n_missed):
+            picks.append(("failure", "large error at 5 s", i))
     scenes = []
     rec = windows.index.column("recording").to_numpy(zero_copy_only=False)
     tid = windows.index.column("track_id").to_numpy()
     t0 = windows.index.column("t0_ns").to_numpy()
-    for title, i in picks[:count]:
+    for kind, title, i in picks:
         w = int(idx[i])
         scenes.append(
             Scene(
@@ -107,6 +145,9 @@ def example_scenes(windows: Windows, idx: np.ndarray, pred: Predictions, count: 
                 maneuver=pred.maneuver[i],
                 alternatives=pred.top_offsets[i],
                 alt_probs=pred.top_probs[i],
+                probs=pred.probs[i],
+                alt_maneuvers=None if pred.top_sequences is None else pred.top_sequences[i],
+                kind=kind,
             )
         )
     return scenes

@@ -21,6 +21,7 @@ from mcap.writer import Writer
 
 from lanecast.io_adapters.annotations import forecast_messages as fm
 from lanecast.io_adapters.contracts.track_table import RecordingMeta, TableMeta, build_table
+from lanecast.io_adapters.contracts.windows import MANEUVER_COLOURS, UNKNOWN_COLOUR
 from lanecast.io_adapters.errors import LogError
 from lanecast.workflows.annotate_log import (
     AnnotateOptions,
@@ -71,15 +72,15 @@ def test_mcap_protobuf_copy_is_byte_for_byte_and_forecasts_decode(tmp_path: Path
         [(21, 3.5, 0), (31, 4.2, 0), (41, 4.9, 0), (51, 5.6, 0), (61, 6.3, 0), (71, 7.0, 0)],
     )
     assert (main.color.r, main.color.g, main.color.b, main.color.a) == pytest.approx(
-        (0.1, 0.8, 0.25, 1.0)
-    )  # left: green
+        (*MANEUVER_COLOURS[1], 1.0)
+    )  # left: blue, as in the reports
     e2_main = scene.entities[1].lines[0]
     assert (e2_main.color.r, e2_main.color.g, e2_main.color.b) == pytest.approx(
-        (0.2, 0.55, 1.0)
-    )  # straight: blue
+        MANEUVER_COLOURS[0]
+    )  # straight: grey
     alt = e1.lines[1]
     assert (alt.color.r, alt.color.g, alt.color.b, alt.color.a) == pytest.approx(
-        (1.0, 0.45, 0.1, 0.35)
+        (*MANEUVER_COLOURS[2], 0.35)
     )  # right, faint
     assert [p.y for p in alt.points] == pytest.approx([3.5, 4.7, 5.4, 6.1, 6.8, 7.5])
     meta = {kv.key: kv.value for kv in e1.metadata}
@@ -165,7 +166,7 @@ def test_ros2_profile_mcap_stays_a_ros2_log_with_cdr_scene_updates(tmp_path: Pat
     e = scene_b.entities[0]
     assert (e.id, e.frame_id, e.timestamp.sec, e.timestamp.nanosec) == ("1", "map", 4, 0)
     assert [(p.x, p.y) for p in e.lines[0].points][:2] == [(41.0, 3.5), (51.0, 4.2)]
-    assert (e.lines[0].color.g, e.lines[0].type) == (pytest.approx(0.8), 0)
+    assert (e.lines[0].color.g, e.lines[0].type) == (pytest.approx(MANEUVER_COLOURS[1][1]), 0)  # left: blue
     pred = json.loads(by_topic[fm.PREDICTION_TOPIC][1][1].data)
     assert pred["t0_ns"] == 4 * S and pred["targets"][1]["track_id"] == 2
 
@@ -439,7 +440,9 @@ def test_bags_written_by_lanecast_are_annotated_end_to_end(tmp_path: Path, fmt: 
         assert not (tmp_path / "twice.mcap").exists()
 
 
-def test_baseline_forecasts_without_maneuvers_are_drawn_grey_with_null_probabilities() -> None:
+def test_baseline_forecasts_without_maneuvers_are_drawn_in_the_unknown_colour_with_null_probabilities() -> (
+    None
+):
     fc = forecasts_for("r", [4], [1, 2], k=1)
     nulls5 = pa.nulls(2, pa.list_(pa.int8()))
     fc = fc.set_column(fc.schema.get_field_index("maneuver"), "maneuver", nulls5)
@@ -456,7 +459,7 @@ def test_baseline_forecasts_without_maneuvers_are_drawn_grey_with_null_probabili
     assert [t["maneuver_probs"] for t in pred["targets"]] == [None, None]
     assert pred["targets"][0]["maneuver"] == [-1] * 5
     main = scene["entities"][0]["lines"][0]
-    assert main["color"] == {"r": 0.6, "g": 0.6, "b": 0.6, "a": 1.0}
+    assert main["color"] == dict(zip("rgba", (*UNKNOWN_COLOUR, 1.0), strict=True))
     meta = {kv["key"]: kv["value"] for kv in scene["entities"][0]["metadata"]}
     assert (meta["maneuver"], meta["maneuver_probs"]) == ("unknown", "null")
     assert scene["entities"][0]["frame_id"] == "odom"

@@ -83,6 +83,11 @@ def test_demo_runs_the_whole_pipeline(
     assert f"{out / 'report' / 'report.html'}" in printed
     metrics = json.loads((out / "report" / "metrics.json").read_text())
     assert metrics["meta"]["forecasts_scored"] > 100
+    page = (out / "report" / "report.html").read_text()
+    assert "href='logs/highway/report.html'" in page  # each log's page is linked
+    assert (out / "report" / "logs" / "highway" / "report.html").is_file()
+    assert "ST-CNN (maneuver-based)" in page and "constant velocity" in page and '{"' not in page
+    assert set(metrics["stcnn"]["per_recording"]) == {"highway"}  # one row per log
     # Forecasts are in the annotated log, the original log is untouched and still readable.
     assert report_topics(out / "annotated" / "highway.mcap") >= {"/lanecast/forecast", "/lanecast/prediction"}
     assert registry.read_any([out / "logs" / "highway.mcap"]).num_rows > 0

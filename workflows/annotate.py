@@ -23,8 +23,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         description=(
             "For each log: read its tracks, forecast every vehicle with 3 s of history every --every seconds, and "
             "write a new log into OUT_DIR with every original record copied byte for byte plus /lanecast/forecast "
-            "(foxglove.SceneUpdate: a line per target coloured by maneuver — straight blue, left green, right "
-            "orange — top-K alternatives fainter) and /lanecast/prediction (JSON), merged in log time. ROS 2 logs "
+            "(foxglove.SceneUpdate: a line per target coloured by maneuver — straight grey, left blue, right "
+            "orange, as in the reports — top-K alternatives fainter) and /lanecast/prediction (JSON), merged in log time. ROS 2 logs "
             "stay ROS 2 (foxglove_msgs/msg/SceneUpdate in CDR); ROS 1 bags become MCAP. OUT_DIR/manifest.jsonl "
             "records every log; a rerun skips what is done and retries what failed."
         ),

@@ -29,7 +29,7 @@ from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import progress
 from lanecast.models.baselines import constant_acceleration, constant_velocity
 from lanecast.models.evaluation import write_metrics
-from lanecast.models.metrics import summary
+from lanecast.models.metrics import accuracy, confusion_matrix, macro_f1, summary
 from lanecast.models.report import Scene, write_report
 from lanecast.pipeline.make_windows import make_windows
 from lanecast.workflows.bulk import Manifest, discover
@@ -212,6 +212,8 @@ def metrics_of(parts: list[dict[str, Any]]) -> dict[str, Any]:
     vehicle = vehicle.reshape(-1).astype(np.int64)
     has_candidates = all(p["candidates"] is not None for p in parts)
     has_maneuver = all(p["maneuver_pred"] is not None for p in parts)
+    probs = cat("probs")
+    log_name = np.concatenate([np.full(len(p["future"]), p["log"].stem, dtype=object) for p in parts])
     out = {
         "stcnn": summary(
             cat("offsets"),
@@ -220,11 +222,26 @@ def metrics_of(parts: list[dict[str, Any]]) -> dict[str, Any]:
             vehicle,
             candidates=cat("candidates") if has_candidates else None,
             predicted_maneuver=cat("maneuver_pred") if has_maneuver else None,
+            probs=probs if has_maneuver and np.isfinite(probs).all() else None,
+            recording=log_name,
         )
     }
     for name in parts[0]["baselines"]:
-        out[name] = summary(np.concatenate([p["baselines"][name] for p in parts]), future, maneuver, vehicle)
+        out[name] = summary(
+            np.concatenate([p["baselines"][name] for p in parts]),
+            future,
+            maneuver,
+            vehicle,
+            recording=log_name,
+        )
     return out
+
+
+def always_straight_of(parts: list[dict[str, Any]]) -> dict[str, float]:
+    """Accuracy and macro-F1 of always predicting straight on the scored forecasts of ``parts``."""
+    true = np.concatenate([p["maneuver"] for p in parts])
+    conf = confusion_matrix(true, np.zeros_like(true))
+    return {"maneuver_accuracy": accuracy(conf), "maneuver_macro_f1": macro_f1(conf)}
 
 
 def example_scenes(parts: list[dict[str, Any]], count: int) -> list[Scene]:
@@ -252,6 +269,7 @@ def example_scenes(parts: list[dict[str, Any]], count: int) -> list[Scene]:
                     maneuver=p["maneuver_pred"][i],
                     alternatives=cand,
                     alt_probs=p["alt_probs"][i] if p["candidates"] is not None else np.full(1, np.nan),
+                    probs=p["probs"][i] if np.isfinite(p["probs"][i]).all() else None,
                 )
             )
         if len(scenes) >= count:
@@ -259,11 +277,19 @@ def example_scenes(parts: list[dict[str, Any]], count: int) -> list[Scene]:
     return scenes[:count]
 
 
-def write(directory: Path, metrics: dict[str, Any], meta: dict[str, Any], scenes: list[Scene]) -> Path:
+def write(
+    directory: Path,
+    metrics: dict[str, Any],
+    meta: dict[str, Any],
+    scenes: list[Scene],
+    *,
+    title: str = "lanecast report of annotated logs",
+    links: list[tuple[str, str]] | None = None,
+) -> Path:
     """metrics.json, report.md and report.html in ``directory``; returns the HTML's path."""
     directory.mkdir(parents=True, exist_ok=True)
     write_metrics(directory / "metrics.json", metrics, meta)
-    _, html = write_report(directory, metrics, meta, scenes)
+    _, html = write_report(directory, metrics, meta, scenes, title=title, links=links or [])
     return html
 
 
@@ -273,7 +299,9 @@ def report_logs(paths: list[Path], out: Path, *, topic: str | None = None, examp
     Returns 0, or 1 when some log could not be scored (it is named; the others are reported).
     """
     logs = annotated_logs(paths)
-    parts, failed = [], []
+    parts: list[dict[str, Any]] = []
+    failed: list[str] = []
+    links: list[tuple[str, str]] = []
     for log in progress(logs, desc="report", total=len(logs), unit="log"):
         try:
             part = score_log(log, topic)
@@ -284,8 +312,23 @@ def report_logs(paths: list[Path], out: Path, *, topic: str | None = None, examp
             failed.append(f"{log}: no forecast has its 5 s future in the log")
             continue
         parts.append(part)
-        meta = {"log": str(log), "forecasts": part["n_forecasts"], "scored": len(part["future"])}
-        write(out / "logs" / log.stem, metrics_of([part]), meta, [])
+        meta = {
+            "log": str(log),
+            "forecasts": part["n_forecasts"],
+            "scored": len(part["future"]),
+            "always_straight": always_straight_of([part]),
+        }
+        page = write(
+            out / "logs" / log.stem,
+            metrics_of([part]),
+            meta,
+            example_scenes([part], examples),
+            title=f"lanecast report: {log.name}",
+            links=[("all logs", "../../report.html")],
+        )
+        links.append(
+            (f"{log.name}: {len(part['future']):,} forecasts scored", page.relative_to(out).as_posix())
+        )
     for line in failed:
         print(f"skipped {line}")
     if not parts:
@@ -296,9 +339,9 @@ def report_logs(paths: list[Path], out: Path, *, topic: str | None = None, examp
         "forecasts_scored": int(sum(len(p["future"]) for p in parts)),
         "forecasts_in_logs": int(sum(p["n_forecasts"] for p in parts)),
         "ground_truth": "each target's recorded position at t0 + 1..5 s, in its window frame",
-        "rmse": "per forecast (window); rmse_per_vehicle averages each vehicle's squared errors first",
+        "always_straight": always_straight_of(parts),
     }
-    html = write(out, metrics, meta, example_scenes(parts, examples))
+    html = write(out, metrics, meta, example_scenes(parts, examples), links=links)
     m = metrics["stcnn"]
     rmse = " ".join(f"{v:.2f}" if v is not None else "-" for v in m["rmse"])
     cv = " ".join(f"{v:.2f}" if v is not None else "-" for v in metrics["cv"]["rmse"])

@@ -17,7 +17,8 @@ logs it is a ``std_msgs/msg/String`` whose ``data`` is that same JSON text.
 
 Drawing: one entity per target (id = track id), a LINE_STRIP from the target's position at t0 through
 the 5 predicted points, coloured by the maneuver it predicts — the first lane change in the predicted
-sequence, else straight: straight blue, left green, right orange, unknown (baselines) grey — and the top-K alternatives as
+sequence, else straight: straight grey, left blue, right orange, unknown (baselines) purple, the colours
+of the reports (``MANEUVER_COLOURS`` of the windows contract) — and the top-K alternatives as
 fainter lines (alpha 0.35). Entity metadata holds the maneuver and the probabilities as JSON text.
 
 Size: one module because every encoding (protobuf, JSON, CDR, the prediction JSON) renders the same
@@ -41,7 +42,7 @@ import pyarrow.compute as pc
 
 from lanecast.io_adapters.annotations import byte_rows as br
 from lanecast.io_adapters.annotations.byte_rows import ByteRows
-from lanecast.io_adapters.contracts.windows import MANEUVERS
+from lanecast.io_adapters.contracts.windows import MANEUVER_COLOURS, MANEUVERS, UNKNOWN_COLOUR
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.logs.mcap_writer import scene_update_jsonschema
 
@@ -51,10 +52,8 @@ Encoding = Literal["protobuf", "json", "cdr"]
 ENCODINGS: tuple[str, ...] = ("protobuf", "json", "cdr")
 
 LABELS: tuple[str, ...] = (*MANEUVERS, "unknown")  # maneuver names by index; index -1: unknown
-# RGB per maneuver index: straight blue, left green, right orange.
-COLOURS: np.ndarray = np.array(
-    [[0.20, 0.55, 1.00], [0.10, 0.80, 0.25], [1.00, 0.45, 0.10], [0.60, 0.60, 0.60]]
-)  # straight blue, left green, right orange, unknown (index -1) grey
+#: RGB per maneuver index (the windows contract's colours, as in the reports); index -1: unknown.
+COLOURS: np.ndarray = np.array([*MANEUVER_COLOURS, UNKNOWN_COLOUR])
 MAIN_ALPHA = 1.0
 ALT_ALPHA = 0.35
 LINE_THICKNESS_M = 0.3

@@ -41,6 +41,16 @@ HORIZONS = 5  # future steps, 1 s apart
 HORIZON_S: tuple[float, ...] = tuple(float(step) for step in range(1, HORIZONS + 1))
 #: Maneuver classes, by label index.
 MANEUVERS: tuple[str, ...] = ("straight", "left", "right")
+#: One colour per maneuver (RGB 0–1), shared by every picture lanecast draws: the report's scenes and
+#: the Foxglove annotations (``/lanecast/forecast``). Straight grey, left blue (as in the paper's
+#: figures), right orange (Okabe–Ito, readable by colour-blind viewers, on white and on Foxglove's
+#: dark background); UNKNOWN_COLOUR for forecasters without a classifier (the kinematic baselines).
+MANEUVER_COLOURS: tuple[tuple[float, float, float], ...] = (
+    (0.45, 0.45, 0.45),
+    (0.0, 0.45, 0.70),
+    (0.90, 0.62, 0.0),
+)
+UNKNOWN_COLOUR: tuple[float, float, float] = (0.80, 0.47, 0.65)
 SPLITS: tuple[str, ...] = ("train", "val", "test", "none")
 
 INDEX_SCHEMA = pa.schema(
