@@ -110,7 +110,7 @@ def deviations(config: Any) -> list[str]:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--work", type=Path, default=Path("/tmp/lanecast-shipped"))
-    ap.add_argument("--out", type=Path, default=ROOT / "lanecast.models" / "weights")
+    ap.add_argument("--out", type=Path, default=ROOT / "models" / "weights")
     ap.add_argument("--epochs", type=int, default=30)
     ap.add_argument("--batch-size", type=int, default=256)
     ap.add_argument("--lr", type=float, default=1e-3)

@@ -136,7 +136,7 @@ def _json_encoder(frame_id: str, rs: RowStrings) -> Callable[[np.ndarray], bytes
             "lines": [],
             "triangles": [],
             "texts": [],
-            "lanecast.models": [],
+            "models": [],
         }
 
     def encode(rows: np.ndarray) -> bytes:
