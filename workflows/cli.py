@@ -27,6 +27,7 @@ COMMANDS = (
     "evaluate",
     "export",
     "ablate",
+    "explain",
     "annotate",
     "report",
 )

@@ -1,0 +1,112 @@
+"""`lanecast explain` on the hand-built seven-neighbour scene: a removal zeroes exactly its slot, the
+full-scene forecast is batch prediction's, every what-if is forecast and ranked, bad requests are refused."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import SEVEN, straight, table_of
+
+from lanecast.io_adapters.contracts.track_table import write_parquet
+from lanecast.io_adapters.contracts.windows import ROWS, TARGET_ROW
+from lanecast.io_adapters.errors import InputError
+from lanecast.models.explain import NEIGHBOURS, parse_removals, present_neighbours, remove_rows, what_if
+from lanecast.models.predict import STCNNForecaster
+from lanecast.pipeline.make_windows import make_windows
+from lanecast.workflows.cli import main
+
+
+@pytest.fixture(scope="module")
+def scene_table() -> object:
+    """T (track 1) in the middle lane with a vehicle in each of the seven slots; F slower than T."""
+    frames = np.arange(80)
+    return table_of(straight(SEVEN, frames, vx={2: 24.0}))
+
+
+@pytest.fixture(scope="module")
+def forecaster() -> STCNNForecaster:
+    return STCNNForecaster.load(None)
+
+
+def target_window(table: object) -> tuple[np.ndarray, np.ndarray, int, object]:
+    w = make_windows(table, require_future=False, split="none")  # type: ignore[arg-type]
+    i = int(np.flatnonzero(w.index.column("track_id").to_numpy() == 1)[0])
+    return np.asarray(w.inputs[i]), np.asarray(w.present[i]), i, w
+
+
+def test_removing_a_neighbour_zeroes_exactly_its_slot(scene_table: object) -> None:
+    inputs, present, _, _ = target_window(scene_table)
+    assert present_neighbours(present) == list(NEIGHBOURS)  # all seven slots occupied
+    for name in NEIGHBOURS:
+        row = ROWS.index(name)
+        cut_inputs, cut_present = remove_rows(inputs, present, [row])
+        assert not cut_inputs[:, row].any() and not cut_present[row].any()
+        others = [r for r in range(8) if r != row]
+        np.testing.assert_array_equal(cut_inputs[:, others], inputs[:, others])
+        np.testing.assert_array_equal(cut_present[others], present[others])
+    assert present[ROWS.index("F")].all() and inputs[:, ROWS.index("F")].any()  # the input was not touched
+
+
+def test_full_scene_equals_batch_prediction(scene_table: object, forecaster: STCNNForecaster) -> None:
+    inputs, present, i, w = target_window(scene_table)
+    batch = forecaster.predict(w.inputs, w.present)  # type: ignore[attr-defined]
+    result = what_if(forecaster, inputs, present, [("F",), ("RL",), ("FL", "F")])
+    p = result.predictions
+    assert result.names == ["full scene", "without F", "without RL", "without FL + F"]
+    np.testing.assert_allclose(p.offsets[0], batch.offsets[i], atol=1e-5)
+    np.testing.assert_allclose(p.probs[0], batch.probs[i], atol=1e-6)  # type: ignore[index]
+    # each what-if is the batch prediction of the window with those rows removed
+    alone = forecaster.predict(
+        *[a[None] for a in remove_rows(inputs, present, [ROWS.index("FL"), ROWS.index("F")])]
+    )
+    np.testing.assert_allclose(p.offsets[3], alone.offsets[0], atol=1e-5)
+    assert not result.inputs[3][:, [ROWS.index("FL"), ROWS.index("F")]].any()
+    effects = result.effects()
+    shift = np.hypot(*(p.offsets[1] - p.offsets[0]).T)
+    assert effects[0]["shift_m"] == pytest.approx(shift.tolist(), abs=1e-4)
+    assert effects[0]["max_probability_change"] == pytest.approx(
+        float(np.abs(p.probs[1] - p.probs[0]).max()), abs=1e-4
+    )  # type: ignore[index]
+    ranked = [effects[s - 1]["mean_shift_m"] for s in result.rank()]
+    assert ranked == sorted(ranked, reverse=True)
+
+
+def test_parse_removals_refuses_what_is_not_there(scene_table: object) -> None:
+    inputs, present, _, _ = target_window(scene_table)
+    assert parse_removals("f, rl,FL+F", present) == [("F",), ("RL",), ("FL", "F")]
+    with pytest.raises(InputError, match="no neighbour slot 'T'"):
+        parse_removals("T", present)
+    _, no_f = remove_rows(inputs, present, [ROWS.index("F")])
+    with pytest.raises(InputError, match="slot F is empty"):
+        parse_removals("F", no_f)
+    assert TARGET_ROW == ROWS.index("T")
+
+
+def test_cli_all_ranks_every_neighbour(
+    scene_table: object, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    table_path = write_parquet(scene_table, tmp_path / "scene.parquet")  # type: ignore[arg-type]
+    out = tmp_path / "explain"
+    assert (
+        main(["explain", str(table_path), "--track", "1", "--time", "2.9", "--all", "--out", str(out)]) == 0
+    )
+    doc = json.loads((out / "explain.json").read_text())
+    assert doc["window"]["track_id"] == 1 and doc["window"]["t0_s"] == pytest.approx(2.9)
+    assert [s["name"] for s in doc["scenarios"]] == ["full scene", *(f"without {n}" for n in NEIGHBOURS)]
+    assert sorted(doc["ranking"]) == sorted(f"without {n}" for n in NEIGHBOURS)
+    shifts = {e["scenario"]: e["mean_shift_m"] for e in doc["effects"]}
+    assert [shifts[name] for name in doc["ranking"]] == sorted(shifts.values(), reverse=True)
+    page = (out / "explain.html").read_text()
+    assert "without RR" in page and "most influential first" in page
+    assert len(list(out.glob("scene_*.png"))) == 8
+    assert "most influential first" in capsys.readouterr().out
+    # the same window from the windows dataset gives the same full-scene forecast
+    argv = ["explain", str(table_path), "--track", "1", "--time", "2.9", "--out", str(tmp_path / "x")]
+    assert main([*argv, "--remove", "F+RL"]) == 0
+    again = json.loads((tmp_path / "x" / "explain.json").read_text())
+    assert again["scenarios"][0] == doc["scenarios"][0] and again["scenarios"][1]["removed"] == ["F", "RL"]
+    assert main([*argv, "--remove", "X"]) == 2
+    assert main([*argv[:4], "--time", "0.5", "--out", str(tmp_path / "y")]) == 2  # no 3 s of history yet
