@@ -32,7 +32,7 @@ from lanecast.io_adapters.errors import InputError
 from lanecast.pipeline import labels as labels_mod
 from lanecast.pipeline import neighbours as nb_mod
 from lanecast.pipeline import window_tensors as wt
-from lanecast.pipeline.resample import GAP_FACTOR, RATE_HZ, resample, step_ns
+from lanecast.pipeline.resample import GAP_FACTOR, RATE_HZ, resample_with_physics, step_ns
 from lanecast.pipeline.splits import (
     SPLIT_METHODS,
     hash_unit_codes,
@@ -260,10 +260,11 @@ def _prepare(
     """resample -> neighbours -> labels -> window rows for one group of recordings."""
     timings: dict[str, float] = {}
     t = time.perf_counter()
-    table10 = resample(table, RATE_HZ, GAP_FACTOR, meta=meta)
+    table10, physics = resample_with_physics(table, RATE_HZ, GAP_FACTOR, meta=meta)
     timings["resample_s"] = time.perf_counter() - t
     t = time.perf_counter()
-    cols = nb_mod.columns(table10, meta=meta)  # resampling changes rates, not coordinate frames
+    # resampling changes rates, not coordinate frames; its float64 results are used as computed
+    cols = nb_mod.columns(table10, meta=meta, physics=physics)
     nb = nb_mod.neighbour_rows(
         table10, cols, method=neighbours, lane_width=lane_width, max_range_m=neighbour_range
     )

@@ -29,6 +29,7 @@ over 500 lines.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -89,14 +90,22 @@ class Columns:
         return int(self.track.size)
 
 
-def columns(table: pa.Table, *, meta: track_table.TableMeta | None = None) -> Columns:
+def columns(
+    table: pa.Table,
+    *,
+    meta: track_table.TableMeta | None = None,
+    physics: Mapping[str, np.ndarray] | None = None,
+) -> Columns:
     """Pull the stage columns out of a (sorted, validated) track table (``meta``: its metadata when
-    the caller has parsed it already)."""
+    the caller has parsed it already; ``physics``: float64 columns [n] already at hand, e.g. as
+    resampling computed them, taken instead of the table's own)."""
     meta = meta or track_table.read_meta(table)
     names, rec = track_table.recording_codes(table)
     lane_col = table.column("lane_id")
 
     def f64(name: str) -> np.ndarray:
+        if physics is not None and name in physics:
+            return np.asarray(physics[name], dtype=np.float64)
         return table.column(name).to_numpy().astype(np.float64)
 
     return Columns(

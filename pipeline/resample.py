@@ -98,6 +98,19 @@ def resample(
     each recording's ``extra["native_frame_rate"]``. ``meta``: the table's metadata when the caller
     has parsed it already.
     """
+    return resample_with_physics(table, rate_hz, gap_factor, meta=meta)[0]
+
+
+def resample_with_physics(
+    table: pa.Table,
+    rate_hz: float = RATE_HZ,
+    gap_factor: float = GAP_FACTOR,
+    *,
+    meta: track_table.TableMeta | None = None,
+) -> tuple[pa.Table, dict[str, np.ndarray]]:
+    """:func:`resample`, and its interpolated physical columns as computed (float64 [m] each: x, y,
+    heading, vx, vy, ax, ay, length, width), so that the stages use them directly instead of reading
+    them back from the table's float32 columns."""
     meta = meta or track_table.read_meta(table)
     step = step_ns(rate_hz)
     uniq, rec_code = track_table.recording_codes(table)
@@ -117,16 +130,17 @@ def resample(
         k, j, w = resample_indices(time_ns, seg_start, step)
     j1 = np.minimum(j + 1, max(table.num_rows - 1, 0))
     out = table.take(pa.array(j, pa.int64()))
+    physics: dict[str, np.ndarray] = {}
+    for name in _LINEAR:
+        v = table.column(name).to_numpy().astype(np.float64)
+        physics[name] = v[j] + w * (v[j1] - v[j]) if v.size else v[j]
+    h = table.column("heading").to_numpy().astype(np.float64)
+    physics["heading"] = wrap_angle(h[j] + w * wrap_angle(h[j1] - h[j])) if h.size else h[j]
     columns = {
         "frame": pa.array(k, pa.int64()),
         "time_ns": pa.array(k * step, pa.int64()),
+        **{name: pa.array(values) for name, values in physics.items()},
     }
-    for name in _LINEAR:
-        v = table.column(name).to_numpy().astype(np.float64)
-        columns[name] = pa.array(v[j] + w * (v[j1] - v[j]) if v.size else v[j])
-    h = table.column("heading").to_numpy().astype(np.float64)
-    if h.size:
-        columns["heading"] = pa.array(wrap_angle(h[j] + w * wrap_angle(h[j1] - h[j])))
     for name, values in columns.items():
         i = out.schema.get_field_index(name)
         f = out.schema.field(i)
@@ -140,4 +154,4 @@ def resample(
         for name, rec in meta.recordings.items()
     }
     new_meta = replace(meta, recordings=recordings)
-    return out.replace_schema_metadata({track_table.META_KEY: new_meta.to_json().encode()})
+    return out.replace_schema_metadata({track_table.META_KEY: new_meta.to_json().encode()}), physics
