@@ -125,23 +125,32 @@ def check_card_fields(card: dict[str, Any]) -> None:
     inputs = jf.get(norm, "inputs", "normalisation", "object")
     for key in ("mean", "std"):
         values = jf.get(inputs, key, "normalisation.inputs", "number_list")
-        if len(values) != 4 or (key == "std" and not all(v > 0 for v in values)):
-            raise jf.FieldError(
-                f"normalisation.inputs.{key}",
-                f"{values}",
-                "4 finite numbers" + (" > 0" if key == "std" else ""),
-            )
+        if len(values) != 4 or not all(_in_range(v, key) for v in values):
+            raise jf.FieldError(f"normalisation.inputs.{key}", f"{values}", f"4 numbers, {_RANGE[key]}")
     future = jf.get(norm, "future", "normalisation", "object")
     horizon = config.get("horizon", 5)
     mean = jf.get(future, "mean", "normalisation.future", "list")
     if all(isinstance(row, list) for row in mean):  # [horizon][2], or flat
         mean = [v for row in mean for v in row]
     jf.check(mean, "normalisation.future.mean", "number_list")
-    if len(mean) != 2 * horizon:
+    if len(mean) != 2 * horizon or not all(_in_range(v, "mean") for v in mean):
         raise jf.FieldError(
-            "normalisation.future.mean", f"{len(mean)} numbers", f"{2 * horizon} finite numbers"
+            "normalisation.future.mean", f"{mean}"[:60], f"{2 * horizon} numbers, {_RANGE['mean']}"
         )
-    jf.get(future, "std", "normalisation.future", "positive")
+    std = jf.get(future, "std", "normalisation.future", "number")
+    if not _in_range(std, "std"):
+        raise jf.FieldError("normalisation.future.std", f"{std}", _RANGE["std"])
+
+
+# Normalisation statistics are physical (m, m/s, m/s²): bounds far outside any road, inside float32.
+_STAT_LIMIT = 1e6
+_RANGE = {"mean": f"within ±{_STAT_LIMIT:g}", "std": f"from {1 / _STAT_LIMIT:g} to {_STAT_LIMIT:g}"}
+
+
+def _in_range(value: float, key: str) -> bool:
+    if key == "std":
+        return 1 / _STAT_LIMIT <= value <= _STAT_LIMIT
+    return abs(value) <= _STAT_LIMIT
 
 
 def write_card(card_path: Path, card: dict[str, Any]) -> None:

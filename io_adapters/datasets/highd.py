@@ -370,9 +370,13 @@ def _read_recording_meta(path: Path) -> _Meta:
         )
     row = {name: table.column(name)[0].as_py() for name in RECORDING_META_COLUMNS}
     line = _line(path, 0)
-    if not row["frameRate"] > 0:
+    if not 0 < row["frameRate"] <= MAX_FRAME_RATE:
         raise InputError(
-            path, f"frame rate {row['frameRate']}", line=line, column="frameRate", expected="a rate > 0 Hz"
+            path,
+            f"frame rate {row['frameRate']}",
+            line=line,
+            column="frameRate",
+            expected=f"a rate > 0 and <= {MAX_FRAME_RATE:g} Hz (frames a nanosecond apart at most)",
         )
     return _Meta(
         recording_id=int(row["id"]),
@@ -428,6 +432,8 @@ def _dedupe(path: Path, cols: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarr
 
 INT32_MAX = 2**31 - 1
 FLOAT32_MAX = float(np.finfo(np.float32).max)  # sizes, velocities, accelerations are float32
+MAX_POSITION_M = 1e9  # highD positions are image metres (below 1e3)
+MAX_FRAME_RATE = 1e6  # Hz: consecutive frames keep distinct time_ns
 MAX_TIME_NS = 2**62  # time_ns = frame / frameRate * 1e9 must stay well inside int64
 
 
@@ -443,6 +449,10 @@ def _check_ranges(path: Path, cols: dict[str, np.ndarray], source_row: np.ndarra
         ("width", ~(cols["width"] > 0), "a length > 0 m"),
         ("height", ~(cols["height"] > 0), "a width > 0 m"),
         ("laneId", (cols["laneId"] < -INT32_MAX) | (cols["laneId"] > INT32_MAX), "a lane id within int32"),
+        *(
+            (name, np.abs(cols[name]) > MAX_POSITION_M, f"a position within ±{MAX_POSITION_M:g} m")
+            for name in ("x", "y")
+        ),
         *(
             (name, np.abs(cols[name]) > FLOAT32_MAX, "a value within float32")
             for name in ("width", "height", "xVelocity", "yVelocity", "xAcceleration", "yAcceleration")

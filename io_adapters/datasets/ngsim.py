@@ -462,6 +462,7 @@ EXACT_FLOAT_INT = 2**53  # integers read through float64 are exact only below th
 MAX_FRAME_ID = 2**62 // FRAME_NS  # time_ns = Frame_ID * 1e8 stays well inside int64
 INT32_MAX = 2**31 - 1
 FLOAT32_MAX = float(np.finfo(np.float32).max)
+MAX_POSITION_FT = 1e9  # Local_X/Local_Y beyond this are no road (NGSIM's are below 1e4)
 
 
 def _checked_ranges(
@@ -500,8 +501,8 @@ def _checked_ranges(
         flag("v_vel", ~(out["v_vel"] >= 0), "a speed >= 0 ft/s")
         for name in ("v_length", "v_width", "v_vel", "v_acc"):  # float32 in the table
             flag(name, np.abs(out[name]) > FLOAT32_MAX / FEET, "a value within float32")
-        for name in ("local_x", "local_y"):  # the centre is the bumper moved by half a length
-            flag(name, np.abs(out[name]) > 1e300, "a position within ±1e300 ft")
+        for name in ("local_x", "local_y"):  # differences over 0.1 s must stay float32 speeds
+            flag(name, np.abs(out[name]) > MAX_POSITION_FT, f"a position within ±{MAX_POSITION_FT:g} ft")
     if not bad_rows:
         return out
     row, name, expected = min(bad_rows)
@@ -736,11 +737,17 @@ def _tracks(rec: np.ndarray, vehicle: np.ndarray) -> _Tracks:
 
 def track_mean(values: np.ndarray, first: np.ndarray, last: np.ndarray, span: int) -> np.ndarray:
     """Mean of ``values`` [n] over rows i-span … i+span clipped to each row's track [first, last]."""
+    # One masked add per offset (not a running sum): a row's mean depends on its own track only,
+    # to the last bit, whatever the rows of other tracks hold.
     i = np.arange(values.size)
-    lo = np.maximum(i - span, first)
-    hi = np.minimum(i + span, last)
-    total = np.concatenate([[0.0], np.cumsum(values)])
-    return (total[hi + 1] - total[lo]) / (hi - lo + 1)
+    total = np.zeros(values.size)
+    count = np.zeros(values.size)
+    for k in range(-span, span + 1):
+        j = i + k
+        inside = (j >= first) & (j <= last)
+        total += np.where(inside, values[np.clip(j, 0, values.size - 1)], 0.0)
+        count += inside
+    return total / count
 
 
 def _fill_within_track(
