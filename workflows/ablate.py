@@ -12,6 +12,12 @@ import json
 import math
 from pathlib import Path
 
+import numpy as np
+
+from lanecast.io_adapters.contracts.windows import labelled, load_windows, subset
+from lanecast.io_adapters.errors import InputError
+from lanecast.io_adapters.files import atomic_path
+from lanecast.models.ablation_report import write_ablation_report
 from lanecast.workflows.vocabulary import HelpFormatter
 
 #: The ``--quick`` preset (CI, smoke tests): a few epochs on at most this many training windows.
@@ -66,13 +72,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import numpy as np
-
-    from lanecast.io_adapters.contracts.windows import labelled, load_windows, subset
-    from lanecast.io_adapters.errors import InputError
-    from lanecast.io_adapters.files import atomic_path
-    from lanecast.models.ablation import run_ablation, variants
-    from lanecast.models.ablation_report import write_ablation_report
+    from lanecast.models.ablation import run_ablation, variants  # torch: not on `lanecast --help`'s path
     from lanecast.models.train import TrainConfig
 
     names = [n.strip() for n in (args.variants or ",".join(variants())).split(",") if n.strip()]

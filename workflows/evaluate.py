@@ -11,6 +11,7 @@ from pathlib import Path
 
 from lanecast.io_adapters.contracts.windows import load_windows
 from lanecast.models.baselines import constant_acceleration, constant_velocity
+from lanecast.models.card import resolve
 from lanecast.models.evaluation import always_straight, evaluate, example_scenes, write_metrics
 from lanecast.models.forecaster import Forecaster
 from lanecast.models.report import write_report
@@ -50,7 +51,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     import torch  # heavy: loaded when the command runs, not for `lanecast --help`
 
-    from lanecast.models.checkpoint import resolve
     from lanecast.models.predict import STCNNForecaster
 
     torch.set_num_threads(max(1, min(2, torch.get_num_threads())))

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from lanecast.models.card import read_card
+
 FORMATS = ("onnx",)
 
 
@@ -35,7 +37,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from lanecast.models.card import read_card
     from lanecast.models.onnx_export import export_onnx
 
     path = export_onnx(args.model, args.out)

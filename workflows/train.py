@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any
 
 from lanecast.io_adapters.contracts.windows import load_windows
 from lanecast.io_adapters.errors import InputError
+from lanecast.models.card import read_card, resolve
 from lanecast.models.evaluation import evaluate
 
 if TYPE_CHECKING:
@@ -71,7 +72,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def default_config() -> TrainConfig:
     """The shipped model's training config (architecture and hyper-parameters), else the code defaults."""
-    from lanecast.models.checkpoint import read_card, resolve
     from lanecast.models.train import TrainConfig
 
     try:
