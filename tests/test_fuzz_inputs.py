@@ -433,3 +433,30 @@ def test_fuzz_model_card(data: st.DataObject) -> None:
         inputs = rng.normal(0, 20, (8, 4, 8, 30)).astype(np.float32)
         preds = STCNNForecaster(net, loaded).predict(inputs, np.ones((8, 8, 30), bool), top_k=2)
         assert np.isfinite(preds.offsets).all() and np.isfinite(preds.probs).all()
+
+
+# ------------------------------------------------------------------------- annotate (log copy)
+
+
+@FUZZ
+@given(data=st.data())
+def test_fuzz_annotate_mcap(seeds: Seeds, data: st.DataObject) -> None:
+    """`annotate` reads a log, then copies every record: a mutant is refused naming the file, or
+    the annotated copy reads back as the same tracks (the seed's chunks carry CRCs)."""
+    from lanecast.io_adapters.logs import mcap_reader
+    from lanecast.workflows.annotate_log import annotate_log
+
+    original = mcap_reader.read(seeds["mcap"])
+    with workdir() as d:
+        src = d / "in.mcap"
+        raw = seeds["mcap"].read_bytes()
+        src.write_bytes(data.draw(byte_mutation(len(raw)))(raw))
+        try:
+            with time_bound():
+                annotate_log(src, d / "out.mcap")
+        except LanecastError as exc:
+            assert str(d) in str(exc), f"the refusal does not name the file: {exc}"
+            return
+        back = mcap_reader.read(d / "out.mcap")
+        for name in ("track_id", "frame", "x", "y", "length", "width"):
+            assert back.column(name).to_pylist() == original.column(name).to_pylist()
