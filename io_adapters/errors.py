@@ -88,3 +88,20 @@ class LogError(InputError):
 
 class FrameError(LanecastError):
     """Objects in a moving frame with no transform to a fixed frame in the log."""
+
+
+class UsageError(LanecastError):
+    """An option the command cannot work with as given (a Ray address nobody answers at, …): the
+    message names the option, the value and what was expected."""
+
+    def __init__(self, option: str, message: str, expected: str | None = None) -> None:
+        self.option = option
+        self.reason = message
+        self.expected = expected
+        text = f"{option}: {message}"
+        if expected is not None:
+            text += f" (expected {expected})"
+        super().__init__(text)
+
+    def __reduce__(self) -> tuple[object, ...]:
+        return (UsageError, (self.option, self.reason, self.expected))

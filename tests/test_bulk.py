@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -18,10 +20,14 @@ import pyarrow.parquet as pq
 import pytest
 from conftest import assert_all_original_records_equal, forecasts_for, make_mcap
 from mcap.reader import make_reader
+from mcap.writer import CompressionType, Writer
 
+from lanecast.io_adapters.errors import InputError
+from lanecast.io_adapters.files import checksum
 from lanecast.workflows.annotate_log import AnnotateOptions
-from lanecast.workflows.bulk import Manifest, checksum, clean_temporaries, discover, plan_outputs, run_bulk
+from lanecast.workflows.bulk import clean_temporaries, discover, plan_outputs, run_bulk
 from lanecast.workflows.log_report import annotated_logs
+from lanecast.workflows.manifest import Manifest
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -58,9 +64,10 @@ def test_discover_walks_directories_and_names_outputs_uniquely(tmp_path: Path) -
         "logs/log00.mcap",
         "log00.mcap",
     ]
-    names = [t.output.name for t in plan_outputs(found, out)]
-    assert names[:2] == ["log01.mcap", "log02.mcap"]
-    assert names[2] != names[3] and names[2].startswith("log00-") and names[3].endswith(".mcap")
+    names = [t.output.relative_to(out).as_posix() for t in plan_outputs(found, out)]
+    assert names == ["logs/day2/log01.mcap", "logs/day2/log02.mcap", "logs/log00.mcap", "log00.mcap"]
+    names = [t.output.relative_to(out).as_posix() for t in plan_outputs(found[:3], out)]
+    assert names == ["day2/log01.mcap", "day2/log02.mcap", "log00.mcap"]
 
 
 def test_rerun_skips_done_retries_failed_and_redoes_changed_inputs(tmp_path: Path) -> None:
@@ -76,7 +83,7 @@ def test_rerun_skips_done_retries_failed_and_redoes_changed_inputs(tmp_path: Pat
     assert "broken.mcap" in first.failed[0]["error"]
     entries = Manifest(out).entries()
     assert [e["status"] for e in entries].count("done") == 3
-    done = next(e for e in entries if e["input"].endswith("log00.mcap"))
+    done = next(e for e in entries if e["input"].endswith("log00.mcap") and e["status"] == "done")
     assert done["sha256"] == checksum(logs / "log00.mcap")
     assert done["counts"]["added"] == 6 and done["counts"]["messages"] == 50 + 5 + 8
     assert done["output"] == "log00.mcap" and forecast_count(out / "log00.mcap") == 3
@@ -105,17 +112,19 @@ def test_relative_out_resumes_and_reports_from_another_working_directory(
     (tmp_path / "a" / "b").mkdir(parents=True)
     monkeypatch.chdir(tmp_path / "a")
     first = run_bulk([Path("../logs")], Path("out"), AnnotateOptions(forecasts=fc))
-    assert len(first.done) == 2 and (tmp_path / "a" / "out" / "log00.mcap").is_file()
-    assert {e["output"] for e in Manifest(tmp_path / "a" / "out").entries()} == {"log00.mcap", "log01.mcap"}
+    assert len(first.done) == 2 and (tmp_path / "a" / "out" / "day2" / "log00.mcap").is_file()
+    entries = Manifest(tmp_path / "a" / "out").entries()
+    assert {e["output"] for e in entries} == {"day2/log00.mcap", "day2/log01.mcap"}
 
     monkeypatch.chdir(tmp_path / "a" / "b")
     again = run_bulk([Path("../../logs")], Path("../out"), AnnotateOptions(forecasts=fc))
     assert len(again.skipped) == 2 and not again.entries
-    assert len(Manifest(tmp_path / "a" / "out").entries()) == 2  # no second entry per log
+    assert Manifest(tmp_path / "a" / "out").entries() == entries  # nothing written: nothing redone
 
     monkeypatch.chdir(tmp_path)
     found = annotated_logs([Path("a/out")])
-    assert found == [Path("a/out/log00.mcap"), Path("a/out/log01.mcap")] and all(p.is_file() for p in found)
+    assert found == [Path("a/out/day2/log00.mcap"), Path("a/out/day2/log01.mcap")]
+    assert all(p.is_file() for p in found)
 
 
 def test_manifest_survives_a_line_cut_short_and_temporaries_are_cleaned(tmp_path: Path) -> None:
@@ -125,6 +134,7 @@ def test_manifest_survives_a_line_cut_short_and_temporaries_are_cleaned(tmp_path
         f.write('{"input": "/b", "sta')  # a kill in the middle of a write
     m.append({"input": "/c", "status": "failed"})
     assert [e["input"] for e in m.entries()] == ["/a", "/c"]
+    assert all(e["v"] == 2 for e in m.entries())
     (tmp_path / ".x.mcap.tmp-abc").write_bytes(b"half")
     (tmp_path / ".bag.tmp-def").mkdir()
     (tmp_path / "keep.mcap").write_bytes(b"whole")
@@ -138,17 +148,18 @@ def test_two_worker_processes_annotate_every_log_once(tmp_path: Path) -> None:
     out = tmp_path / "out"
     result = run_bulk([logs], out, AnnotateOptions(forecasts=fc), workers=2)
     assert len(result.done) == 4 and not result.failed
-    assert sorted(p.name for p in out.iterdir()) == [
+    assert sorted(p.relative_to(out).as_posix() for p in out.rglob("*")) == [
         ".lanecast-annotate.lock",
+        "day2",
+        "day2/log02.mcap",
+        "day2/log03.mcap",
         "log00.mcap",
         "log01.mcap",
-        "log02.mcap",
-        "log03.mcap",
         "manifest.jsonl",
     ]
     for i in range(4):
         sub = "day2/" if i >= 2 else ""
-        assert_all_original_records_equal(logs / f"{sub}log{i:02d}.mcap", out / f"log{i:02d}.mcap")
+        assert_all_original_records_equal(logs / f"{sub}log{i:02d}.mcap", out / f"{sub}log{i:02d}.mcap")
 
 
 def _cli(*args: str) -> list[str]:
@@ -191,20 +202,20 @@ def test_sigkill_mid_run_then_rerun_annotates_every_log_exactly_once(tmp_path: P
     assert proc.poll() is None, "the run ended before it could be killed"
     os.killpg(proc.pid, signal.SIGKILL)
     proc.wait()
-    killed_with = len(Manifest(out).entries())
+    killed_with = sum(e["status"] == "done" for e in Manifest(out).entries())
     assert 2 <= killed_with < n
 
     rerun = subprocess.run(args, cwd=REPO, env=env, capture_output=True, text=True, timeout=120)
     assert rerun.returncode == 0, rerun.stderr
     assert f"{killed_with} already done" in rerun.stdout
-    entries = Manifest(out).entries()
+    entries = [e for e in Manifest(out).entries() if e["status"] != "started"]
     assert all(e["status"] == "done" for e in entries)
     per_input = [Path(e["input"]).name for e in entries]
     assert sorted(per_input) == sorted(f"log{i:02d}.mcap" for i in range(n))  # each exactly once
-    assert sorted(p.name for p in out.glob("*.mcap")) == sorted(f"log{i:02d}.mcap" for i in range(n))
-    assert not [p for p in out.iterdir() if ".tmp-" in p.name]
+    assert sorted(p.name for p in out.rglob("*.mcap")) == sorted(f"log{i:02d}.mcap" for i in range(n))
+    assert not [p for p in out.rglob("*") if ".tmp-" in p.name]
     for i in range(n):
-        assert forecast_count(out / f"log{i:02d}.mcap") == 3
+        assert forecast_count(out / ("day2/" if i >= n - 2 else "") / f"log{i:02d}.mcap") == 3
 
 
 def test_bad_input_list_is_reported_clearly(tmp_path: Path) -> None:
@@ -220,16 +231,203 @@ def test_bad_input_list_is_reported_clearly(tmp_path: Path) -> None:
     assert "nope: no such file or directory" in result.stderr and "Traceback" not in result.stderr
 
 
+def _tree(root: Path) -> dict[str, bytes]:
+    return {p.relative_to(root).as_posix(): p.read_bytes() for p in sorted(root.rglob("*.mcap"))}
+
+
 @pytest.mark.slow
-def test_ray_engine_annotates_logs_on_a_local_ray(tmp_path: Path) -> None:
+def test_ray_on_a_local_cluster_writes_what_the_process_pool_writes(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Byte-identical outputs; a relative --out lands where the driver asked, not in the workers'
+    working directory; a rerun on Ray skips everything."""
     pytest.importorskip("ray")
     logs, fc = make_fleet(tmp_path, 3, messages=30)
-    out = tmp_path / "out"
-    result = run_bulk([logs], out, AnnotateOptions(forecasts=fc), engine="ray", workers=2, retries=1)
+    pool = run_bulk([logs], tmp_path / "pool", AnnotateOptions(forecasts=fc), workers=2)
+    assert len(pool.done) == 3
+    monkeypatch.chdir(tmp_path)
+    result = run_bulk(
+        [logs], Path("ray-out"), AnnotateOptions(forecasts=fc), engine="ray", workers=2, retries=1
+    )
     assert len(result.done) == 3 and not result.failed
-    for i in range(3):
-        sub = "day2/" if i >= 1 else ""
-        assert_all_original_records_equal(logs / f"{sub}log{i:02d}.mcap", out / f"log{i:02d}.mcap")
-    again = run_bulk([logs], out, AnnotateOptions(forecasts=fc), engine="ray", workers=2)
+    assert _tree(tmp_path / "ray-out") == _tree(tmp_path / "pool") and len(_tree(tmp_path / "pool")) == 3
+    again = run_bulk([logs], Path("ray-out"), AnnotateOptions(forecasts=fc), engine="ray", workers=2)
     assert len(again.skipped) == 3 and not again.entries
-    assert json.loads((out / "manifest.jsonl").read_text().splitlines()[0])["status"] == "done"
+
+
+def _silent_listener() -> socket.socket:
+    """A TCP port that accepts connections and never answers (not a Ray cluster)."""
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(8)
+    return server
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kind", ["closed port", "silent port", "ray client"])
+def test_a_wrong_ray_address_fails_fast_and_clearly(tmp_path: Path, kind: str) -> None:
+    pytest.importorskip("ray")
+    logs, fc = make_fleet(tmp_path, 1, messages=10)
+    listener = _silent_listener()
+    port = listener.getsockname()[1]
+    if kind == "closed port":
+        listener.close()
+    address = f"ray://127.0.0.1:{port}" if kind == "ray client" else f"127.0.0.1:{port}"
+    started = time.monotonic()
+    done = subprocess.run(
+        _cli(
+            str(logs),
+            "--out",
+            str(tmp_path / "o"),
+            "--forecasts",
+            str(fc),
+            "--engine",
+            "ray",
+            "--address",
+            address,
+        ),
+        cwd=REPO,
+        env={**os.environ, "PYTHONPATH": str(REPO), "RAY_ADDRESS": ""},
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    took = time.monotonic() - started
+    listener.close()
+    assert done.returncode == 2, done.stderr
+    assert took < 30, f"took {took:.0f} s"
+    assert "Traceback" not in done.stderr
+    assert "lanecast annotate: error: " in done.stderr and ("Ray" in done.stderr or "ray" in done.stderr)
+    assert address in done.stderr
+
+
+def _same_size_log(path: Path, letter: str) -> Path:
+    """An uncompressed MCAP whose size does not depend on ``letter`` (one message's payload)."""
+    with open(path, "wb") as f:
+        w = Writer(f, compression=CompressionType.NONE)
+        w.start(profile="", library="test-writer")
+        schema = w.register_schema("test.Pose", "jsonschema", b'{"type":"object"}')
+        channel = w.register_channel("/pose", "json", schema)
+        for i in range(40):
+            t = i * 100_000_000
+            w.add_message(channel, t, json.dumps({"i": i, "pad": letter * 8}).encode(), t, i)
+        w.finish()
+    return path
+
+
+def test_changed_input_options_or_force_redo_and_nothing_else(tmp_path: Path) -> None:
+    logs, fc = make_fleet(tmp_path, 2, messages=20)
+    out = tmp_path / "out"
+    a = _same_size_log(logs / "day2" / "log00.mcap", "a")
+    first = run_bulk([logs], out, AnnotateOptions(forecasts=fc))
+    assert len(first.done) == 2
+
+    # the same size and mtime (as after `cp -p` of another recording): still redone
+    st = a.stat()
+    b = _same_size_log(tmp_path / "b.mcap", "b")
+    assert b.stat().st_size == st.st_size and checksum(b) != checksum(a)
+    shutil.copyfile(b, a)
+    os.utime(a, ns=(st.st_atime_ns, st.st_mtime_ns))
+    second = run_bulk([logs], out, AnnotateOptions(forecasts=fc))
+    assert [Path(e["input"]).name for e in second.done] == ["log00.mcap"] and len(second.skipped) == 1
+    assert second.redone == {"input changed": 1}
+    assert "redone: 1 input changed" in second.summary()
+
+    third = run_bulk([logs], out, AnnotateOptions(forecasts=fc, every_s=0.5))  # other options: all redone
+    assert len(third.done) == 2 and third.redone == {"options changed": 2}
+    assert {e["options"]["every_s"] for e in third.done} == {0.5}
+    assert len(run_bulk([logs], out, AnnotateOptions(forecasts=fc, every_s=0.5)).skipped) == 2
+
+    forced = run_bulk([logs], out, AnnotateOptions(forecasts=fc, every_s=0.5), force=True)
+    assert len(forced.done) == 2 and forced.redone == {"forced": 2}
+
+
+def test_another_model_means_other_options(tmp_path: Path) -> None:
+    """The options record the model's checksum: a model with other weights redoes the log."""
+    from lanecast.models.checkpoint import resolve
+    from lanecast.workflows.bulk import model_identity, plan
+    from lanecast.workflows.manifest import options_key, stat_signature
+
+    shipped = model_identity(None)
+    weights, card = resolve(None)
+    other = tmp_path / "model"
+    other.mkdir()
+    shutil.copy(card, other / card.name)
+    data = bytearray(weights.read_bytes())
+    data[-1] ^= 1
+    (other / weights.name).write_bytes(bytes(data))
+    retrained = model_identity(other)
+    assert retrained["name"] == shipped["name"] and retrained["sha256"] != shipped["sha256"]
+    assert model_identity(other) == retrained and model_identity(resolve(None)[1]) == shipped
+
+    log = make_mcap(tmp_path / "drive.mcap", n=10)
+    out = tmp_path / "out"
+    manifest = Manifest(out)
+    (out / "drive.mcap").parent.mkdir()
+    (out / "drive.mcap").write_bytes(b"made by lanecast")
+    done, _ = plan([log], out, manifest, model=shipped)
+    manifest.append(
+        {
+            "input": str(log.resolve()),
+            "output": "drive.mcap",
+            "status": "done",
+            "options": done[0].options,
+            "options_key": options_key(done[0].options),
+            "stat": stat_signature(log),
+            "sha256": checksum(log),
+            "output_sha256": checksum(out / "drive.mcap"),
+        }
+    )
+    assert plan([log], out, manifest, model=shipped) == ([], [log])
+    redo, _ = plan([log], out, manifest, model=retrained)
+    assert [(t.output, t.reason) for t in redo] == [(out / "drive.mcap", "options changed")]
+
+
+def test_two_logs_of_one_name_get_two_readable_outputs_and_keep_them(tmp_path: Path) -> None:
+    """`annotate a/drive.mcap b/drive.mcap` → OUT/a/drive.mcap and OUT/b/drive.mcap; a later run of
+    `other/drive.mcap` into the same OUT never takes a name another log holds."""
+    fc = tmp_path / "fc"
+    fc.mkdir()
+    pq.write_table(forecasts_for("drive", [1, 2, 3], [1, 2]), fc / "drive.parquet")
+    logs = []
+    for folder, n in (("a", 20), ("b", 21), ("other", 22)):
+        (tmp_path / folder).mkdir()
+        logs.append(make_mcap(tmp_path / folder / "drive.mcap", n=n))
+    out = tmp_path / "out"
+    first = run_bulk(logs[:2], out, AnnotateOptions(forecasts=fc))
+    assert sorted(e["output"] for e in first.done) == ["a/drive.mcap", "b/drive.mcap"]
+    for log, folder in zip(logs[:2], "ab", strict=True):
+        assert_all_original_records_equal(log, out / folder / "drive.mcap")
+
+    alone = run_bulk([logs[0]], out, AnnotateOptions(forecasts=fc))  # a/drive.mcap keeps its name
+    assert alone.skipped == [logs[0]] and not alone.entries
+    other = run_bulk([logs[2]], out, AnnotateOptions(forecasts=fc))  # `drive.mcap` alone would be free,
+    assert [e["output"] for e in other.done] == ["drive.mcap"]  # and it is the mirror of `other/`
+    before = _tree(out)
+    moved = tmp_path / "c"
+    moved.mkdir()
+    shutil.copy(logs[0], moved / "drive.mcap")  # another input named like one that holds drive.mcap
+    again = run_bulk([moved / "drive.mcap"], out, AnnotateOptions(forecasts=fc))
+    assert [e["output"] for e in again.done] == ["c/drive.mcap"]
+    assert {k: v for k, v in _tree(out).items() if k != "c/drive.mcap"} == before
+
+
+def test_a_file_lanecast_did_not_write_is_never_overwritten(tmp_path: Path) -> None:
+    logs, fc = make_fleet(tmp_path, 2, messages=20)
+    out = tmp_path / "out"
+    (out / "day2").mkdir(parents=True)
+    (out / "day2" / "log01.mcap").write_bytes(b"the user's own file")
+    with pytest.raises(InputError, match="not written by lanecast annotate"):
+        run_bulk([logs], out, AnnotateOptions(forecasts=fc))
+    assert (out / "day2" / "log01.mcap").read_bytes() == b"the user's own file"
+    assert not (out / "day2" / "log00.mcap").exists()  # refused before any work
+    with pytest.raises(InputError, match="not written by lanecast annotate"):
+        run_bulk([logs], out, AnnotateOptions(forecasts=fc), force=True)
+
+
+def test_each_log_of_one_name_gets_its_own_report_folder(tmp_path: Path) -> None:
+    from lanecast.workflows.log_report import per_log_names
+
+    logs = [make_mcap(tmp_path / d / "drive.mcap", n=5) for d in ("a", "b") if (tmp_path / d).mkdir() is None]
+    assert per_log_names(logs) == {logs[0]: "a/drive", logs[1]: "b/drive"}
+    assert per_log_names(logs[:1]) == {logs[0]: "drive"}

@@ -26,7 +26,9 @@ def register(sub: argparse._SubParsersAction) -> None:
             "(foxglove.SceneUpdate: a line per target coloured by maneuver — straight grey, left blue, right "
             "orange, as in the reports — top-K alternatives fainter) and /lanecast/prediction (JSON), merged in log time. ROS 2 logs "
             "stay ROS 2 (foxglove_msgs/msg/SceneUpdate in CDR); ROS 1 bags become MCAP. OUT_DIR/manifest.jsonl "
-            "records every log; a rerun skips what is done and retries what failed."
+            "records what made every output (options, model checksum, input checksum); a rerun skips what is done "
+            "and unchanged and redoes the rest. Outputs mirror the input tree under OUT_DIR; a file there that "
+            "lanecast did not write is never overwritten."
         ),
         epilog=(
             "examples:\n"
@@ -60,8 +62,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--engine", choices=("local", "ray"), default="local", help="local processes or a Ray cluster"
     )
-    p.add_argument("--address", help="Ray cluster address (default: start Ray locally)")
+    p.add_argument(
+        "--address",
+        help="Ray: host:port of a cluster's head, or ray://host:10001 (default: RAY_ADDRESS, else the "
+        "cluster `ray start` runs on this machine, else a new local Ray)",
+    )
     p.add_argument("--retries", type=int, default=2, help="Ray: retries of a task whose worker died")
+    p.add_argument(
+        "--force", action="store_true", help="redo every log, even those the manifest says are done"
+    )
     p.set_defaults(func=run)
 
 
@@ -86,6 +95,7 @@ def run(args: argparse.Namespace) -> int:
         engine=args.engine,
         address=args.address,
         retries=args.retries,
+        force=args.force,
     )
     print(result.summary())
     return 1 if result.failed else 0

@@ -161,9 +161,14 @@ def predict(tracks: pa.Table, options: AnnotateOptions, *, validated: bool = Fal
     )
 
 
+def precomputed_forecasts_path(src: Path, source: Path) -> Path:
+    """Where ``src``'s precomputed forecasts are: ``source`` itself, or ``source/<log stem>.parquet``."""
+    return source / f"{Path(output_name(src)).stem}.parquet" if source.is_dir() else source
+
+
 def precomputed_forecasts(src: Path, source: Path) -> pa.Table:
-    """A precomputed forecasts table for ``src``: ``source`` itself, or ``source/<log stem>.parquet``."""
-    path = source / f"{Path(output_name(src)).stem}.parquet" if source.is_dir() else source
+    """A precomputed forecasts table for ``src`` (see ``precomputed_forecasts_path``)."""
+    path = precomputed_forecasts_path(src, source)
     if not path.is_file():
         raise InputError(path, "no precomputed forecasts for this log", expected=f"forecasts for {src.name}")
     return pq.read_table(path)

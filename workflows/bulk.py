@@ -1,23 +1,25 @@
 """Bulk annotation: many logs, a manifest, resume, local worker processes or a Ray cluster.
 
-``OUT_DIR/manifest.jsonl`` is append-only JSON lines (each line fsync'ed): one entry per finished
-attempt with the log's status (``done``/``failed``), the sha256 of the input, the output path, the
-counts, the error and the duration. Paths resolve the same from any working directory: the input is
-absolute, the output relative to the manifest's own directory. An entry is appended only after the output has been renamed
-into place, so at any moment of a kill:
+``OUT_DIR/manifest.jsonl`` (``lanecast.workflows.manifest``) records, for every log, the output
+name it claimed, the options and model that made it and the input's checksum. A rerun:
 
-- a log whose latest entry is ``done`` with the input's current checksum and whose output exists is
-  skipped by the next run; everything else (failed, never finished, changed input) is redone;
-- outputs only ever appear complete (``atomic_path``); leftover ``.*.tmp-*`` entries of a killed run
-  are removed when the next run starts (an exclusive lock on OUT_DIR keeps two runs apart).
+- skips a log whose latest entry is ``done`` with the same options and an unchanged input whose
+  output exists; redoes everything else (failed, never finished, changed input, other options or
+  model), and everything with ``force``;
+- names outputs by mirroring the input tree under OUT_DIR (``logs/day2/drive.mcap`` given ``logs/``
+  → ``OUT_DIR/day2/drive.mcap``); a log keeps the name the manifest gave it; a name another input
+  already holds is made unique with more of the input's folders (``other/drive.mcap``);
+- never overwrites a file in OUT_DIR that the manifest does not name: the run is refused instead;
+- writes outputs only complete (``atomic_path``); leftover ``.*.tmp-*`` entries of a killed run are
+  removed when the next run starts (an exclusive lock on OUT_DIR keeps two runs apart).
 
 Engines: ``local`` runs the per-log task in-process (1 worker) or in a ``ProcessPoolExecutor``;
-``ray`` submits the same task as ``@ray.remote(max_retries=...)`` to ``--address`` or a local Ray.
-On a cluster, inputs and OUT_DIR must be on storage every node sees.
+``ray`` submits the same task (``num_cpus=1``, retried when its worker dies) to a cluster
+(``lanecast.workflows.ray_engine``). Every path a worker gets is absolute.
 
-Size: inputs, manifest, output-directory safety and the three engines of one bulk run; the
-manifest and engines are being reworked this wave (issues 12, 13, 14), after which the manifest
-is the natural module of its own.
+Size: one bulk run from inputs to manifest entries (finding and naming logs, planning, output-
+directory safety, the three engines); the manifest format and the Ray connection are modules of
+their own. The next cut, if it grows: finding and naming logs (``discover`` … ``plan_outputs``).
 """
 
 from __future__ import annotations
@@ -26,7 +28,6 @@ import contextlib
 import datetime as dt
 import fcntl
 import hashlib
-import json
 import multiprocessing as mp
 import os
 import queue as queue_mod
@@ -40,21 +41,38 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from lanecast import __version__
 from lanecast.io_adapters.errors import InputError, LanecastError
 from lanecast.io_adapters.files import bar, check_input, checksum
-from lanecast.workflows.annotate_log import AnnotateOptions, annotate_log, output_name
+from lanecast.workflows import ray_engine
+from lanecast.workflows.annotate_log import (
+    AnnotateOptions,
+    annotate_log,
+    output_name,
+    precomputed_forecasts_path,
+)
+from lanecast.workflows.manifest import (
+    MANIFEST,
+    Manifest,
+    absolute,
+    not_ours,
+    options_key,
+    relative_to_manifest,
+    stat_signature,
+)
 
-MANIFEST = "manifest.jsonl"
 LOCK = ".lanecast-annotate.lock"
 LOG_SUFFIXES = (".mcap", ".bag")
 
 
 @dataclass(frozen=True)
 class Task:
-    """One log to annotate."""
+    """One log to annotate: absolute paths, the options that will have made the output, and why."""
 
     input: Path
     output: Path
+    options: dict[str, Any] = field(default_factory=dict)
+    reason: str = "new"
 
 
 @dataclass
@@ -64,6 +82,7 @@ class BulkResult:
     entries: list[dict[str, Any]] = field(default_factory=list)
     skipped: list[Path] = field(default_factory=list)
     out_dir: Path = Path()
+    redone: dict[str, int] = field(default_factory=dict)  # reason → count, for the logs not new
 
     @property
     def done(self) -> list[dict[str, Any]]:
@@ -74,9 +93,11 @@ class BulkResult:
         return [e for e in self.entries if e["status"] == "failed"]
 
     def summary(self) -> str:
+        why = ", ".join(f"{n} {reason}" for reason, n in sorted(self.redone.items()))
         lines = [
-            f"annotated {len(self.done)} log(s), {len(self.failed)} failed, {len(self.skipped)} already done "
-            f"-> {self.out_dir} (manifest: {self.out_dir / MANIFEST})"
+            f"annotated {len(self.done)} log(s), {len(self.failed)} failed, {len(self.skipped)} already done"
+            + (f" (redone: {why})" if why else "")
+            + f" -> {self.out_dir} (manifest: {self.out_dir / MANIFEST})"
         ]
         lines += [f"  FAILED {e['input']}: {e['error']}" for e in self.failed]
         return "\n".join(lines)
@@ -120,105 +141,57 @@ def discover(paths: Sequence[Path], exclude: Path | None = None) -> list[Path]:
     return list(unique)
 
 
-def plan_outputs(inputs: Sequence[Path], out_dir: Path) -> list[Task]:
-    """One task per input; outputs named after the input, made unique by a hash of its path if needed."""
-    names = [output_name(p) for p in inputs]
-    counts: dict[str, int] = {}
-    for n in names:
-        counts[n] = counts.get(n, 0) + 1
+def argument_root(path: Path) -> Path:
+    """The folder an argument's logs are named relative to: a directory itself, a file's parent."""
+    path = absolute(path)
+    return path if path.is_dir() and not is_ros2_bag(path) else path.parent
+
+
+def common_root(paths: Sequence[Path]) -> Path:
+    """The deepest folder holding every argument: outputs mirror the input tree below it."""
+    return Path(os.path.commonpath([str(argument_root(p)) for p in paths]))
+
+
+def name_candidates(src: Path, root: Path) -> Iterator[str]:
+    """Output names for ``src`` (absolute, under ``root``), most readable first: its path below
+    ``root``; then with more and more of its parent folders in front; last, a hash of its path."""
+    rel = src.relative_to(root).parent / output_name(src)
+    yield rel.as_posix()
+    folders = src.parent.parts  # ("/", "data", ..., its folder)
+    for k in range(len(rel.parts), len(folders)):
+        yield Path(*folders[len(folders) - k :], output_name(src)).as_posix()
+    name = output_name(src)
+    stem, dot, suffix = name.rpartition(".") if not src.is_dir() else (name, "", "")
+    yield (rel.parent / f"{stem}-{hashlib.sha1(str(src).encode()).hexdigest()[:8]}{dot}{suffix}").as_posix()
+
+
+def plan_outputs(inputs: Sequence[Path], out_dir: Path, *, root: Path | None = None) -> list[Task]:
+    """One task per input, outputs mirroring the tree below ``root`` (default: the inputs' common
+    folder), each name held by one input only (see ``name_candidates``)."""
+    inputs = [absolute(p) for p in inputs]
+    root = root if root is not None else common_root(inputs)
+    taken: set[str] = set()
     tasks = []
-    for p, n in zip(inputs, names, strict=True):
-        if counts[n] > 1:
-            stem, dot, suffix = n.rpartition(".") if not p.is_dir() else (n, "", "")
-            tag = hashlib.sha1(str(p).encode()).hexdigest()[:8]
-            n = f"{stem}-{tag}{dot}{suffix}"
-        tasks.append(Task(p, out_dir / n))
+    for src in inputs:
+        name = next(n for n in name_candidates(src, root) if n not in taken)
+        taken.add(name)
+        tasks.append(Task(src, out_dir / name))
     return tasks
 
 
-def stat_signature(path: Path) -> list[int]:
-    """[total size, latest mtime_ns] of a file or a directory's files: a cheap "unchanged" test."""
-    files = [path] if path.is_file() else [p for p in path.rglob("*") if p.is_file()]
-    stats = [f.stat() for f in files]
-    return [sum(st.st_size for st in stats), max((st.st_mtime_ns for st in stats), default=0)]
-
-
-# --------------------------------------------------------------------------------------- manifest
-
-
-class Manifest:
-    """``OUT_DIR/manifest.jsonl``: append-only, one JSON object per line, fsync'ed per entry."""
-
-    def __init__(self, out_dir: Path) -> None:
-        self.path = Path(out_dir) / MANIFEST
-
-    def entries(self) -> list[dict[str, Any]]:
-        """Every complete entry that is a JSON object with a string ``input`` (a line cut short by
-        a kill, or one that is not an entry, is ignored). The manifest itself is never followed
-        through a symlink."""
-        try:
-            fd = os.open(self.path, os.O_RDONLY | os.O_NOFOLLOW)
-        except FileNotFoundError:
-            return []
-        except OSError as exc:
-            raise _not_ours(self.path, exc) from exc
-        out = []
-        with open(fd, encoding="utf-8", errors="replace") as f:
-            for line in f:
-                if not line.endswith("\n"):
-                    continue
-                with contextlib.suppress(json.JSONDecodeError, RecursionError):
-                    entry = json.loads(line)
-                    if isinstance(entry, dict) and isinstance(entry.get("input"), str):
-                        out.append(entry)
-        return out
-
-    def latest(self) -> dict[str, dict[str, Any]]:
-        """The latest entry per input path."""
-        return {e["input"]: e for e in self.entries()}
-
-    def append(self, entry: dict[str, Any]) -> None:
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        data = (json.dumps(entry, sort_keys=True) + "\n").encode()
-        try:
-            fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_NOFOLLOW, 0o644)
-        except OSError as exc:
-            raise _not_ours(self.path, exc) from exc
-        try:
-            # a line cut short by an earlier kill would swallow this entry: start on a fresh line
-            size = os.fstat(fd).st_size
-            if size:
-                with open(self.path, "rb") as f:
-                    f.seek(size - 1)
-                    if f.read(1) != b"\n":
-                        data = b"\n" + data
-            os.write(fd, data)
-            os.fsync(fd)
-        finally:
-            os.close(fd)
+# --------------------------------------------------------------------------- output directory
 
 
 def clean_temporaries(out_dir: Path) -> list[Path]:
-    """Remove the ``.<name>.tmp-*`` files and directories a killed run left in ``out_dir``."""
+    """Remove the ``.<name>.tmp-*`` files and directories a killed run left anywhere in ``out_dir``."""
     removed = []
-    for entry in Path(out_dir).glob(".*.tmp-*"):
+    for entry in sorted(Path(out_dir).rglob(".*.tmp-*"), reverse=True):  # outputs mirror a tree
         if entry.is_dir() and not entry.is_symlink():
             shutil.rmtree(entry, ignore_errors=True)
         else:
             entry.unlink(missing_ok=True)
         removed.append(entry)
     return removed
-
-
-def _not_ours(path: Path, exc: OSError) -> InputError:
-    """The error for a manifest or lock that cannot be opened as lanecast's own regular file."""
-    if path.is_symlink():
-        return InputError(
-            path,
-            "is a symlink; lanecast does not follow symlinks in its output directory",
-            expected="remove it",
-        )
-    return InputError(path, f"cannot open: {exc.strerror or exc}")
 
 
 @contextlib.contextmanager
@@ -233,7 +206,7 @@ def locked(out_dir: Path) -> Iterator[None]:
     try:
         fd = os.open(lock, os.O_WRONLY | os.O_CREAT | os.O_NOFOLLOW, 0o644)
     except OSError as exc:
-        raise _not_ours(lock, exc) from exc
+        raise not_ours(lock, exc) from exc
     with open(fd, "w") as f:
         try:
             fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -275,7 +248,7 @@ def annotate_task(task: Task, options: AnnotateOptions, catch_all: bool = True) 
         entry["stat"] = stat_signature(task.input)
         counts = annotate_log(task.input, task.output, options, progress=progress)
         entry["sha256"] = counts.pop("sha256")  # of the bytes read: the log is read once (the copy)
-        entry["output_sha256"] = checksum(task.output)  # what a resumed run trusts (see _own_output)
+        entry["output_sha256"] = checksum(task.output)  # what a resumed run trusts (see own_output)
         entry.update(status="done", counts=counts, error=None)
     except LanecastError as exc:
         entry.update(status="failed", counts=None, error=str(exc))
@@ -297,52 +270,125 @@ def annotate_task(task: Task, options: AnnotateOptions, catch_all: bool = True) 
 # ------------------------------------------------------------------------------------------ runner
 
 
-def relative_to_manifest(output: Path, out_dir: Path) -> str:
-    """``output`` as the manifest records it: relative to ``out_dir`` (the manifest's directory) when
-    inside it, else absolute; either way it resolves the same from any working directory."""
-    output = output.absolute()
-    try:
-        return output.relative_to(out_dir.absolute()).as_posix()
-    except ValueError:
-        return str(output)
+def model_identity(model_dir: Path | None) -> dict[str, str]:
+    """The model that makes the forecasts: its name and the sha256 of its weights and card."""
+    from lanecast.models.checkpoint import resolve  # torch: only when the run predicts
+
+    weights, card = resolve(model_dir)
+    h = hashlib.sha256()
+    for f in (weights, card):
+        h.update(f.read_bytes())
+    return {"name": weights.stem, "sha256": h.hexdigest()}
 
 
-def plan(inputs: Sequence[Path], out_dir: Path, manifest: Manifest) -> tuple[list[Task], list[Path]]:
-    """(tasks to run, inputs skipped as done): done = latest entry done, output exists, same input.
-
-    "Same input": the same size and mtime as recorded (no need to read it again), else the same sha256.
-    """
-    latest = manifest.latest()
-    todo, skipped = [], []
-    for task in plan_outputs(inputs, out_dir):
-        last = latest.get(str(task.input.resolve()))
-        if (
-            last is not None
-            and last.get("status") == "done"
-            and _own_output(last, task, out_dir)
-            and (last.get("stat") == stat_signature(task.input) or last.get("sha256") == checksum(task.input))
-        ):
-            skipped.append(task.input)
-        else:
-            todo.append(task)
-    return todo, skipped
+def run_options(options: AnnotateOptions, src: Path, model: dict[str, str] | None) -> dict[str, Any]:
+    """What makes ``src``'s output, as the manifest records it (paths left out: they differ between
+    machines, checksums do not)."""
+    record: dict[str, Any] = {
+        "every_s": options.every_s,
+        "top_k": options.top_k,
+        "encoding": options.encoding,
+        "topic": options.topic,
+    }
+    if options.forecasts is not None:
+        path = precomputed_forecasts_path(src, options.forecasts)
+        record["forecasts_sha256"] = checksum(path) if path.is_file() else None
+        record["frame_id"] = options.frame_id
+    else:
+        record["model"] = model
+    return record
 
 
-def _own_output(entry: dict[str, Any], task: Task, out_dir: Path) -> bool:
+def inside(recorded: str) -> bool:
+    """A recorded output name lanecast may write to: relative, below OUT_DIR, nothing hidden."""
+    parts = Path(recorded).parts
+    return (
+        bool(parts)
+        and not Path(recorded).is_absolute()
+        and not any(p in ("..", ".") or p.startswith(".") for p in parts)
+    )
+
+
+def own_output(entry: dict[str, Any], output: Path, out_dir: Path) -> bool:
     """An entry's output is trusted only as this task's own output inside ``out_dir`` (no symlink on
     the way) whose checksum is the one recorded when it was written: a forged or stale line that
     points elsewhere, or at a file changed since, does not make a log "done"."""
     recorded = entry.get("output")
-    if not isinstance(recorded, str) or not isinstance(entry.get("output_sha256"), str):
+    if (
+        not isinstance(recorded, str)
+        or not isinstance(entry.get("output_sha256"), str)
+        or not inside(recorded)
+    ):
         return False
-    output = out_dir / recorded
-    if os.path.normpath(output.absolute()) != os.path.normpath(task.output.absolute()):
+    if os.path.normpath(absolute(out_dir / recorded)) != os.path.normpath(absolute(output)):
         return False
     if output.is_symlink() or not output.exists():
         return False
-    if os.path.realpath(output) != os.path.join(os.path.realpath(out_dir), output.name):
+    if os.path.realpath(output) != os.path.join(os.path.realpath(out_dir), recorded):
         return False
     return bool(checksum(output) == entry["output_sha256"])
+
+
+def refuse_foreign_outputs(tasks: Sequence[Task], manifest: Manifest) -> None:
+    """A file in OUT_DIR that the manifest does not name was not made by lanecast: never overwrite it."""
+    claims = manifest.claims()
+    foreign = [
+        t.output
+        for t in tasks
+        if (t.output.exists() or t.output.is_symlink())
+        and claims.get(relative_to_manifest(t.output, manifest.out_dir)) != str(t.input.resolve())
+    ]
+    if foreign:
+        more = f" (and {len(foreign) - 1} more)" if len(foreign) > 1 else ""
+        raise InputError(
+            foreign[0],
+            f"exists and was not written by lanecast annotate for this input: refusing to overwrite it{more}",
+            expected="remove it, or choose another --out",
+        )
+
+
+def plan(
+    inputs: Sequence[Path],
+    out_dir: Path,
+    manifest: Manifest,
+    options: AnnotateOptions | None = None,
+    *,
+    root: Path | None = None,
+    force: bool = False,
+    model: dict[str, str] | None = None,
+) -> tuple[list[Task], list[Path]]:
+    """(tasks to run, inputs skipped as done); see the module docstring for the rules."""
+    options = options or AnnotateOptions()
+    inputs = [absolute(p) for p in inputs]
+    root = root if root is not None else common_root(inputs)
+    finished = manifest.finished()
+    claims = manifest.claims()
+    held = set(claims)
+    todo, skipped = [], []
+    for src in inputs:
+        key = str(src.resolve())
+        ours = [n for n, owner in claims.items() if owner == key and inside(n)]
+        name = ours[-1] if ours else next(n for n in name_candidates(src, root) if n not in held)
+        held.add(name)
+        record = run_options(options, src, model)
+        last = finished.get(key)
+        if last is None:
+            reason = "new"
+        elif force:
+            reason = "forced"
+        elif last.get("status") != "done":
+            reason = "failed before"
+        elif last.get("options_key") != options_key(record):
+            reason = "options changed"
+        elif not own_output(last, out_dir / name, out_dir):
+            reason = "output missing or changed"
+        elif last.get("stat") != stat_signature(src) and last.get("sha256") != checksum(src):
+            reason = "input changed"
+        else:
+            skipped.append(src)
+            continue
+        todo.append(Task(src, out_dir / name, record, reason))
+    return todo, skipped
 
 
 def run_bulk(
@@ -354,26 +400,72 @@ def run_bulk(
     engine: str = "local",
     address: str | None = None,
     retries: int = 2,
+    force: bool = False,
 ) -> BulkResult:
     """Annotate every log named by ``paths`` into ``out_dir``; resume from its manifest.
 
-    ``out_dir`` is made absolute here, so that workers (other processes, Ray nodes with another
-    working directory) write where the caller asked.
+    ``out_dir`` and the inputs are made absolute here, so that workers (other processes, Ray nodes
+    with another working directory) read and write where the caller meant.
     """
-    out_dir = Path(out_dir).absolute()
+    out_dir = absolute(out_dir)
     options = options or AnnotateOptions()
     if workers < 1:
         raise InputError(None, f"--workers must be at least 1, got {workers}")
-    inputs = [p.absolute() for p in discover(paths, exclude=out_dir)]
+    inputs = [absolute(p) for p in discover(paths, exclude=out_dir)]
     if not inputs:
         raise InputError(
             None, f"no logs found in {', '.join(map(str, paths))}", expected="*.mcap, *.bag or ROS 2 bags"
         )
+    ray_started_here = ray_engine.connect(address, workers) if engine == "ray" else False  # fail fast
+    try:
+        return _run_bulk(
+            inputs, paths, out_dir, options, workers=workers, engine=engine, retries=retries, force=force
+        )
+    finally:
+        if ray_started_here:
+            ray_engine.ray_module().shutdown()
+
+
+def _run_bulk(
+    inputs: list[Path],
+    paths: Sequence[Path],
+    out_dir: Path,
+    options: AnnotateOptions,
+    *,
+    workers: int,
+    engine: str,
+    retries: int,
+    force: bool,
+) -> BulkResult:
+    model = model_identity(options.model_dir) if options.forecasts is None else None
     result = BulkResult(out_dir=out_dir)
     with locked(out_dir):
         clean_temporaries(out_dir)
         manifest = Manifest(out_dir)
-        tasks, result.skipped = plan(inputs, out_dir, manifest)
+        tasks, result.skipped = plan(
+            inputs,
+            out_dir,
+            manifest,
+            options,
+            root=common_root(list(map(Path, paths))),
+            force=force,
+            model=model,
+        )
+        refuse_foreign_outputs(tasks, manifest)
+        for task in tasks:  # claim every output name before any work (see lanecast.workflows.manifest)
+            if task.reason != "new":
+                result.redone[task.reason] = result.redone.get(task.reason, 0) + 1
+            manifest.append(
+                {
+                    "input": str(task.input.resolve()),
+                    "output": relative_to_manifest(task.output, out_dir),
+                    "status": "started",
+                    "reason": task.reason,
+                    "options": task.options,
+                    "options_key": options_key(task.options),
+                    "lanecast": __version__,
+                }
+            )
         progress = bar(desc="annotate", total=len(inputs), unit="log")
         progress.update(len(result.skipped))
         messages = 0
@@ -383,8 +475,13 @@ def run_bulk(
             messages += n
             progress.set_postfix_str(f"{messages:,} msgs")
 
-        def on_entry(entry: dict[str, Any]) -> None:
-            entry["output"] = relative_to_manifest(Path(entry["output"]), out_dir)
+        def on_entry(task: Task, entry: dict[str, Any]) -> None:
+            entry.update(
+                output=relative_to_manifest(task.output, out_dir),
+                options=task.options,
+                options_key=options_key(task.options),
+                lanecast=__version__,
+            )
             manifest.append(entry)
             result.entries.append(entry)
             progress.update(1)
@@ -395,9 +492,7 @@ def run_bulk(
             if not tasks:
                 pass
             elif engine == "ray":
-                _run_ray(
-                    tasks, options, on_entry, on_messages, address=address, workers=workers, retries=retries
-                )
+                _run_ray(tasks, options, on_entry, on_messages, out_dir=out_dir, retries=retries)
             elif workers == 1:
                 _run_inline(tasks, options, on_entry, on_messages)
             else:
@@ -417,14 +512,14 @@ class _Direct:
 def _run_inline(
     tasks: Sequence[Task],
     options: AnnotateOptions,
-    on_entry: Callable[[dict[str, Any]], None],
+    on_entry: Callable[[Task, dict[str, Any]], None],
     on_messages: Callable[[int], None],
 ) -> None:
     global _QUEUE
     _QUEUE = _Direct(on_messages)  # in-process: the bar moves while a log is copied
     try:
         for task in tasks:
-            on_entry(annotate_task(task, options))
+            on_entry(task, annotate_task(task, options))
     finally:
         _QUEUE = None
 
@@ -432,7 +527,7 @@ def _run_inline(
 def _run_pool(
     tasks: Sequence[Task],
     options: AnnotateOptions,
-    on_entry: Callable[[dict[str, Any]], None],
+    on_entry: Callable[[Task, dict[str, Any]], None],
     on_messages: Callable[[int], None],
     *,
     workers: int,
@@ -462,12 +557,12 @@ def _run_pool(
                 for fut in done:
                     task = running.pop(fut)
                     try:
-                        on_entry(fut.result())
+                        on_entry(task, fut.result())
                     except BrokenProcessPool:
                         broken = True
-                        on_entry(_crashed(task))
+                        on_entry(task, _crashed(task))
             for task in running.values():  # the pool broke: the others in flight died with it
-                on_entry(_crashed(task))
+                on_entry(task, _crashed(task))
         drain()
 
 
@@ -489,39 +584,27 @@ def _crashed(
 def _run_ray(
     tasks: Sequence[Task],
     options: AnnotateOptions,
-    on_entry: Callable[[dict[str, Any]], None],
+    on_entry: Callable[[Task, dict[str, Any]], None],
     on_messages: Callable[[int], None],
     *,
-    address: str | None,
-    workers: int,
+    out_dir: Path,
     retries: int,
 ) -> None:
-    """The same task on Ray: retried ``retries`` times when its worker dies or it raises unexpectedly."""
-    try:
-        import ray
-    except ImportError as exc:
-        raise InputError(None, "--engine ray needs Ray", expected="pip install 'lanecast[ray]'") from exc
-    started_here = not ray.is_initialized()
-    if started_here:
-        if address:
-            ray.init(address=address, log_to_driver=False)
-        else:
-            ray.init(num_cpus=max(workers, 2), include_dashboard=False, log_to_driver=False)
-    try:
-        remote = ray.remote(max_retries=retries, retry_exceptions=True)(annotate_task)
-        refs = {remote.remote(task, options, False): task for task in tasks}
-        while refs:
-            done, _ = ray.wait(list(refs), num_returns=1, timeout=1.0)
-            for ref in done:
-                task = refs.pop(ref)
-                try:
-                    entry = ray.get(ref)
-                except Exception as exc:  # retries exhausted: the log fails, the run goes on
-                    entry = _crashed(
-                        task, f"Ray task failed after {retries} retries: {type(exc).__name__}: {exc}"
-                    )
-                on_messages(int((entry.get("counts") or {}).get("messages", 0)))
-                on_entry(entry)
-    finally:
-        if started_here:
-            ray.shutdown()
+    """The same task on Ray, one CPU each: retried ``retries`` times when its worker dies or it
+    raises unexpectedly. The workers must see the inputs and OUT_DIR by the same absolute paths."""
+    ray = ray_engine.ray_module()  # connected by run_bulk
+    ray_engine.refuse_unreachable_paths([out_dir, *(t.input for t in tasks)])
+    remote = ray.remote(num_cpus=1, max_retries=retries, retry_exceptions=True)(annotate_task)
+    refs = {remote.remote(task, options, False): task for task in tasks}
+    while refs:
+        done, _ = ray.wait(list(refs), num_returns=1, timeout=1.0)
+        for ref in done:
+            task = refs.pop(ref)
+            try:
+                entry = ray.get(ref)
+            except Exception as exc:  # retries exhausted: the log fails, the run goes on
+                entry = _crashed(
+                    task, f"Ray task failed after {retries} retries: {type(exc).__name__}: {exc}"
+                )
+            on_messages(int((entry.get("counts") or {}).get("messages", 0)))
+            on_entry(task, entry)

@@ -13,6 +13,7 @@ command: it has no ``register``.
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -32,7 +33,8 @@ from lanecast.models.evaluation import write_metrics
 from lanecast.models.metrics import accuracy, confusion_matrix, macro_f1, summary
 from lanecast.models.report import Scene, write_report
 from lanecast.pipeline.make_windows import make_windows
-from lanecast.workflows.bulk import Manifest, discover
+from lanecast.workflows.bulk import discover
+from lanecast.workflows.manifest import MANIFEST, Manifest
 
 STEP_NS = 100_000_000  # windows live on the 10 Hz grid; forecast times are matched on it
 
@@ -55,13 +57,10 @@ def annotated_logs(paths: list[Path]) -> list[Path]:
     """The annotated logs named by ``paths``: files, directories, or a bulk run's output directory."""
     found: list[Path] = []
     for path in paths:
-        if path.is_dir() and (path / "manifest.jsonl").is_file():
-            done = [
-                e for e in Manifest(path).latest().values() if e.get("status") == "done" and e.get("output")
-            ]
-            found += [
-                Path(e["output"]) if Path(e["output"]).is_absolute() else path / e["output"] for e in done
-            ]
+        if path.is_dir() and (path / MANIFEST).is_file():
+            manifest = Manifest(path)
+            done = [e for e in manifest.finished().values() if e.get("status") == "done" and e.get("output")]
+            found += [manifest.output_path(e) for e in done]
         else:
             found += discover([path], exclude=None)
     missing = [p for p in found if not p.exists()]
@@ -293,12 +292,21 @@ def write(
     return html
 
 
+def per_log_names(logs: list[Path]) -> dict[Path, str]:
+    """A folder name per log for its own report: its path below the logs' common folder, without the
+    suffix (``day1/drive``, ``day2/drive``), so that two logs of the same name never share one."""
+    root = Path(os.path.commonpath([str(p.absolute().parent) for p in logs]))
+    rel = {p: p.absolute().relative_to(root) for p in logs}
+    return {p: (r.with_suffix("") if p.is_file() else r).as_posix() for p, r in rel.items()}
+
+
 def report_logs(paths: list[Path], out: Path, *, topic: str | None = None, examples: int = 4) -> int:
     """Score every annotated log in ``paths`` and write the reports into ``out``; print a summary.
 
     Returns 0, or 1 when some log could not be scored (it is named; the others are reported).
     """
     logs = annotated_logs(paths)
+    names = per_log_names(logs)
     parts: list[dict[str, Any]] = []
     failed: list[str] = []
     links: list[tuple[str, str]] = []
@@ -319,12 +327,12 @@ def report_logs(paths: list[Path], out: Path, *, topic: str | None = None, examp
             "always_straight": always_straight_of([part]),
         }
         page = write(
-            out / "logs" / log.stem,
+            out / "logs" / names[log],
             metrics_of([part]),
             meta,
             example_scenes([part], examples),
             title=f"lanecast report: {log.name}",
-            links=[("all logs", "../../report.html")],
+            links=[("all logs", os.path.relpath(out / "report.html", out / "logs" / names[log]))],
         )
         links.append(
             (f"{log.name}: {len(part['future']):,} forecasts scored", page.relative_to(out).as_posix())
