@@ -18,12 +18,12 @@ from typing import Any
 
 import numpy as np
 
-from lanecast.io_adapters.contracts.windows import MANEUVERS, ROWS
+from lanecast.io_adapters.contracts.windows import MANEUVERS, NEIGHBOUR_ROWS, ROWS
 from lanecast.io_adapters.errors import InputError
 from lanecast.models.forecaster import Forecaster, Predictions
 
 #: The neighbour slots, by name (every row but the target's).
-NEIGHBOURS: tuple[str, ...] = tuple(r for r in ROWS if r != "T")
+NEIGHBOURS: tuple[str, ...] = NEIGHBOUR_ROWS
 
 
 def remove_rows(
@@ -145,3 +145,24 @@ def what_if(
         present=batch_present,
         predictions=preds,
     )
+
+
+def what_if_all(
+    forecaster: Forecaster, inputs: np.ndarray, present: np.ndarray, *, batch_size: int = 4096
+) -> tuple[np.ndarray, np.ndarray, Predictions]:
+    """Every window with each of its occupied neighbour slots removed in turn, in one prediction.
+
+    inputs float32 [N, 4, 8, 30], present bool [N, 8, 30] → (window index int64 [M], removed slot
+    int64 [M] (index into NEIGHBOURS), Predictions of the M what-ifs, top-1), ordered by window and
+    slot; M is the number of occupied (window, slot) pairs.
+    """
+    slot_rows = np.array([ROWS.index(n) for n in NEIGHBOURS])
+    occupied = np.asarray(present)[:, slot_rows].any(axis=2)  # [N, 7]
+    window, slot = np.nonzero(occupied)
+    cut_inputs = np.array(inputs[window], np.float32)
+    cut_present = np.array(present[window], bool)
+    m = np.arange(len(window))
+    cut_inputs[m, :, slot_rows[slot]] = 0.0
+    cut_present[m, slot_rows[slot]] = False
+    preds = forecaster.predict(cut_inputs, cut_present, top_k=1, batch_size=batch_size)
+    return window.astype(np.int64), slot.astype(np.int64), preds

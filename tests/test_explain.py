@@ -110,3 +110,48 @@ def test_cli_all_ranks_every_neighbour(
     assert again["scenarios"][0] == doc["scenarios"][0] and again["scenarios"][1]["removed"] == ["F", "RL"]
     assert main([*argv, "--remove", "X"]) == 2
     assert main([*argv[:4], "--time", "0.5", "--out", str(tmp_path / "y")]) == 2  # no 3 s of history yet
+
+
+def test_annotate_explain_writes_each_what_if(tmp_path: Path, forecaster: STCNNForecaster) -> None:
+    """/lanecast/explain holds, per target and forecast time, one line per neighbour removed, equal to
+    the forecast of that window with the neighbour's slot zeroed."""
+    from mcap.reader import make_reader
+
+    from lanecast.io_adapters import registry
+    from lanecast.io_adapters.annotations import forecast_messages as fm
+    from lanecast.io_adapters.contracts.windows import to_source_frame
+    from lanecast.workflows.annotate_log import AnnotateOptions, annotate_log, forecast_times
+    from lanecast.workflows.forecast import windows_to_forecast
+
+    frames = np.arange(100)
+    table = table_of(straight({1: (2, 0.0), 2: (3, 20.0), 3: (2, 40.0)}, frames), rotate=0.3)
+    log = registry.write_any(table, tmp_path / "drive.mcap", "mcap")
+    out = tmp_path / "annotated.mcap"
+    counts = annotate_log(log, out, AnnotateOptions(every_s=1.0, encoding="json", explain=True))
+    with open(out, "rb") as f:
+        messages = [(c.topic, m) for _, c, m in make_reader(f).iter_messages()]
+    topics = [t for t, _ in messages]
+    assert fm.EXPLAIN_TOPIC in topics
+    explain = [json.loads(m.data) for t, m in messages if t == fm.EXPLAIN_TOPIC]
+    times = [m.log_time for t, m in messages if t in (fm.FORECAST_TOPIC, fm.EXPLAIN_TOPIC)]
+    assert times == sorted(times)  # merged in log-time order
+    tracks = registry.read_any([log])
+    windows = windows_to_forecast(tracks, forecaster, t0_ns=forecast_times(tracks, 1.0))
+    entities = {(int(e["timestamp"]["sec"]), e["id"]): e for doc in explain for e in doc["entities"]}
+    occupied = sum(len(present_neighbours(windows.present[i])) for i in range(len(windows)))
+    assert len(entities) == occupied == counts["what_if_forecasts"] > 0
+    checked = 0
+    for i in range(len(windows)):
+        row = windows.index.slice(i, 1).to_pylist()[0]
+        names = present_neighbours(windows.present[i])
+        result = what_if(forecaster, windows.inputs[i], windows.present[i], [(n,) for n in names], top_k=1)
+        origin = (np.array([row["origin_x"]]), np.array([row["origin_y"]]), np.array([row["origin_heading"]]))
+        for s, name in enumerate(names, start=1):
+            e = entities[(row["t0_ns"] // 1_000_000_000, f"{row['track_id']} without {name}")]
+            meta = {kv["key"]: kv["value"] for kv in e["metadata"]}
+            assert meta["removed"] == name and meta["target_track_id"] == str(row["track_id"])
+            expected = to_source_frame(result.predictions.offsets[s][None], *origin)[0]
+            got = np.array([[p["x"], p["y"]] for p in e["lines"][0]["points"]])[-5:]
+            np.testing.assert_allclose(got, expected, atol=1e-4)
+            checked += 1
+    assert checked == occupied

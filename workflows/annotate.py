@@ -58,6 +58,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="PARQUET_OR_DIR",
         help="use precomputed forecasts (a table, or DIR/<log name>.parquet per log) instead of the model",
     )
+    p.add_argument(
+        "--explain",
+        action="store_true",
+        help="also /lanecast/explain: each target's what-if forecasts, one per neighbour removed (entity "
+        "'<id> without F', as lanecast explain draws them)",
+    )
     p.add_argument("--workers", type=int, default=1, help="logs annotated in parallel")
     p.add_argument(
         "--engine", choices=("local", "ray"), default="local", help="local processes or a Ray cluster"
@@ -77,7 +83,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.every <= 0:
         raise InputError(None, f"--every must be positive, got {args.every}", expected="seconds > 0")
-    if args.forecasts is None:
+    if args.forecasts is None or args.explain:
         read_card(resolve(args.model)[1])  # a bad model is one error up front, not one per log
     options = AnnotateOptions(
         model_dir=args.model,
@@ -86,6 +92,7 @@ def run(args: argparse.Namespace) -> int:
         top_k=args.top_k,
         encoding=args.encoding,
         forecasts=args.forecasts,
+        explain=args.explain,
     )
     result = bulk.run_bulk(
         args.inputs,

@@ -14,6 +14,7 @@ calls ``annotate_log`` for each log. This module is not a command: it has no ``r
 from __future__ import annotations
 
 import hashlib
+import heapq
 import os
 import time
 from collections.abc import Callable, Iterator
@@ -33,7 +34,8 @@ from lanecast.io_adapters.annotations import mcap_copy
 from lanecast.io_adapters.contracts.track_table import read_meta
 from lanecast.io_adapters.errors import InputError, LogError
 from lanecast.io_adapters.files import atomic_path, check_input, checksum
-from lanecast.workflows.forecast import forecast_table
+from lanecast.models.serving import load_forecaster
+from lanecast.workflows.forecast import forecast_table, forecast_windows, what_if_table, windows_to_forecast
 
 LOG_KINDS = ("mcap", "ros2", "ros1")
 MCAP_MAGIC = b"\x89MCAP0\r\n"
@@ -51,6 +53,7 @@ class AnnotateOptions:
     encoding: str = "auto"  # auto | protobuf | json (plain MCAP; ROS 2 logs are always CDR)
     forecasts: Path | None = None  # precomputed forecasts: a Parquet file, or a directory of <log>.parquet
     frame_id: str = "map"  # used only when the tracks are not read (precomputed forecasts with origins)
+    explain: bool = False  # also /lanecast/explain: each target's forecast with each neighbour removed
 
 
 def log_kind(path: Path) -> str:
@@ -208,11 +211,24 @@ def annotate_log(
     started = time.perf_counter()
     if forecasts is None and options.forecasts is not None:
         forecasts = precomputed_forecasts(src, options.forecasts)
-    need_tracks = forecasts is None or not {"origin_x", "origin_y"} <= set(forecasts.column_names)
+    need_tracks = (
+        forecasts is None or options.explain or not {"origin_x", "origin_y"} <= set(forecasts.column_names)
+    )
     read_here = tracks is None and need_tracks
     if read_here:
         tracks = read_tracks(src, options.topic)
     read_s = time.perf_counter() - started
+    what_ifs: pa.Table | None = None
+    if options.explain:
+        assert tracks is not None
+        forecaster = load_forecaster(options.model_dir)
+        times = forecast_times(tracks, options.every_s)
+        windows = windows_to_forecast(
+            tracks, forecaster, every_s=options.every_s, t0_ns=times, validated=read_here
+        )
+        if forecasts is None:
+            forecasts = forecast_windows(windows, top_k=options.top_k, forecaster=forecaster)
+        what_ifs = what_if_table(windows, forecaster)
     if forecasts is None:
         assert tracks is not None
         forecasts = predict(tracks, options, validated=read_here)
@@ -222,10 +238,10 @@ def annotate_log(
     if tracks is not None:
         frame_ids = {name: rec.coordinate_frame for name, rec in read_meta(tracks).recordings.items()}
     encoding = choose_encoding(kind, src, options.encoding, info=info)
-    specs = fm.channel_specs(encoding)
+    specs = fm.channel_specs(encoding) + ([fm.explain_channel_spec(encoding)] if what_ifs is not None else [])
     n_frames = 0
 
-    def extra() -> Iterator[mcap_copy.ExtraMessage]:
+    def forecast_messages() -> Iterator[mcap_copy.ExtraMessage]:
         nonlocal n_frames
         assert forecasts is not None
         batch = fm.batch_from_table(forecasts, frame_id=frame_ids, tracks=tracks, lifetime_s=options.every_s)
@@ -233,6 +249,17 @@ def annotate_log(
             n_frames += 1
             yield t0_ns, 0, scene
             yield t0_ns, 1, prediction
+
+    def explain_messages() -> Iterator[mcap_copy.ExtraMessage]:
+        if what_ifs is None:
+            return
+        batch = fm.batch_from_table(what_ifs, frame_id=frame_ids, tracks=tracks, lifetime_s=options.every_s)
+        for t0_ns, scene, _ in fm.encode_batch(batch, encoding):
+            yield t0_ns, 2, scene
+
+    def extra() -> Iterator[mcap_copy.ExtraMessage]:
+        """Forecasts and what-ifs merged in log-time order (the forecast of a time before its what-ifs)."""
+        yield from heapq.merge(forecast_messages(), explain_messages(), key=lambda m: (m[0], m[1]))
 
     write_started = time.perf_counter()
     digest = hashlib.sha256()
@@ -267,6 +294,7 @@ def annotate_log(
         **stats.as_dict(),
         "forecast_frames": n_frames,
         "forecast_targets": forecasts.num_rows,
+        "what_if_forecasts": 0 if what_ifs is None else what_ifs.num_rows,
         "read_s": round(read_s, 3),
         "model_s": round(model_s, 3),
         "write_s": round(write_s, 3),

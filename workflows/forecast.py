@@ -14,6 +14,7 @@ import pyarrow as pa
 
 from lanecast.io_adapters.contracts.windows import Windows
 from lanecast.io_adapters.errors import InputError
+from lanecast.models.explain import what_if_all
 from lanecast.models.forecaster import Forecaster
 from lanecast.models.forecasts import forecasts_table
 from lanecast.models.serving import load_forecaster
@@ -62,13 +63,27 @@ def forecast_table(
     origin_y (the target's centre at t0).
     An empty table (0 rows, same columns) when no target has 3 s of history.
     """
+    forecaster = forecaster or load_forecaster(model_dir)
+    windows = windows_to_forecast(table, forecaster, every_s=every_s, t0_ns=t0_ns, validated=validated)
+    return forecast_windows(windows, model_dir, top_k=top_k, batch_size=batch_size, forecaster=forecaster)
+
+
+def windows_to_forecast(
+    table: pa.Table,
+    forecaster: Forecaster,
+    *,
+    every_s: float = 1.0,
+    t0_ns: np.ndarray | None = None,
+    validated: bool = False,
+) -> Windows:
+    """The windows ``forecast_table`` predicts: every ``every_s`` seconds (or at ``t0_ns``), no future
+    needed, neighbours within the model card's range."""
     stride = round(every_s * WINDOW_RATE_HZ)
     if stride < 1:
         raise InputError(None, f"every_s={every_s}", expected=f"at least {1 / WINDOW_RATE_HZ:g} s")
-    forecaster = forecaster or load_forecaster(model_dir)
     card = getattr(forecaster, "card", None) or {}
     neighbour_range = (card.get("windows") or {}).get("neighbour_range_m") or NEIGHBOUR_RANGE_M
-    windows = make_windows(
+    return make_windows(
         table,
         stride=stride,
         require_future=False,
@@ -78,4 +93,12 @@ def forecast_table(
         neighbour_range=float(neighbour_range),
         validated=validated,
     )
-    return forecast_windows(windows, model_dir, top_k=top_k, batch_size=batch_size, forecaster=forecaster)
+
+
+def what_if_table(windows: Windows, forecaster: Forecaster, *, batch_size: int = 4096) -> pa.Table:
+    """What-if forecasts (``lanecast.models.explain.what_if_all``): one row per window and occupied
+    neighbour slot, the forecast with that neighbour removed, in the columns of a forecasts table plus
+    ``removed_slot`` (int8, index into the neighbour slots FL F FR L R RL RR)."""
+    window, slot, preds = what_if_all(forecaster, windows.inputs, windows.present, batch_size=batch_size)
+    table = forecasts_table(windows.index.take(pa.array(window)), preds)
+    return table.append_column("removed_slot", pa.array(slot.astype(np.int8)))

@@ -29,6 +29,7 @@ changes to it (issues 10, 11) have landed.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import json
 from collections.abc import Iterator, Mapping
@@ -42,12 +43,16 @@ import pyarrow.compute as pc
 
 from lanecast.io_adapters.annotations import byte_rows as br
 from lanecast.io_adapters.annotations.byte_rows import ByteRows
-from lanecast.io_adapters.contracts.windows import MANEUVER_COLOURS, MANEUVERS, UNKNOWN_COLOUR
+from lanecast.io_adapters.contracts.windows import MANEUVER_COLOURS, MANEUVERS, NEIGHBOUR_ROWS, UNKNOWN_COLOUR
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.logs.mcap_writer import scene_update_jsonschema
 
 FORECAST_TOPIC = "/lanecast/forecast"
 PREDICTION_TOPIC = "/lanecast/prediction"
+#: What-if forecasts (``lanecast annotate --explain``): per target, the forecast with one neighbour removed.
+EXPLAIN_TOPIC = "/lanecast/explain"
+#: The neighbour slots a what-if removes, by index.
+WHAT_IF_SLOTS: tuple[str, ...] = NEIGHBOUR_ROWS
 Encoding = Literal["protobuf", "json", "cdr"]
 ENCODINGS: tuple[str, ...] = ("protobuf", "json", "cdr")
 
@@ -123,6 +128,7 @@ class ForecastFrame:
     alt_prob: np.ndarray  # float64 [M, K]
     alt_maneuver: np.ndarray  # int64 [M, K, 5]
     lifetime_ns: int = 0
+    removed: np.ndarray | None = None  # int64 [M]: what-ifs only, the neighbour slot removed (WHAT_IF_SLOTS)
 
 
 @dataclass(frozen=True)
@@ -146,6 +152,7 @@ class ForecastBatch:
     alt_prob: np.ndarray  # float64 [N, K]
     alt_maneuver: np.ndarray  # int64 [N, K, 5]
     lifetime_ns: int = 0
+    removed: np.ndarray | None = None  # int64 [N]: what-ifs only, the neighbour slot removed (WHAT_IF_SLOTS)
 
     @property
     def n_frames(self) -> int:
@@ -181,6 +188,7 @@ class ForecastBatch:
             **{name: getattr(frame, name) for name in _ROW_FIELDS},
             horizon_s=frame.horizon_s,
             lifetime_ns=frame.lifetime_ns,
+            removed=frame.removed,
         )
 
     def slice(self, first: int, last: int) -> ForecastBatch:
@@ -194,6 +202,7 @@ class ForecastBatch:
             horizon_s=self.horizon_s,
             **{name: getattr(self, name)[lo:hi] for name in _ROW_FIELDS},
             lifetime_ns=self.lifetime_ns,
+            removed=None if self.removed is None else self.removed[lo:hi],
         )
 
     def frames(self) -> Iterator[ForecastFrame]:
@@ -207,6 +216,7 @@ class ForecastBatch:
                 horizon_s=self.horizon_s,
                 **{name: getattr(self, name)[lo:hi] for name in _ROW_FIELDS},
                 lifetime_ns=self.lifetime_ns,
+                removed=None if self.removed is None else self.removed[lo:hi],
             )
 
 
@@ -387,6 +397,9 @@ def batch_from_table(
         alt_prob = np.zeros((n, 0))
         alt_points = np.zeros((n, 0, N_STEPS, 2))
         alt_maneuver = np.zeros((n, 0, N_STEPS), dtype=np.int64)
+    removed = None
+    if "removed_slot" in forecasts.column_names:  # what-if forecasts (lanecast annotate --explain)
+        removed = forecasts.column("removed_slot").to_numpy(zero_copy_only=False).astype(np.int64)
     cuts = np.flatnonzero((np.diff(t0) != 0) | (np.diff(rec_code) != 0)) + 1
     bounds = np.r_[0, cuts, n].astype(np.int64)
     names = [str(rec_names[c]) for c in rec_code[bounds[:-1]].tolist()]
@@ -405,6 +418,7 @@ def batch_from_table(
         alt_prob=alt_prob,
         alt_maneuver=alt_maneuver,
         lifetime_ns=round(lifetime_s * 1e9),
+        removed=removed,
     )
 
 
@@ -456,6 +470,9 @@ def _drawing(batch: ForecastBatch) -> _Drawing:
         axis=1,
     )
     ids = br.json_ints(batch.track_id)
+    if batch.removed is not None:  # one entity per what-if: "<track id> without <slot>"
+        suffix = np.array([f" without {slot}".encode() for slot in WHAT_IF_SLOTS], dtype="S")
+        ids = ByteRows.from_strings(np.char.add(batch.track_id.astype("S"), suffix[batch.removed]))
     labels = ByteRows.from_strings(np.array(LABELS, dtype="S"))
     horizon = json.dumps(batch.horizon_s.tolist()).encode()
     metadata = [
@@ -466,6 +483,12 @@ def _drawing(batch: ForecastBatch) -> _Drawing:
         ("horizon_s", ByteRows.constant(horizon, n)),
         ("top_k_probs", _probability_texts(np.round(batch.alt_prob, 4), batch.bounds, row_frame)),
     ]
+    if batch.removed is not None:
+        slots = ByteRows.from_strings(np.array([s.encode() for s in WHAT_IF_SLOTS], dtype="S"))
+        metadata += [
+            ("target_track_id", br.json_ints(batch.track_id)),
+            ("removed", slots.take(batch.removed)),
+        ]
     return _Drawing(row_frame, ids, xy, keep, rgba, metadata)
 
 
@@ -920,6 +943,11 @@ def channel_specs(encoding: str) -> list[ChannelSpec]:
 
 #: Targets encoded per bulk pass: bounds the memory of the encoded messages, not their speed.
 BULK_ROWS = 20_000
+
+
+def explain_channel_spec(encoding: str) -> ChannelSpec:
+    """The /lanecast/explain channel: SceneUpdate as on /lanecast/forecast, one entity per what-if."""
+    return dataclasses.replace(channel_specs(encoding)[0], topic=EXPLAIN_TOPIC)
 
 
 def encode_batch(batch: ForecastBatch, encoding: str) -> Iterator[tuple[int, bytes, bytes]]:

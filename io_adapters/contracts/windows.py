@@ -33,6 +33,8 @@ from lanecast.io_adapters.files import atomic_path
 ROWS: tuple[str, ...] = ("FL", "F", "FR", "L", "T", "R", "RL", "RR")
 #: Row of the target vehicle.
 TARGET_ROW = ROWS.index("T")
+#: The neighbour slots (every row but the target's), in row order.
+NEIGHBOUR_ROWS: tuple[str, ...] = tuple(r for r in ROWS if r != "T")
 CHANNELS: tuple[str, ...] = ("x", "y", "v", "a")
 CHANNEL_UNITS: tuple[str, ...] = ("m", "m", "m/s", "m/s^2")
 HISTORY = 30  # frames at 10 Hz, t0 included
