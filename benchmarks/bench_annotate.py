@@ -8,12 +8,14 @@ process (so that peak RSS is per task):
 - plain copy: every record streamed into a new MCAP (``copy_mcap`` with nothing to merge);
 - annotate: ``lanecast.workflows.annotate_log.annotate_log`` (pass 1 tracks, the model, pass 2 copy + merge).
 
-Printed: MB of log per second for both, annotation excluding model time, the model's share, and
-peak RSS. Goals: annotate (excluding model) >= 0.5 x plain copy; peak RSS < 1.5 GB for a 1 GB log.
-``--forecasts synthetic`` skips the reader and the model (precomputed forecasts with origins) to
-measure the copy and merge alone.
+- annotate with precomputed forecasts (with origins): no reader, no model: copy, encode, merge.
 
-    .venv/bin/python benchmarks/bench_annotate.py [--size-mb 1024] [--frame-kb 200] [--vehicles 40]
+The three tasks run in turn, ``--rounds`` times (order reversed every round); printed: medians with
+min–max, MB of log per second, speed ratios to the plain copy with their per-round range, the model's
+share and peak RSS. Goals: annotate excluding the model time >= 0.7 x the plain copy's speed, with
+the model >= 0.5 x; peak RSS < 1.5 GB for a 1 GB log.
+
+    .venv/bin/python benchmarks/bench_annotate.py [--size-mb 1024] [--frame-kb 200] [--vehicles 40] [--rounds 3]
 """
 
 from __future__ import annotations
@@ -22,6 +24,8 @@ import argparse
 import multiprocessing as mp
 import os
 import resource
+import statistics
+import sys
 import tempfile
 import time
 from collections.abc import Iterator
@@ -30,6 +34,10 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from interleave import Samples, machine_line, ratio, round_orders
 
 S = 1_000_000_000
 
@@ -189,10 +197,11 @@ def main() -> None:
     ap.add_argument("--size-mb", type=float, default=1024)
     ap.add_argument("--frame-kb", type=float, default=200)
     ap.add_argument("--vehicles", type=int, default=40)
-    ap.add_argument("--forecasts", choices=("model", "synthetic"), default="model")
+    ap.add_argument("--rounds", type=int, default=3, help="interleaved rounds (each task once per round)")
     ap.add_argument("--dir", type=Path, default=None, help="working directory (default: a temporary one)")
     ap.add_argument("--model", type=Path, default=None, help="model directory (default: the shipped model)")
     args = ap.parse_args()
+    print(machine_line("before"))
     if args.dir is not None:
         args.dir.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=args.dir) as tmp:
@@ -204,36 +213,54 @@ def main() -> None:
             f"log: {size_mb:.0f} MB, {duration:.0f} s, {args.vehicles} vehicles at a time "
             f"(built in {time.perf_counter() - t:.0f} s)"
         )
-        plain = _in_child(_plain, str(src), str(Path(tmp) / "plain.mcap"))
-        os.unlink(Path(tmp) / "plain.mcap")
-        model = args.model
-        if model is None and args.forecasts == "model":
-            model = model_for_timing(Path(tmp) / "model")
-        ann = _in_child(
-            _annotate,
-            str(src),
-            str(Path(tmp) / "annotated.mcap"),
-            args.forecasts == "synthetic",
-            duration,
-            args.vehicles,
-            str(model) if model else None,
+        model = args.model or model_for_timing(Path(tmp) / "model")
+        out = str(Path(tmp) / "out.mcap")
+        tasks = {
+            "plain copy": (_plain, (str(src), out)),
+            "annotate (model)": (
+                _annotate,
+                (str(src), out, False, duration, args.vehicles, str(model) if model else None),
+            ),
+            "annotate (precomputed forecasts)": (
+                _annotate,
+                (str(src), out, True, duration, args.vehicles, None),
+            ),
+        }
+        results: dict[str, list[dict[str, Any]]] = {name: [] for name in tasks}
+        for order in round_orders(list(tasks), args.rounds):
+            for name in order:
+                fn, fn_args = tasks[name]
+                results[name].append(_in_child(fn, *fn_args))
+                os.unlink(out)
+            print(f"round done ({machine_line()})", flush=True)
+
+    def samples(name: str, key: str = "seconds") -> Samples:
+        return Samples([r[key] for r in results[name]])
+
+    plain, model_run, pre = (samples(n) for n in tasks)
+    without_model = Samples([r["seconds"] - r["model_s"] for r in results["annotate (model)"]])
+    print(
+        f"\nwall seconds, median (min–max) of {args.rounds} interleaved rounds, each task in its own process"
+    )
+    for name in tasks:
+        s = samples(name)
+        peak = max(r["peak_mb"] for r in results[name])
+        print(
+            f"  {name:<34}{s.text('.1f', higher_is_better=False)} s   {size_mb / s.median:6.1f} MB/s   peak RSS {peak:6.0f} MB"
         )
-    plain_rate = size_mb / plain["seconds"]
-    ann_rate = size_mb / ann["seconds"]
-    no_model = size_mb / max(ann["seconds"] - ann["model_s"], 1e-9)
+    last = results["annotate (model)"][-1]
     print(
-        f"plain copy : {plain['seconds']:7.1f} s  {plain_rate:7.1f} MB/s  peak RSS {plain['peak_mb']:6.0f} MB  ({plain['messages']:,} messages)"
+        f"  annotate (model), last run: read tracks {last['read_s']:.1f} s, model {last['model_s']:.1f} s, "
+        f"copy + merge {last['write_s']:.1f} s; {last['forecast_targets']:,} forecasts in {last['forecast_frames']:,} frames"
     )
+    print(f"annotate excluding the model / plain copy (speed): {ratio(plain, without_model)}   (goal >= 0.7)")
+    print(f"annotate with the model / plain copy (speed)     : {ratio(plain, model_run)}   (goal >= 0.5)")
+    print(f"annotate, precomputed forecasts / plain copy     : {ratio(plain, pre)}")
     print(
-        f"annotate   : {ann['seconds']:7.1f} s  {ann_rate:7.1f} MB/s  peak RSS {ann['peak_mb']:6.0f} MB  "
-        f"(read tracks {ann['read_s']:.1f} s, model {ann['model_s']:.1f} s, copy+merge {ann['write_s']:.1f} s; "
-        f"{ann['forecast_targets']:,} forecasts in {ann['forecast_frames']:,} frames; forecasts: {args.forecasts})"
+        f"model share of annotate: {100 * statistics.median(r['model_s'] / r['seconds'] for r in results['annotate (model)']):.0f} %; "
+        f"peak RSS of annotate {max(r['peak_mb'] for r in results['annotate (model)']):.0f} MB (goal < 1536 MB for a 1 GB log)"
     )
-    print(
-        f"annotate excluding model: {no_model:.1f} MB/s = {no_model / plain_rate:.2f} x plain copy (goal >= 0.5); "
-        f"model share {100 * ann['model_s'] / ann['seconds']:.0f} % of annotate time; "
-        f"peak RSS {ann['peak_mb']:.0f} MB (goal < 1536 MB for a 1 GB log)"
-    )
+    print(machine_line("after"))
 
 
 if __name__ == "__main__":

@@ -3,7 +3,9 @@
 Compared, in the same run, with the bare parse: ``pyarrow.csv.read_csv`` of the same three files
 (all columns, types inferred). Timed: ``registry.read_any([dir])`` (the highD adapter: parse,
 checks, road frame, validated track table) and the full ``lanecast convert DIR --out X.parquet``
-(in process). The goal: convert takes at most 2× the bare parse. Median of ``--repeat`` runs.
+(in process). The goal: convert takes at most 2× the bare parse. The three are timed in turn,
+``--repeat`` rounds (order reversed every round); medians with min–max, and the ratio of medians with
+the range of the per-round ratios. The load average is printed before and after.
 
 The recording is simulated once into ``benchmarks/_work/sim-15min-medium-seed1`` (and reused).
 
@@ -15,12 +17,15 @@ from __future__ import annotations
 import argparse
 import contextlib
 import io
-import statistics
+import sys
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 import pyarrow.csv as pacsv
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from interleave import interleaved_times, machine_line, ratio
 
 from lanecast.io_adapters import registry
 from lanecast.io_adapters.sim import sumo_highway
@@ -37,15 +42,6 @@ def recording(minutes: float, seed: int) -> tuple[Path, float | None]:
     started = time.perf_counter()
     sumo_highway.simulate(out, minutes=minutes, seed=seed, density="medium")
     return out, time.perf_counter() - started
-
-
-def median_time(fn: Callable[[], object], repeat: int) -> float:
-    times = []
-    for _ in range(repeat):
-        started = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - started)
-    return statistics.median(times)
 
 
 def main() -> None:
@@ -78,17 +74,24 @@ def main() -> None:
         if status != 0:
             raise SystemExit(f"lanecast convert failed with status {status}")
 
-    # Warm the caches (files, imports) once, then time alternately-ordered repetitions.
-    for f in files:
-        pacsv.read_csv(f)
-    registry.read_any([directory])
-    bare = median_time(lambda: [pacsv.read_csv(f) for f in files], args.repeat)
-    read = median_time(lambda: registry.read_any([directory]), args.repeat)
-    full = median_time(convert, args.repeat)
-    print(f"median of {args.repeat} (preliminary: shared machine):")
-    print(f"  pyarrow.csv.read_csv, 3 files      {bare:7.3f} s")
-    print(f"  registry.read_any([dir])           {read:7.3f} s   ratio {read / bare:5.2f}x")
-    print(f"  lanecast convert -> Parquet        {full:7.3f} s   ratio {full / bare:5.2f}x   (goal <= 2x)")
+    print(machine_line("before"))
+    times = interleaved_times(
+        {
+            "pyarrow.csv.read_csv, 3 files": lambda: [pacsv.read_csv(f) for f in files],
+            "registry.read_any([dir])": lambda: registry.read_any([directory]),
+            "lanecast convert -> Parquet": convert,
+        },
+        rounds=args.repeat,
+    )
+    bare = times["pyarrow.csv.read_csv, 3 files"]
+    print(f"wall seconds, median (min–max) of {args.repeat} interleaved rounds:")
+    for name, samples in times.items():
+        line = f"  {name:<34}{samples.text('.3f', higher_is_better=False)}"
+        if samples is not bare:
+            line += f"   ratio {ratio(samples, bare)}"
+        print(line)
+    print("  goal: convert <= 2x the bare parse")
+    print(machine_line("after"))
 
 
 if __name__ == "__main__":

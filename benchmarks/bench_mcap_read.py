@@ -2,7 +2,8 @@
 
 Compared, in the same run, with a bare loop that only decodes every message with the ``mcap``
 reader (CRC validation on, ``mcap_protobuf`` decoder). The goal is at least half the bare loop's
-speed. The log comes from a synthetic table (``--tracks`` tracks of ``--frames`` frames at 25 Hz,
+speed. The two are timed in turn, ``--repeats`` rounds (order reversed every round): medians with
+min–max (wall and CPU), best-of beside them, and the load average. The log comes from a synthetic table (``--tracks`` tracks of ``--frames`` frames at 25 Hz,
 start times spread over ``--minutes``), so the figures need no dataset.
 
     .venv/bin/python benchmarks/bench_mcap_read.py [--tracks 1000] [--frames 600] [--minutes 15]
@@ -11,12 +12,18 @@ start times spread over ``--minutes``), so the figures need no dataset.
 from __future__ import annotations
 
 import argparse
+import statistics
+import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from interleave import Samples, machine_line, ratio, round_orders
 
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.logs import mcap_reader, mcap_writer
@@ -74,23 +81,12 @@ def bare_loop(path: Path) -> int:
     return n
 
 
-def best_of(fn, repeats: int) -> tuple[float, float, object]:
-    """Best wall time and best CPU time (process) over ``repeats`` runs, and the last result."""
-    wall, cpu, result = float("inf"), float("inf"), None
-    for _ in range(repeats):
-        t0, c0 = time.perf_counter(), time.process_time()
-        result = fn()
-        wall = min(wall, time.perf_counter() - t0)
-        cpu = min(cpu, time.process_time() - c0)
-    return wall, cpu, result
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--tracks", type=int, default=1000)
     ap.add_argument("--frames", type=int, default=600)
     ap.add_argument("--minutes", type=float, default=15.0)
-    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--log", type=Path, help="reuse or keep the generated log here")
     args = ap.parse_args()
 
@@ -102,20 +98,42 @@ def main() -> None:
             mcap_writer.write(table, path, "mcap")
             print(f"wrote {path}: {table.num_rows:,} rows in {time.perf_counter() - t0:.1f} s")
         size = path.stat().st_size
-        t_bare, c_bare, n_msgs = best_of(lambda: bare_loop(path), args.repeats)
-        t_ours, c_ours, table = best_of(lambda: mcap_reader.read(path), args.repeats)
-        assert isinstance(table, pa.Table) and isinstance(n_msgs, int)
+        print(machine_line("before"))
+        fns = {
+            "bare mcap decode loop": lambda: bare_loop(path),
+            "lanecast read -> table": lambda: mcap_reader.read(path),
+        }
+        for fn in fns.values():  # warm-up: imports, page cache
+            fn()
+        wall: dict[str, list[float]] = {name: [] for name in fns}
+        cpu: dict[str, list[float]] = {name: [] for name in fns}
+        for order in round_orders(list(fns), args.repeats):
+            for name in order:
+                t0, c0 = time.perf_counter(), time.process_time()
+                fns[name]()
+                wall[name].append(time.perf_counter() - t0)
+                cpu[name].append(time.process_time() - c0)
+        n_msgs = bare_loop(path)
+        table = mcap_reader.read(path)
+        assert isinstance(table, pa.Table)
         print(f"log: {size / 1e6:.1f} MB, {n_msgs:,} messages, {table.num_rows:,} objects")
+        print(f"seconds, median (min–max; best) of {args.repeats} interleaved rounds")
+        for name in fns:
+            w, c = Samples(wall[name]), Samples(cpu[name])
+            print(
+                f"  {name:<24} wall {w.text('.2f', higher_is_better=False)}  CPU {c.text('.2f', higher_is_better=False)}"
+                f"  {n_msgs / w.median:9,.0f} msg/s"
+            )
+        bare, ours = (Samples(wall[n]) for n in fns)
+        bare_c, ours_c = (Samples(cpu[n]) for n in fns)
         print(
-            f"bare mcap decode loop : {t_bare:6.2f} s wall {c_bare:6.2f} s CPU  {n_msgs / t_bare:9,.0f} msg/s"
+            f"speed relative to the bare loop: wall {ratio(bare, ours)}, CPU {ratio(bare_c, ours_c)} (goal >= 0.5)"
         )
+        best = min(wall["bare mcap decode loop"]) / min(wall["lanecast read -> table"])
         print(
-            f"lanecast read → table : {t_ours:6.2f} s wall {c_ours:6.2f} s CPU  {n_msgs / t_ours:9,.0f} msg/s  "
-            f"{table.num_rows / t_ours:11,.0f} rows/s"
+            f"  (best-of only: {best:.2f}; median of per-round ratios {statistics.median(b / o for b, o in zip(wall['bare mcap decode loop'], wall['lanecast read -> table'], strict=True)):.2f})"
         )
-        print(
-            f"speed relative to the bare loop: {t_bare / t_ours:.2f} wall, {c_bare / c_ours:.2f} CPU (goal ≥ 0.5)"
-        )
+        print(machine_line("after"))
 
 
 if __name__ == "__main__":
