@@ -154,7 +154,7 @@ def main() -> int:
     for b in batches:
         print(f"\nbatch {b}")
         for name, samples in table[b].items():
-            print(f"  {name:<28}{samples.text()}")
+            print(f"  {name:<34}{samples.text()}")
         row = table[b]
         print(f"  ONNX library / torch library (default threads): {ratio(row[LIB_ORT], row[LIB_TORCH])}")
         print(f"  ONNX library / torch library (--threads)      : {ratio(row[LIB_ORT], row[LIB_TORCH_N])}")
