@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 from lanecast.io_adapters import registry
@@ -91,8 +91,10 @@ def read_or_refuse(paths: list[Path], where: Path, **options: Any) -> pa.Table |
     except LanecastError as exc:
         assert str(where) in str(exc), f"the refusal does not name the file: {exc}"
         assert "\n" not in str(exc).strip(), f"a refusal is one line: {exc!r}"
+        event(f"refused ({type(exc).__name__})")
         return None
     track_table.validate(table)
+    event("accepted")
     return table
 
 
@@ -428,7 +430,9 @@ def test_fuzz_model_card(data: st.DataObject) -> None:
                 net, loaded = load_checkpoint(d)
         except LanecastError as exc:
             assert str(d) in str(exc)
+            event(f"refused ({type(exc).__name__})")
             return
+        event("accepted")
         rng = np.random.default_rng(0)
         inputs = rng.normal(0, 20, (8, 4, 8, 30)).astype(np.float32)
         preds = STCNNForecaster(net, loaded).predict(inputs, np.ones((8, 8, 30), bool), top_k=2)
@@ -456,7 +460,9 @@ def test_fuzz_annotate_mcap(seeds: Seeds, data: st.DataObject) -> None:
                 annotate_log(src, d / "out.mcap")
         except LanecastError as exc:
             assert str(d) in str(exc), f"the refusal does not name the file: {exc}"
+            event(f"refused ({type(exc).__name__})")
             return
+        event("accepted")
         back = mcap_reader.read(d / "out.mcap")
         for name in ("track_id", "frame", "x", "y", "length", "width"):
             assert back.column(name).to_pylist() == original.column(name).to_pylist()

@@ -736,3 +736,14 @@ def test_values_beyond_float32_are_refused_at_their_line(tmp_path: Path) -> None
     with pytest.raises(InputError) as err:
         registry.read_any([path])
     assert (err.value.line, err.value.column) == (5, "v_Acc")
+
+
+def test_two_inputs_with_one_recording_name_are_named(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    a = track_table.write_parquet(registry.read_any([US101]), tmp_path / "a.parquet")
+    b = tmp_path / "b.parquet"
+    b.write_bytes(a.read_bytes())
+    status, err = cli(["convert", str(a), str(b), "--out", str(tmp_path / "c.parquet")], capsys)
+    assert_one_line_error(status, err.splitlines()[-1], "convert", str(b))
+    assert str(a) in err

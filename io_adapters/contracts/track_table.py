@@ -9,7 +9,7 @@ recording, the frame rate, the coordinate frame and whatever the source gives (l
 from __future__ import annotations
 
 import json
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -327,21 +327,28 @@ def track_boundaries(table: pa.Table) -> np.ndarray:
     return run_bounds(recording_codes(table)[1], table.column("track_id").to_numpy())
 
 
-def concat(tables: Iterable[pa.Table]) -> pa.Table:
+def concat(tables: Iterable[pa.Table], sources: Sequence[str] | None = None) -> pa.Table:
     """Concatenate track tables from several sources into one, merging their metadata.
 
-    Recording names must be unique across the inputs.
+    Recording names must be unique across the inputs; ``sources`` (one per table, e.g. the files
+    read) name them in the error otherwise (default: each table's own source files).
     """
     tables = list(tables)
     if not tables:
         raise TrackTableError("nothing to concatenate")
     metas = [read_meta(t) for t in tables]
     recordings: dict[str, RecordingMeta] = {}
-    for m in metas:
-        clash = set(recordings) & set(m.recordings)
+    origin: dict[str, str] = {}
+    for i, m in enumerate(metas):
+        clash = sorted(set(recordings) & set(m.recordings))
+        here = sources[i] if sources is not None else ", ".join(m.source_files) or "an input"
         if clash:
-            raise TrackTableError(f"recording names {sorted(clash)} occur in more than one input")
+            raise TrackTableError(
+                f"{here}: recording names {clash} occur in more than one input (also in {origin[clash[0]]}); "
+                "expected inputs with distinct recording names (rename a file)"
+            )
         recordings.update(m.recordings)
+        origin.update(dict.fromkeys(m.recordings, here))
     formats = sorted({m.source_format for m in metas})
     files = [f for m in metas for f in m.source_files]
     meta = TableMeta("+".join(formats), recordings, files)

@@ -23,7 +23,7 @@ def sniff(path: Path) -> bool:
 
 def read(paths: Sequence[Path], **_: Any) -> pa.Table:
     tables = [track_table.read_parquet(p) for p in paths]
-    return tables[0] if len(tables) == 1 else track_table.concat(tables)
+    return tables[0] if len(tables) == 1 else track_table.concat(tables, [str(p) for p in paths])
 
 
 def write(table: pa.Table, out: Path, fmt: str = FORMAT, **_: Any) -> Path:

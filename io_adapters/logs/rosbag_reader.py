@@ -147,4 +147,4 @@ def read(paths: Sequence[str | Path] | str | Path, **options: Any) -> pa.Table:
     if isinstance(paths, (str, Path)):
         paths = [paths]
     tables = [read_log(p, **options) for p in paths]
-    return tables[0] if len(tables) == 1 else track_table.concat(tables)
+    return tables[0] if len(tables) == 1 else track_table.concat(tables, [str(p) for p in paths])
