@@ -44,6 +44,7 @@ from typing import Any
 from lanecast import __version__
 from lanecast.io_adapters.errors import InputError, LanecastError
 from lanecast.io_adapters.files import bar, check_input, checksum
+from lanecast.models.card import resolve
 from lanecast.workflows import ray_engine
 from lanecast.workflows.annotate_log import (
     AnnotateOptions,
@@ -272,8 +273,6 @@ def annotate_task(task: Task, options: AnnotateOptions, catch_all: bool = True) 
 
 def model_identity(model_dir: Path | None) -> dict[str, str]:
     """The model that makes the forecasts: its name and the sha256 of its weights and card."""
-    from lanecast.models.checkpoint import resolve  # torch: only when the run predicts
-
     weights, card = resolve(model_dir)
     h = hashlib.sha256()
     for f in (weights, card):
