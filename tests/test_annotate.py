@@ -390,6 +390,7 @@ def test_bags_written_by_lanecast_are_annotated_end_to_end(tmp_path: Path, fmt: 
     """Pass 1 through the registry's bag reader, the model, pass 2 into a ROS 2 bag / an MCAP."""
     pytest.importorskip("lanecast.workflows.forecast")
     from rosbags.highlevel import AnyReader
+    from ruamel.yaml import YAML  # rosbags' own YAML library
 
     from lanecast.io_adapters import registry
 
@@ -426,15 +427,22 @@ def test_bags_written_by_lanecast_are_annotated_end_to_end(tmp_path: Path, fmt: 
             ]
         assert [m for m in annotated if m[0] not in (fm.FORECAST_TOPIC, fm.PREDICTION_TOPIC)] == original
         assert len(scenes) == 5 and scenes[0].entities[0].id == "3"
+        custom = [
+            YAML(typ="safe").load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"][
+                "custom_data"
+            ]
+            for bag in (src, out)
+        ]
+        assert custom[1] == custom[0] and "lanecast" in custom[0]  # metadata.yaml's custom_data kept
         assert scenes[0].entities[0].lines[0].points[0].x == pytest.approx(30.0 * 3.0)
     else:
         with open(out, "rb") as f:
             topics = [c.topic for _, c, _ in make_reader(f).iter_messages()]
         assert topics.count(fm.FORECAST_TOPIC) == 5 and topics.count(fm.PREDICTION_TOPIC) == 5
-    if fmt == "ros2":  # (the MCAP reader does not read ROS 1 messages in MCAP)
-        again = registry.read_any([out])
-        assert again.column("x").to_pylist() == registry.read_any([src]).column("x").to_pylist()
-    else:  # an annotated log is not annotated twice
+    again = registry.read_any([out])  # ROS 1 messages in MCAP too: lanecast reads its own outputs
+    assert again.column("x").to_pylist() == registry.read_any([src]).column("x").to_pylist()
+    assert again.column("track_id").to_pylist() == registry.read_any([src]).column("track_id").to_pylist()
+    if fmt == "ros1":  # an annotated log is not annotated twice
         with pytest.raises(LogError, match="already has topic"):
             annotate_log(out, tmp_path / "twice.mcap", AnnotateOptions(model_dir=model))
         assert not (tmp_path / "twice.mcap").exists()

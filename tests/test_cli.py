@@ -9,6 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from lanecast import __version__
@@ -83,3 +84,59 @@ def test_a_closed_stdout_ends_quietly(tmp_path: Path) -> None:
     err = proc.stderr.read().decode()
     assert proc.wait(timeout=120) == 141
     assert "Traceback" not in err and "BrokenPipe" not in err
+
+
+@pytest.fixture
+def small_table(tmp_path: Path) -> Path:
+    from conftest import make_track_table
+
+    from lanecast.io_adapters.contracts import track_table
+
+    n = 30
+    table = make_track_table(
+        {"track_id": np.repeat([1, 2], n), "frame": np.tile(np.arange(n), 2), "x": np.arange(2 * n) * 1.0,
+         "y": np.zeros(2 * n), "lane_id": np.ones(2 * n, dtype=np.int32)},
+        coordinate_frame="map",
+    )  # fmt: skip
+    return track_table.write_parquet(table, tmp_path / "t.parquet")
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--out", "x.csv"], "--out {tmp}/x.csv: lanecast does not write .csv files"),
+        (["--to", "mcap", "--out", "x.parquet"], "--to mcap writes .mcap files"),
+        (["--to", "ros2", "--out", "x.mcap"], "a ROS 2 bag is a directory"),
+    ],
+)
+def test_convert_refuses_a_suffix_it_would_not_write(
+    small_table: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], args: list[str], message: str
+) -> None:
+    out_arg = args.index("--out") + 1
+    args = [*args[:out_arg], str(tmp_path / args[out_arg]), *args[out_arg + 1 :]]
+    assert cli.main(["convert", str(small_table), *args]) == 2
+    assert message.format(tmp=tmp_path) in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["t.parquet"]
+
+
+def test_convert_to_ros2_writes_mcap_storage_unless_asked(small_table: Path, tmp_path: Path) -> None:
+    from lanecast.io_adapters import registry
+
+    assert cli.main(["convert", str(small_table), "--to", "ros2", "--out", str(tmp_path / "bag")]) == 0
+    assert [p.suffix for p in (tmp_path / "bag").iterdir() if p.name != "metadata.yaml"] == [".mcap"]
+    assert "storage_identifier: mcap" in (tmp_path / "bag" / "metadata.yaml").read_text()
+    args = [
+        "convert",
+        str(small_table),
+        "--to",
+        "ros2",
+        "--storage",
+        "sqlite3",
+        "--out",
+        str(tmp_path / "b3"),
+    ]
+    assert cli.main(args) == 0
+    assert [p.suffix for p in (tmp_path / "b3").iterdir() if p.name != "metadata.yaml"] == [".db3"]
+    for bag in ("bag", "b3"):
+        back = registry.read_any([tmp_path / bag])
+        assert back.column("x").to_pylist() == registry.read_any([small_table]).column("x").to_pylist()

@@ -138,7 +138,7 @@ def test_ros2_metadata_in_custom_data(tmp_path: Path) -> None:
         and doc["units"]["vx"] == "m/s"
         and sorted(doc["recordings"]) == ["north", "south"]
     )
-    assert (out / "bag.db3").is_file()
+    assert (out / "bag.mcap").is_file()  # MCAP storage by default
 
 
 def _ros1_bag(path: Path, with_tf: bool) -> Path:

@@ -9,11 +9,13 @@ from pathlib import Path
 
 from lanecast.io_adapters import registry
 from lanecast.io_adapters.contracts import track_table
-from lanecast.io_adapters.errors import InputError
+from lanecast.io_adapters.errors import InputError, UsageError
 from lanecast.io_adapters.files import check_output
+from lanecast.io_adapters.logs.rosbag_writer import STORAGES
 from lanecast.workflows.vocabulary import HelpFormatter
 
 _SUFFIX_TO_FORMAT = {".parquet": "parquet", ".pq": "parquet", ".mcap": "mcap", ".bag": "ros1"}
+_FORMAT_SUFFIXES = {"parquet": (".parquet", ".pq"), "mcap": (".mcap",), "ros1": (".bag",)}
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -22,13 +24,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="convert highD, NGSIM, MCAP, ROS bags or a track table into a track table or a drive log",
         description=(
             "Read INPUTs (format detected per file, or --format) into lanecast's track table and write it as "
-            "Parquet (default) or as a drive log (--to mcap|ros2|ros1)."
+            "Parquet (default) or as a drive log (--to mcap|ros2|ros1; the format follows --out's suffix)."
         ),
         epilog=(
             "examples:\n"
             "  lanecast convert data/highD/01_tracks.csv --out highd-01.parquet\n"
             "  lanecast convert trajectories-0750am-0805am.txt --out us101.parquet\n"
-            "  lanecast convert highd-01.parquet --to mcap --out highd-01.mcap"
+            "  lanecast convert highd-01.parquet --out highd-01.mcap\n"
+            "  lanecast convert highd-01.parquet --to ros2 --out highd-01-bag   # a ROS 2 bag, MCAP storage"
         ),
         formatter_class=HelpFormatter,
     )
@@ -41,6 +44,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="output format (default: from --out's suffix, else parquet)",
     )
     p.add_argument(
+        "--storage",
+        choices=STORAGES,
+        default=STORAGES[0],
+        help="storage of a ROS 2 bag (sqlite3 for tools that read nothing else)",
+    )
+    p.add_argument(
         "--topic", help="for logs: the topic with tracked objects (default: every supported topic)"
     )
     p.add_argument(
@@ -50,7 +59,26 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def output_format(out: Path, to: str | None) -> str:
-    return to or _SUFFIX_TO_FORMAT.get(out.suffix.lower(), "parquet")
+    """The format ``--out`` (and ``--to``) ask for; a suffix lanecast would not write is refused
+    (``--out x.csv`` never gets Parquet bytes under a CSV name)."""
+    suffix = out.suffix.lower()
+    fmt = to or _SUFFIX_TO_FORMAT.get(suffix) or (None if suffix else "parquet")
+    if fmt is None:
+        raise UsageError(
+            f"--out {out}",
+            f"lanecast does not write {suffix} files",
+            expected="a .parquet, .mcap or .bag name, or --to ros2 and a directory name",
+        )
+    wanted = _FORMAT_SUFFIXES.get(fmt, ())
+    if suffix and wanted and suffix not in wanted:
+        raise UsageError(
+            f"--out {out}", f"--to {fmt} writes {wanted[0]} files", expected=f"a {wanted[0]} name"
+        )
+    if fmt == "ros2" and suffix in _SUFFIX_TO_FORMAT:
+        raise UsageError(
+            f"--out {out}", "a ROS 2 bag is a directory", expected="a directory name without a file suffix"
+        )
+    return fmt
 
 
 def run(args: argparse.Namespace) -> int:
@@ -60,12 +88,12 @@ def run(args: argparse.Namespace) -> int:
         options["topic"] = args.topic
     if args.salvage:
         options["salvage"] = True
-    check_output(args.out, directory=output_format(args.out, args.to) == "ros2")
+    fmt = output_format(args.out, args.to)
+    check_output(args.out, directory=fmt == "ros2")
     if os.path.realpath(args.out) in {os.path.realpath(p) for p in args.inputs}:
         raise InputError(args.out, "the output would overwrite an input", expected="a new output path")
     table = registry.read_any(args.inputs, fmt=args.format, **options)
-    fmt = output_format(args.out, args.to)
-    path = registry.write_any(table, args.out, fmt)
+    path = registry.write_any(table, args.out, fmt, **({"storage": args.storage} if fmt == "ros2" else {}))
     n_tracks = len(track_table.track_boundaries(table)) - 1
     print(
         f"wrote {path} ({fmt}): {table.num_rows:,} rows, {n_tracks:,} tracks "

@@ -402,6 +402,20 @@ def copy_ros1_to_mcap(
     return stats
 
 
+def ros2_custom_data(bag: Path) -> dict[str, str]:
+    """The ``custom_data`` of a ROS 2 bag's metadata.yaml (string keys and values; empty if none)."""
+    from ruamel.yaml import YAML  # rosbags' own YAML library
+
+    try:
+        doc = YAML(typ="safe").load((Path(bag) / "metadata.yaml").read_text())
+        custom = doc["rosbag2_bagfile_information"].get("custom_data") or {}
+    except Exception as exc:  # any YAML or shape problem: rosbags' reader reports it first anyway
+        raise LogError(bag, f"cannot read metadata.yaml's custom_data: {exc}") from exc
+    if not isinstance(custom, dict):
+        raise LogError(bag, "metadata.yaml's custom_data is not a mapping", expected="key: value strings")
+    return {str(k): str(v) for k, v in custom.items()}
+
+
 def copy_ros2_bag(
     src: Path,
     dst: Path,
@@ -412,7 +426,8 @@ def copy_ros2_bag(
     progress: Progress | None = None,
 ) -> CopyStats:
     """Every connection and message of ROS 2 bag directory ``src`` into a new bag ``dst`` (which must
-    not exist; same storage plugin), merging ``extra`` on CDR topics registered from ``typestore``."""
+    not exist; same storage plugin, the same ``custom_data`` in metadata.yaml), merging ``extra`` on
+    CDR topics registered from ``typestore``."""
     from rosbags.rosbag2 import Reader, Writer
     from rosbags.rosbag2.errors import ReaderError
     from rosbags.rosbag2.writer import StoragePlugin
@@ -425,6 +440,8 @@ def copy_ros2_bag(
             _check_new_topics(src, [c.topic for c in reader.connections], channels)
             plugin = StoragePlugin.MCAP if any(src.glob("*.mcap")) else StoragePlugin.SQLITE3
             writer = Writer(dst, version=9, storage_plugin=plugin)
+            for key, value in ros2_custom_data(src).items():
+                writer.set_custom_data(key, value)
             writer.open()
             try:
                 out_conn = {}

@@ -311,12 +311,13 @@ class _LogDecoder:
             return self._frame_transforms(ch, name)
         if (
             schema is None
-            or ch.encoding != "cdr"
+            or ch.encoding not in ("cdr", "ros1")
             or not name.startswith(tuple({n.split("/")[0] for n in _ROS_NAMES.values()}))
         ):
             return None
-        store = ros_types.typestore(2)
-        deserialize = store.deserialize_cdr
+        # ROS 2 messages are CDR; ROS 1 messages in MCAP (an annotated ROS 1 bag) keep ROS 1's encoding
+        store = ros_types.typestore(1 if ch.encoding == "ros1" else 2)
+        deserialize = store.deserialize_ros1 if ch.encoding == "ros1" else store.deserialize_cdr
         if name in (ros_types.TRACKED_OBJECTS, ros_types.MARKER_ARRAY):
             if (
                 self.topic is not None

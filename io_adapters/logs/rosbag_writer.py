@@ -25,7 +25,7 @@ from lanecast.io_adapters.logs import ros_types
 from lanecast.io_adapters.logs import tracked_objects as to
 from lanecast.io_adapters.logs.mcap_crc import fill_crcs
 
-STORAGES = ("sqlite3", "mcap")
+STORAGES = ("mcap", "sqlite3")
 
 
 class _Builder:
@@ -169,8 +169,11 @@ class _Builder:
         return bytes(self.store.serialize_cdr(msg, typename))
 
 
-def write(table: pa.Table, out: Path, fmt: str = "ros2", *, storage: str = "sqlite3", **options: Any) -> Path:
-    """Write ``table`` as a ROS 2 bag directory (``fmt="ros2"``, ``storage`` sqlite3|mcap) or a ROS 1 .bag."""
+def write(table: pa.Table, out: Path, fmt: str = "ros2", *, storage: str = "mcap", **options: Any) -> Path:
+    """Write ``table`` as a ROS 2 bag directory (``fmt="ros2"``, ``storage`` mcap|sqlite3) or a ROS 1 .bag.
+
+    MCAP storage by default: chunked and zstd-compressed, about a hundredth of sqlite3's size for
+    the same traffic; sqlite3 for tools that read nothing else."""
     if fmt not in ("ros1", "ros2"):
         raise InputError(out, f"unknown bag format {fmt!r}", expected="ros1 or ros2")
     if storage not in STORAGES:
