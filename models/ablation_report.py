@@ -174,7 +174,7 @@ def write_ablation_report(directory: Path, result: dict[str, Any]) -> Path:
         "<!doctype html><html><head><meta charset='utf-8'><title>lanecast ablation</title><style>"
         "body{font-family:sans-serif;max-width:1150px;margin:2em auto;color:#222}"
         "table{border-collapse:collapse;margin:0.6em 0}td,th{border:1px solid #ccc;padding:3px 7px;"
-        "text-align:right;font-size:13px}th{background:#f3f3f3}td:first-child{text-align:left}"
+        "text-align:right;font-size:13px}th{background:#f3f3f3}td:first-child,th:first-child{text-align:left}"
         "img{max-width:100%}</style></head><body>",
         "<h1>Ablation study</h1>",
         "<p>The seven variants of Table II of Mersch et al. (IROS 2021), retrained on the same windows.</p>",
