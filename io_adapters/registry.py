@@ -35,6 +35,15 @@ WRITERS: dict[str, str] = {
 }
 
 
+# Options that only some readers take (the others never see them): NGSIM's ``location``.
+READER_ONLY_OPTIONS: dict[str, tuple[str, ...]] = {"location": ("ngsim",)}
+
+
+def options_for(fmt: str, options: dict[str, Any]) -> dict[str, Any]:
+    """``options`` without those meant for other readers (see ``READER_ONLY_OPTIONS``)."""
+    return {k: v for k, v in options.items() if fmt in READER_ONLY_OPTIONS.get(k, (fmt,))}
+
+
 def reader(fmt: str) -> ModuleType:
     if fmt not in READERS:
         raise FormatNotRecognisedError(
@@ -72,7 +81,7 @@ def read_any(paths: Sequence[str | Path], fmt: str | None = None, **options: Any
     groups: dict[str, list[Path]] = {}
     for p in map(check_input, paths):
         groups.setdefault(fmt or detect(p), []).append(p)
-    tables = [reader(name).read(group, **options) for name, group in groups.items()]
+    tables = [reader(name).read(group, **options_for(name, options)) for name, group in groups.items()]
     return tables[0] if len(tables) == 1 else track_table.concat(tables)
 
 

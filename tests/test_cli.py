@@ -140,3 +140,10 @@ def test_convert_to_ros2_writes_mcap_storage_unless_asked(small_table: Path, tmp
     for bag in ("bag", "b3"):
         back = registry.read_any([tmp_path / bag])
         assert back.column("x").to_pylist() == registry.read_any([small_table]).column("x").to_pylist()
+
+
+def test_the_location_choices_are_the_readers_locations() -> None:
+    from lanecast.io_adapters.datasets import ngsim
+    from lanecast.workflows.vocabulary import NGSIM_LOCATIONS
+
+    assert NGSIM_LOCATIONS == ngsim.FREEWAYS + ngsim.ARTERIALS

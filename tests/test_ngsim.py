@@ -210,15 +210,52 @@ def test_txt_location_option_and_unknown_location(tmp_path: Path) -> None:
     table = ngsim.read([TXT], location="I-80")
     (name,) = track_table.read_meta(table).recordings
     assert name == "ngsim-i-80-trajectories-fixture"
-    plain = tmp_path / "trajectories-0400-0415.txt"
+    plain = tmp_path / "trajectories-0900-0915.txt"
     shutil.copy(TXT, plain)
     meta = track_table.read_meta(ngsim.read([plain]))
-    rec = meta.recordings["ngsim-unknown-trajectories-0400-0415"]
+    rec = meta.recordings["ngsim-unknown-trajectories-0900-0915"]
     assert (rec.extra["location"], rec.extra["location_source"], rec.coordinate_frame) == (
         "unknown",
         "default",
         "road",
     )
+
+
+@pytest.mark.parametrize(
+    ("name", "location"),
+    [
+        ("trajectories-0750am-0805am.txt", "us-101"),
+        ("trajectories-0805am-0820am.txt", "us-101"),
+        ("trajectories-0820am-0835am.txt", "us-101"),
+        ("trajectories-0400-0415.txt", "i-80"),
+        ("trajectories-0500-0515.txt", "i-80"),
+        ("trajectories-0515-0530.txt", "i-80"),
+    ],
+)
+def test_ngsims_own_file_names_say_the_location(tmp_path: Path, name: str, location: str) -> None:
+    shutil.copy(TXT, tmp_path / name)
+    (recording,) = track_table.read_meta(ngsim.read([tmp_path / name])).recordings.values()
+    assert (recording.extra["location"], recording.coordinate_frame) == (location, "road")
+
+
+def test_a_directory_of_ngsim_files_and_the_location_option(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    folder = tmp_path / "downloads"
+    (folder / "more").mkdir(parents=True)
+    shutil.copy(TXT, folder / "trajectories-0750am-0805am.txt")
+    shutil.copy(TXT, folder / "more" / "trajectories-0900-0915.txt")
+    (folder / "README.txt").write_text("NGSIM US-101 data\n")  # not an NGSIM file: left out
+    out = tmp_path / "all.parquet"
+    assert cli.main(["convert", str(folder), "--out", str(out)]) == 0
+    names = sorted(track_table.read_meta(track_table.read_parquet(out)).recordings)
+    assert names == ["ngsim-unknown-trajectories-0900-0915", "ngsim-us-101-trajectories-0750am-0805am"]
+    assert cli.main(["convert", str(folder), "--location", "i-80", "--out", str(out)]) == 0
+    names = sorted(track_table.read_meta(track_table.read_parquet(out)).recordings)
+    assert names == ["ngsim-i-80-trajectories-0750am-0805am", "ngsim-i-80-trajectories-0900-0915"]
+    capsys.readouterr()
+    assert cli.main(["info", str(folder / "more"), "--location", "us-101"]) == 0
+    assert "ngsim-us-101-trajectories-0900-0915" in capsys.readouterr().out
 
 
 def test_csv_mixing_locations_separates_reused_vehicle_ids(tmp_path: Path) -> None:

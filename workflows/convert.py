@@ -12,7 +12,7 @@ from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.errors import InputError, UsageError
 from lanecast.io_adapters.files import check_output
 from lanecast.io_adapters.logs.rosbag_writer import STORAGES
-from lanecast.workflows.vocabulary import HelpFormatter
+from lanecast.workflows.vocabulary import HelpFormatter, add_location_option
 
 _SUFFIX_TO_FORMAT = {".parquet": "parquet", ".pq": "parquet", ".mcap": "mcap", ".bag": "ros1"}
 _FORMAT_SUFFIXES = {"parquet": (".parquet", ".pq"), "mcap": (".mcap",), "ros1": (".bag",)}
@@ -38,6 +38,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("inputs", nargs="+", metavar="INPUT", help="files or directories to read")
     p.add_argument("--out", required=True, type=Path, help="output path")
     p.add_argument("--format", choices=sorted(registry.READERS), help="input format (default: detected)")
+    add_location_option(p)
     p.add_argument(
         "--to",
         choices=sorted(registry.WRITERS),
@@ -83,11 +84,13 @@ def output_format(out: Path, to: str | None) -> str:
 
 def run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
-    options = {}
+    options: dict[str, object] = {}
     if args.topic:
         options["topic"] = args.topic
     if args.salvage:
         options["salvage"] = True
+    if args.location:
+        options["location"] = args.location
     fmt = output_format(args.out, args.to)
     check_output(args.out, directory=fmt == "ros2")
     if os.path.realpath(args.out) in {os.path.realpath(p) for p in args.inputs}:

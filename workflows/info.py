@@ -8,7 +8,7 @@ from pathlib import Path
 from lanecast.io_adapters import registry
 from lanecast.io_adapters.contracts import track_table
 from lanecast.workflows.table_summary import summarise
-from lanecast.workflows.vocabulary import HelpFormatter
+from lanecast.workflows.vocabulary import HelpFormatter, add_location_option
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -21,12 +21,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("paths", nargs="+", metavar="PATH")
     p.add_argument("--format", choices=sorted(registry.READERS), help="input format (default: detected)")
+    add_location_option(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     formats = sorted({args.format or registry.detect(p) for p in args.paths})
-    table = registry.read_any(args.paths, fmt=args.format)
+    table = registry.read_any(
+        args.paths, fmt=args.format, **({"location": args.location} if args.location else {})
+    )
     meta = track_table.read_meta(table)
     print(f"{', '.join(str(Path(p)) for p in args.paths)}")
     print(f"  format: {', '.join(formats)} (source: {meta.source_format}); units: m, m/s, m/s^2, rad, ns")

@@ -10,6 +10,10 @@ import argparse
 import copy
 from pathlib import Path
 
+# NGSIM's locations (lanecast.io_adapters.datasets.ngsim.FREEWAYS + ARTERIALS, which a test checks);
+# spelled out here so that `--help` does not import the reader.
+NGSIM_LOCATIONS = ("us-101", "i-80", "lankershim", "peachtree")
+
 MODEL_HELP = (
     "a model: a directory written by `lanecast train`, or its .safetensors/.json file "
     "(default: the shipped weights, models/weights/stcnn-sumo)"
@@ -38,3 +42,13 @@ class HelpFormatter(argparse.RawDescriptionHelpFormatter):
 def add_model_option(parser: argparse.ArgumentParser) -> None:
     """``--model MODEL``: the same option, with the same meaning, in every command that predicts."""
     parser.add_argument("--model", type=Path, metavar="MODEL", help=MODEL_HELP)
+
+
+def add_location_option(parser: argparse.ArgumentParser) -> None:
+    """``--location``: where NGSIM .txt files were recorded, when their names and folders do not say."""
+    parser.add_argument(
+        "--location",
+        choices=NGSIM_LOCATIONS,
+        help="NGSIM: the location of the .txt files (default: from the file or folder name; NGSIM's own "
+        "trajectories-0750am-0805am.txt … are US-101, trajectories-0400-0415.txt … I-80)",
+    )

@@ -10,7 +10,7 @@ from lanecast.io_adapters import registry
 from lanecast.io_adapters.contracts.windows import save_windows
 from lanecast.io_adapters.errors import InputError
 from lanecast.pipeline.make_windows import make_windows
-from lanecast.workflows.vocabulary import HelpFormatter
+from lanecast.workflows.vocabulary import HelpFormatter, add_location_option
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -35,6 +35,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--out", required=True, type=Path, help="output directory (written atomically)")
     p.add_argument("--format", choices=sorted(registry.READERS), help="input format (default: detected)")
+    add_location_option(p)
     p.add_argument(
         "--split", choices=("pip", "hash", "none"), default="pip", help="split by track (default: pip)"
     )
@@ -67,7 +68,9 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(args.out, "exists and is not a directory", expected="a directory path")
     if args.stride < 1:
         raise InputError(None, f"--stride {args.stride}", expected="at least 1")
-    table = registry.read_any(args.table, fmt=args.format)
+    table = registry.read_any(
+        args.table, fmt=args.format, **({"location": args.location} if args.location else {})
+    )
     windows = make_windows(
         table,
         stride=args.stride,

@@ -124,6 +124,16 @@ _CLASSES = ("unknown", "motorcycle", "car", "truck")  # index = v_Class (1, 2, 3
 # Fallback heading of a vehicle that never moves, from the CSV's Direction (1 E, 2 N, 3 W, 4 S),
 # with +x (Local_Y) northwards and +y (-Local_X) westwards as on the arterials.
 _DIRECTION_HEADING = {1: -math.pi / 2, 2: 0.0, 3: math.pi / 2, 4: math.pi}
+# The file names NGSIM publishes (without a location in them): US-101's three periods of
+# 2005-06-15 and I-80's three of 2005-04-13.
+KNOWN_FILES = {
+    "trajectories-0750am-0805am": "us-101",
+    "trajectories-0805am-0820am": "us-101",
+    "trajectories-0820am-0835am": "us-101",
+    "trajectories-0400-0415": "i-80",
+    "trajectories-0500-0515": "i-80",
+    "trajectories-0515-0530": "i-80",
+}
 _LOCATION_PATTERNS = (
     ("us-101", re.compile(r"(?<![a-z0-9])us[-_ ]?101(?!\d)")),
     ("i-80", re.compile(r"(?<![a-z0-9])i[-_ ]?80(?!\d)")),
@@ -136,8 +146,11 @@ _LOCATION_PATTERNS = (
 
 
 def sniff(path: Path) -> bool:
-    """True for an NGSIM CSV (header with Vehicle_ID, Frame_ID, Local_X, Local_Y) or .txt (18 numbers)."""
+    """True for an NGSIM CSV (header with Vehicle_ID, Frame_ID, Local_X, Local_Y) or .txt (18
+    numbers), or a directory holding such files."""
     path = Path(path)
+    if path.is_dir():
+        return bool(files_in(path))
     if not path.is_file():
         return False
     try:
@@ -159,6 +172,18 @@ def sniff(path: Path) -> bool:
     return True
 
 
+def files_in(folder: Path) -> list[Path]:
+    """The NGSIM files (.txt, .csv) anywhere below ``folder``, in name order (hidden ones left out)."""
+    return [
+        p
+        for p in sorted(Path(folder).rglob("*"))
+        if p.suffix.lower() in (".txt", ".csv")
+        and not any(part.startswith(".") for part in p.relative_to(folder).parts)
+        and p.is_file()
+        and sniff(p)
+    ]
+
+
 # ---------------------------------------------------------------------------------------------- read
 
 
@@ -173,6 +198,13 @@ def read(paths: Sequence[Path] | Path | str, **options: Any) -> pa.Table:
     """
     if isinstance(paths, (str, Path)):
         paths = [Path(paths)]
+    expanded: list[Path] = []
+    for p in map(Path, paths):
+        found = files_in(p) if p.is_dir() else [p]
+        if not found:
+            raise InputError(p, "no NGSIM files in this directory", expected="NGSIM .txt or .csv files")
+        expanded += found
+    paths = expanded
     if not paths:
         raise InputError(None, "no input files", expected="one or more NGSIM .txt or .csv files")
     location = options.get("location")
@@ -399,8 +431,14 @@ def _is_freeway(location: str) -> bool:
 
 
 def _location_from_path(path: Path) -> tuple[str, str]:
-    """The location named by the file name, else by the nearest parent directory, else unknown."""
-    for part in (path.name, *(p.name for p in path.resolve().parents)):
+    """The location named by the file name (or NGSIM's own name for it, ``KNOWN_FILES``), else by
+    the nearest parent directory, else unknown."""
+    for canonical, pattern in _LOCATION_PATTERNS:
+        if pattern.search(path.name.lower()):
+            return canonical, "path"
+    if path.stem.lower() in KNOWN_FILES:
+        return KNOWN_FILES[path.stem.lower()], "path"
+    for part in (p.name for p in path.resolve().parents):
         for canonical, pattern in _LOCATION_PATTERNS:
             if pattern.search(part.lower()):
                 return canonical, "path"
