@@ -11,11 +11,13 @@ for cards, a field replaced by a value of the wrong type or range.
 The oracle per format (what "correct" means for an accepted mutant):
 
 * formats with integrity checks over the data (MCAP with CRCs, ROS 2 MCAP storage with the CRCs
-  lanecast writes, Parquet with page checksums): the table's columns equal the original's;
+  lanecast writes, Parquet with page checksums, and the ROS 1 and sqlite3 bags lanecast writes,
+  whose metadata holds a checksum of every message): the table's columns equal the original's;
 * CSV and .txt (highD, NGSIM): every row of a vehicle not named on the mutated line (before or
   after the edit) is present and equal; a recordingMeta edit (frame rate) may change every row;
-* formats without checksums (ROS 1 bags, sqlite3 bags, unchunked MCAP whose writer left the data
-  CRC at 0): the reading is a valid track table; a flipped value cannot be told from a real one;
+* formats without checksums (unchunked MCAP whose writer left the data CRC at 0; ROS 1 and
+  sqlite3 bags other tools write): the reading is a valid track table; a flipped value cannot be
+  told from a real one;
 * model cards: a card that loads gives finite forecasts.
 
 Every example runs under a time bound (``LANECAST_FUZZ_SECONDS``, default 30 s). CI runs
@@ -326,13 +328,13 @@ def test_fuzz_mcap_unchunked_json(seeds: dict[str, Any], data: st.DataObject) ->
 @FUZZ
 @given(data=st.data())
 def test_fuzz_ros1_bag(seeds: dict[str, Any], data: st.DataObject) -> None:
-    _binary_case(seeds["ros1"], data.draw, checked=False)
+    _binary_case(seeds["ros1"], data.draw, checked=True)
 
 
 @FUZZ
 @given(data=st.data())
 def test_fuzz_ros2_sqlite3_bag(seeds: dict[str, Any], data: st.DataObject) -> None:
-    _binary_case(seeds["ros2_sqlite3"], data.draw, checked=False)
+    _binary_case(seeds["ros2_sqlite3"], data.draw, checked=True)
 
 
 @FUZZ

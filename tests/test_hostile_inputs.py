@@ -747,3 +747,26 @@ def test_two_inputs_with_one_recording_name_are_named(
     status, err = cli(["convert", str(a), str(b), "--out", str(tmp_path / "c.parquet")], capsys)
     assert_one_line_error(status, err.splitlines()[-1], "convert", str(b))
     assert str(a) in err
+
+
+@pytest.mark.parametrize(("fmt", "storage", "name"), [("ros1", "sqlite3", "b.bag"), ("ros2", "sqlite3", "b")])
+def test_own_bags_without_checksums_carry_a_payload_digest(
+    tmp_path: Path, fmt: str, storage: str, name: str
+) -> None:
+    """ROS 1 and sqlite3 bags have no checksum: lanecast's metadata holds one of every message."""
+    from lanecast.io_adapters.logs import rosbag_reader, rosbag_writer
+
+    table = registry.read_any([US101])
+    bag = rosbag_writer.write(table, tmp_path / name, fmt, storage=storage)
+    assert rosbag_reader.read(bag).num_rows == table.num_rows
+    storage_file = bag if bag.is_file() else next(bag.glob("*.db3"))
+    data = storage_file.read_bytes()
+    # a float of a tracked object (x of the first row, little-endian double) with its last bit flipped
+    x0 = struct.pack("<d", table.column("x")[0].as_py())
+    at = data.index(x0)
+    bad = bytearray(data)
+    bad[at] ^= 0x01
+    storage_file.write_bytes(bytes(bad))
+    with pytest.raises(LogError, match="do not match the checksum") as err:
+        rosbag_reader.read(bag)
+    assert err.value.path == str(bag)

@@ -69,7 +69,7 @@ _LEN = struct.Struct("<Q")
 
 
 # Topics lanecast writes into annotated logs (forecasts); never read back as tracked objects.
-OWN_TOPIC_PREFIX = "/lanecast/"
+OWN_TOPIC_PREFIX = to.OWN_TOPIC_PREFIX
 
 
 def sniff(path: str | Path) -> bool:

@@ -88,13 +88,23 @@ def read_log(
                 raise LogError(
                     path, f"no supported topic with tracked objects (topics: {listing})", expected=SUPPORTED
                 )
-            wanted = [c for c in reader.connections if c.id in handlers or c.topic == to.META_TOPIC]
+            # A bag lanecast wrote (it has the metadata topic) is read whole, so that every message
+            # counts towards the payload checksum its metadata states.
+            own = any(c.topic == to.META_TOPIC for c in reader.connections)
+            wanted = [c for c in reader.connections if own or c.id in handlers]
+            digest = to.PayloadDigest()
             for conn, timestamp, raw in reader.messages(connections=wanted):
-                msg: Any = reader.deserialize(raw, conn.msgtype)
                 if conn.topic == to.META_TOPIC and conn.msgtype == ros_types.STRING:
-                    log_meta = to.parse_log_metadata(path, msg.data)
-                else:
-                    handlers[conn.id](msg, timestamp)
+                    meta_msg: Any = reader.deserialize(raw, conn.msgtype)
+                    log_meta = to.parse_log_metadata(path, meta_msg.data)
+                    continue
+                if own and not conn.topic.startswith(to.OWN_TOPIC_PREFIX):  # not forecasts added later
+                    digest.add(conn.topic, timestamp, raw)
+                handler = handlers.get(conn.id)
+                if handler is not None:
+                    handler(reader.deserialize(raw, conn.msgtype), timestamp)
+            if own:
+                to.check_payload_digest(path, log_meta, digest)
     except LogError:
         raise
     except Exception as exc:  # rosbags reader/serde errors: damaged or unreadable bag

@@ -191,23 +191,30 @@ def write(table: pa.Table, out: Path, fmt: str = "ros2", *, storage: str = "mcap
     builder = _Builder(table, 1 if fmt == "ros1" else 2)
     c = builder.c
     groups, plan = to.message_plan(c["recording"], c["frame"], c["track_id"], c["time_ns"], names)
-    doc = json.dumps(to.log_metadata(table, topics, groups), sort_keys=True)
+    meta_doc = to.log_metadata(table, topics, groups)
+    doc = json.dumps(meta_doc, sort_keys=True)
     frames = [meta.recordings[n].coordinate_frame for n in names]
     first = int(plan[0, 0]) if plan.shape[0] else 0
 
     def emit(writer: Any, conns: dict[str, Any]) -> None:
-        writer.write(conns[to.META_TOPIC], first, builder.string(doc))
         group_list = [groups[n] for n in names]
+        digest = to.PayloadDigest()
         with bar(desc=f"writing {out.name}", total=int(plan.shape[0]), unit="msg") as progress:
             for stamp, rec, gi in plan.tolist():
                 g = group_list[rec]
                 rows = g.order[g.starts[gi] : g.starts[gi + 1]].tolist()
                 topic = topics[names[rec]]
-                writer.write(conns[topic], stamp, builder.tracked_objects(rows, stamp, frames[rec]))
-                writer.write(
-                    conns[topic + to.MARKER_SUFFIX], stamp, builder.markers(rows, stamp, frames[rec])
-                )
+                for name, payload in (
+                    (topic, builder.tracked_objects(rows, stamp, frames[rec])),
+                    (topic + to.MARKER_SUFFIX, builder.markers(rows, stamp, frames[rec])),
+                ):
+                    writer.write(conns[name], stamp, payload)
+                    digest.add(name, stamp, payload)
                 progress.update(1)
+        # Written last (at the first stamp, so that readers meet it first): the metadata carries
+        # the checksum of every message, which ROS 1 and sqlite3 bags otherwise lack.
+        checked = {**meta_doc, "payload_digest": digest.hexdigest(), "payload_messages": digest.count}
+        writer.write(conns[to.META_TOPIC], first, builder.string(json.dumps(checked, sort_keys=True)))
 
     connections = [(to.META_TOPIC, ros_types.STRING)]
     for n in names:

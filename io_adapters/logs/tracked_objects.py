@@ -63,6 +63,7 @@ from lanecast.io_adapters.errors import FrameError, LogError
 FIXED_FRAMES: frozenset[str] = frozenset({"map", "odom", "world", "road"})
 META_NAME = "lanecast"
 META_TOPIC = "/lanecast/metadata"
+OWN_TOPIC_PREFIX = "/lanecast/"  # topics lanecast writes (metadata, forecasts): never objects
 TRACK_TOPIC = "/tracked_objects"
 MARKER_SUFFIX = "/markers"
 BOX_HEIGHT = 1.5  # m, height of the cubes written (the table has no height)
@@ -810,6 +811,41 @@ def log_metadata(
 MAX_META_FRAME_RATE = 10_000.0
 
 
+class PayloadDigest:
+    """An order-free checksum of a log's messages: the sum (mod 2^128) of a hash of each message's
+    topic, log time and payload. lanecast stores it in the metadata of the ROS bags it writes, whose
+    formats (ROS 1, sqlite3) have no checksum of their own, and checks it on reading."""
+
+    def __init__(self) -> None:
+        self.total = 0
+        self.count = 0
+
+    def add(self, topic: str, log_time: int, payload: bytes | memoryview) -> None:
+        h = hashlib.blake2b(digest_size=16)
+        h.update(topic.encode() + b"\0" + int(log_time).to_bytes(8, "little", signed=True))
+        h.update(payload)
+        self.total = (self.total + int.from_bytes(h.digest(), "little")) % (1 << 128)
+        self.count += 1
+
+    def hexdigest(self) -> str:
+        return f"{self.total:032x}"
+
+
+def check_payload_digest(path: Path, log_meta: Mapping[str, Any] | None, digest: PayloadDigest) -> None:
+    """LogError if the log's lanecast metadata states a payload digest its messages do not give."""
+    expected = (log_meta or {}).get("payload_digest")
+    if expected is None:
+        return
+    count = (log_meta or {}).get("payload_messages")
+    if expected != digest.hexdigest() or (count is not None and count != digest.count):
+        raise LogError(
+            path,
+            f"the messages do not match the checksum lanecast wrote in {META_TOPIC} "
+            f"({digest.count:,} messages read, {count} written): the bag is damaged or was edited",
+            expected="an intact bag",
+        )
+
+
 def parse_log_metadata(path: Path, text: str | bytes) -> dict[str, Any]:
     """lanecast's metadata document from a log, every field used checked for type and range.
 
@@ -821,6 +857,8 @@ def parse_log_metadata(path: Path, text: str | bytes) -> dict[str, Any]:
         doc = jf.check(jf.loads(text, "lanecast"), "lanecast", "object")
         jf.get(doc, "source_format", "", "str|null", None)
         jf.get(doc, "source_files", "", "str_list", [])
+        jf.get(doc, "payload_digest", "", "str", None)
+        jf.get(doc, "payload_messages", "", "count", None)
         for name, spec in jf.get(doc, "recordings", "", "object", {}).items():
             where = f"recordings.{name}"
             jf.check(spec, where, "object")
