@@ -147,3 +147,33 @@ def test_the_location_choices_are_the_readers_locations() -> None:
     from lanecast.workflows.vocabulary import NGSIM_LOCATIONS
 
     assert NGSIM_LOCATIONS == ngsim.FREEWAYS + ngsim.ARTERIALS
+
+
+def readme_first_session() -> list[str]:
+    text = (REPO / "README.md").read_text()
+    block = text.split("## A first session", 1)[1].split("```bash\n", 1)[1].split("```", 1)[0]
+    return [line for line in block.splitlines() if line.strip()]
+
+
+def test_the_readme_first_session_is_the_help_examples_and_chains(capsys: pytest.CaptureFixture[str]) -> None:
+    """Every line of the README's first session is an example in its command's --help, and every
+    input a line names (relative) is the output of an earlier line: the examples chain."""
+    lines = readme_first_session()
+    assert len(lines) >= 10
+    made: set[str] = set()
+    for line in lines:
+        words = line.split()
+        assert words[0] == "lanecast"
+        with pytest.raises(SystemExit):
+            cli.main([words[1], "--help"])
+        assert f"  {line}" in capsys.readouterr().out, line
+        inputs = [w for w in words[2:] if (not w.startswith("-") and "/" in w) or w.endswith(".parquet")]
+        outputs = {words[i + 1] for i, w in enumerate(words) if w == "--out"}
+        for path in set(inputs) - outputs:
+            assert path.rstrip("/") in made or any(m.startswith(path.rstrip("/") + "/") for m in made), (
+                line,
+                path,
+            )
+        made |= {o.rstrip("/") for o in outputs}
+        if words[1] == "export":  # writes beside the model it is given
+            made.add(words[2])

@@ -39,8 +39,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         ),
         epilog=(
             "examples:\n"
-            "  lanecast ablate windows/ --out runs/ablation --seeds 3\n"
-            "  lanecast ablate windows/ --out runs/ablation-quick --quick --variants full,no_dilation"
+            "  lanecast ablate windows/sim --out runs/ablation --seeds 3\n"
+            "  lanecast ablate windows/sim --out runs/ablation-quick --quick --variants full,no_dilation"
         ),
         formatter_class=HelpFormatter,
     )

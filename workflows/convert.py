@@ -28,10 +28,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         ),
         epilog=(
             "examples:\n"
+            "  lanecast convert sim/ --out sim.parquet\n"
+            "  lanecast convert sim.parquet --out logs/sim.mcap\n"
+            "  lanecast convert sim.parquet --to ros2 --out logs/sim-bag   # a ROS 2 bag, MCAP storage\n"
             "  lanecast convert data/highD/01_tracks.csv --out highd-01.parquet\n"
-            "  lanecast convert trajectories-0750am-0805am.txt --out us101.parquet\n"
-            "  lanecast convert highd-01.parquet --out highd-01.mcap\n"
-            "  lanecast convert highd-01.parquet --to ros2 --out highd-01-bag   # a ROS 2 bag, MCAP storage"
+            "  lanecast convert ngsim/ --out us101.parquet   # trajectories-0750am-0805am.txt … are US-101"
         ),
         formatter_class=HelpFormatter,
     )

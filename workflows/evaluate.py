@@ -30,7 +30,7 @@ def register(sub: argparse._SubParsersAction) -> None:
             "accuracy, precision/recall, confusion matrix, RMSE on lane-change windows. Writes "
             "metrics.json, report.md and report.html into --out."
         ),
-        epilog="example:\n  lanecast evaluate windows/ --model runs/model --out runs/report --split test",
+        epilog="example:\n  lanecast evaluate windows/sim --model runs/model --out runs/report --split test",
         formatter_class=HelpFormatter,
     )
     p.add_argument(

@@ -16,7 +16,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "info",
         help="summarise a dataset, track table or drive log",
         description="Print the format, recordings, tracks, frames, duration, frame rate and lane changes of PATH.",
-        epilog="example:\n  lanecast info highd-01.parquet",
+        epilog="examples:\n  lanecast info sim.parquet\n  lanecast info logs/sim.mcap",
         formatter_class=HelpFormatter,
     )
     p.add_argument("paths", nargs="+", metavar="PATH")

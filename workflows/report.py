@@ -22,15 +22,13 @@ def register(sub: argparse._SubParsersAction) -> None:
             "constant-velocity and constant-acceleration baselines. Writes metrics.json, report.md and "
             "report.html into --out, overall and per log (logs/<name>/)."
         ),
-        epilog="example:\n  lanecast annotate drives/ --out annotated/\n  lanecast report annotated/ --out report/",
+        epilog="example:\n  lanecast annotate logs/ --out annotated/\n  lanecast report annotated/ --out report/",
         formatter_class=HelpFormatter,
     )
     p.add_argument("paths", nargs="+", type=Path, metavar="ANNOTATED", help="annotated logs or directories")
     p.add_argument("--out", required=True, type=Path, metavar="DIR", help="report directory")
     p.add_argument("--topic", help="the topic with tracked objects (default: every supported topic)")
-    p.add_argument(
-        "--examples", type=int, default=4, help="example scenes in the overall report (default: 4)"
-    )
+    p.add_argument("--examples", type=int, default=4, help="example scenes in the overall report")
     p.set_defaults(func=run)
 
 

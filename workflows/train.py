@@ -37,8 +37,8 @@ def register(sub: argparse._SubParsersAction) -> None:
             "--config FILE (JSON, keys of lanecast.models.train.TrainConfig) overrides the defaults."
         ),
         epilog=(
-            "example:\n  lanecast train windows/ --out runs/model --epochs 20 --seed 1\n"
-            "  lanecast train windows/ --out runs/regonly --regression-only   # ablation: no maneuver input"
+            "examples:\n  lanecast train windows/sim --out runs/model --epochs 20 --seed 1\n"
+            "  lanecast train windows/sim --out runs/regonly --regression-only   # ablation: no maneuver input"
         ),
         formatter_class=HelpFormatter,
     )

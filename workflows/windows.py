@@ -25,8 +25,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         ),
         epilog=(
             "examples:\n"
-            "  lanecast windows highd-01.parquet --out windows/highd-01\n"
-            "  lanecast windows us101.parquet --out windows/us101 --split hash --seed 3 --stride 5"
+            "  lanecast windows sim.parquet --out windows/sim\n"
+            "  lanecast windows us101.parquet --out windows/us101 --split hash --seed 3 --stride 5   # NGSIM"
         ),
         formatter_class=HelpFormatter,
     )
