@@ -557,58 +557,92 @@ def prediction_texts(batch: ForecastBatch) -> list[bytes]:
     """The /lanecast/prediction JSON document of each frame (:data:`PREDICTION_SCHEMA`), compact.
 
     Text equal to ``json.dumps(document, separators=(",", ":"))``; NaN (baselines) is null, a
-    target's probabilities that are all NaN are null.
+    target's probabilities that are all NaN are null. Built as text templates filled column-wise
+    (:func:`_fill_rows`): the cost is CPython formatting the numbers, as in ``json.dumps``, without
+    a dict per target.
     """
     n, k = batch.track_id.size, batch.alt_prob.shape[1]
+    if n == 0:
+        return []
     has_origin = ~np.isnan(batch.origin).any(axis=1)
-    origin = br.json_lists(br.json_numbers(batch.origin), n, 2)
-    origin = br.concat(n, origin.blank(has_origin), ByteRows.constant(b"null", n).blank(~has_origin))
-    probs = br.json_lists(br.json_lists(br.json_numbers(batch.probs), n * N_STEPS, 3), n, N_STEPS)
-    all_nan = np.isnan(batch.probs.reshape(n, -1)).all(axis=1)
-    probs = br.concat(n, probs.blank(~all_nan), ByteRows.constant(b"null", n).blank(all_nan))
-    if k:
-        alt = br.concat(
-            n * k,
-            b'{"prob":',
-            br.json_numbers(batch.alt_prob),
-            b',"x":',
-            br.json_lists(br.json_numbers(batch.alt_points[..., 0]), n * k, N_STEPS),
-            b',"y":',
-            br.json_lists(br.json_numbers(batch.alt_points[..., 1]), n * k, N_STEPS),
-            b',"maneuver":',
-            br.json_lists(br.json_ints(batch.alt_maneuver), n * k, N_STEPS),
-            b"}",
-        )
-        alternatives = br.json_lists(alt, n, k)
-    else:
-        alternatives = ByteRows.constant(b"[]", n)
-    targets = br.concat(
-        n,
-        b'{"track_id":',
-        br.json_ints(batch.track_id),
-        b',"origin":',
-        origin,
-        b',"x":',
-        br.json_lists(br.json_numbers(batch.points[..., 0]), n, N_STEPS),
-        b',"y":',
-        br.json_lists(br.json_numbers(batch.points[..., 1]), n, N_STEPS),
-        b',"maneuver":',
-        br.json_lists(br.json_ints(batch.maneuver), n, N_STEPS),
-        b',"maneuver_probs":',
-        probs,
-        b',"alternatives":',
-        alternatives,
-        b"}",
+    origin = np.asarray(_fill_rows(["[", ",", "]"], _number_texts(batch.origin)), dtype=object)
+    origin[~has_origin] = "null"
+    steps = _fill_rows(["[", ",", ",", "]"], _number_texts(batch.probs.reshape(n * N_STEPS, 3)))
+    probs = np.asarray(
+        _fill_rows(["[", *[","] * (N_STEPS - 1), "]"], np.asarray(steps, dtype=object).reshape(n, N_STEPS)),
+        dtype=object,
     )
+    probs[np.isnan(batch.probs.reshape(n, -1)).all(axis=1)] = "null"
+    list5 = [*[","] * (N_STEPS - 1), "]"]
+    literals = ['{"track_id":', ',"origin":', ',"x":[', *list5[:-1], '],"y":[', *list5[:-1]]
+    literals += ['],"maneuver":[', *list5[:-1], '],"maneuver_probs":', ',"alternatives":[']
+    columns = [
+        _int_texts(batch.track_id[:, None]),
+        origin[:, None],
+        _number_texts(batch.points[..., 0]),
+        _number_texts(batch.points[..., 1]),
+        _int_texts(batch.maneuver),
+        probs[:, None],
+    ]
+    for j in range(k):
+        literals[-1] += ("," if j else "") + '{"prob":'
+        literals += [',"x":[', *list5[:-1], '],"y":[', *list5[:-1], '],"maneuver":[', *list5[:-1]]
+        columns += [
+            _number_texts(batch.alt_prob[:, j : j + 1]),
+            _number_texts(batch.alt_points[:, j, :, 0]),
+            _number_texts(batch.alt_points[:, j, :, 1]),
+            _int_texts(batch.alt_maneuver[:, j]),
+        ]
+        literals.append("]}")
+    literals[-1] += "]}"
+    targets = _fill_rows(literals, np.concatenate(columns, axis=1))
     horizon = json.dumps(batch.horizon_s.tolist(), separators=(",", ":"))
     names = json.dumps(list(MANEUVERS), separators=(",", ":"))
-    heads = [
-        f'{{"recording":{json.dumps(r)},"frame_id":{json.dumps(i)},"t0_ns":{t},'
-        f'"horizon_s":{horizon},"maneuver_names":{names},"targets":['.encode()
-        for r, i, t in zip(batch.recording, batch.frame_id, batch.t0_ns.tolist(), strict=True)
+    return [
+        (
+            f'{{"recording":{json.dumps(r)},"frame_id":{json.dumps(i)},"t0_ns":{t},'
+            f'"horizon_s":{horizon},"maneuver_names":{names},"targets":[' + ",".join(targets[lo:hi]) + "]}"
+        ).encode()
+        for r, i, t, lo, hi in zip(
+            batch.recording,
+            batch.frame_id,
+            batch.t0_ns.tolist(),
+            batch.bounds[:-1].tolist(),
+            batch.bounds[1:].tolist(),
+            strict=True,
+        )
     ]
-    bodies = targets.join(batch.bounds, b",")
-    return [head + body + b"]}" for head, body in zip(heads, bodies, strict=True)]
+
+
+def _number_texts(values: np.ndarray) -> np.ndarray:
+    """Python's ``repr`` of each float64 of values [N, M] (NaN → ``null``): object [N, M]."""
+    flat = np.asarray(values, np.float64)
+    texts = np.array(list(map(float.__repr__, flat.ravel().tolist())), dtype=object)
+    texts[np.isnan(flat.ravel())] = "null"
+    return texts.reshape(flat.shape)
+
+
+def _int_texts(values: np.ndarray) -> np.ndarray:
+    """Decimal text of each integer of values [N, M]: object [N, M]."""
+    flat = np.asarray(values, np.int64)
+    return np.array(list(map(str, flat.ravel().tolist())), dtype=object).reshape(flat.shape)
+
+
+def _fill_rows(literals: list[str], tokens: np.ndarray) -> list[str]:
+    """One text per row: literals[0] tokens[i, 0] literals[1] … tokens[i, M-1] literals[M].
+
+    tokens: object [N, M] of str, M + 1 literals. One ``str.join`` over all rows, cut at a
+    separator byte that JSON text never holds unescaped (U+0001).
+    """
+    n, m = tokens.shape
+    if len(literals) != m + 1:
+        raise ValueError(f"{len(literals)} literals for {m} tokens")
+    cells = np.empty((n, 2 * m + 2), dtype=object)
+    cells[:, 0 : 2 * m : 2] = np.array(literals[:m], dtype=object)
+    cells[:, 1 : 2 * m : 2] = tokens
+    cells[:, 2 * m] = literals[m]
+    cells[:, 2 * m + 1] = "\x01"
+    return "".join(cells.ravel().tolist()).split("\x01")[:n]
 
 
 def prediction_dict(frame: ForecastFrame) -> dict[str, Any]:
