@@ -82,10 +82,12 @@ def pick_window(windows: Windows, track: int, t0_ns: int, recording: str | None,
     if recording is not None:
         ok &= rec == recording
     if not ok.any():
+        where = f" in {recording}" if recording else ""
         raise InputError(
             source,
-            f"no window of track {track}" + (f" in {recording}" if recording else ""),
-            column="--track",
+            f"no window of track {track}{where} at t0 = {t0_ns / 1e9:.1f} s",
+            column="--track/--time",
+            expected="a track present in INPUT with 3 s of history up to t0",
         )
     t0 = index.column("t0_ns").to_numpy()
     near = ok & (np.abs(t0 - t0_ns) <= STEP_NS // 2)

@@ -244,7 +244,8 @@ def always_straight_of(parts: list[dict[str, Any]]) -> dict[str, float]:
 
 
 def example_scenes(parts: list[dict[str, Any]], count: int) -> list[Scene]:
-    """Up to ``count`` scenes: predicted lane changes first, then the largest error at 5 s."""
+    """Up to ``count`` scenes: predicted lane changes as examples, then a failure gallery: the largest
+    error at 5 s and the most confident lane change that did not happen (per log, in order)."""
     scenes: list[Scene] = []
     for p in parts:
         if p["maneuver_pred"] is None or len(p["future"]) == 0:
@@ -252,13 +253,18 @@ def example_scenes(parts: list[dict[str, Any]], count: int) -> list[Scene]:
         err5 = np.hypot(*(p["offsets"][:, -1] - p["future"][:, -1]).T)
         changing = np.flatnonzero((p["maneuver_pred"] > 0).any(axis=1) & (p["maneuver"] > 0).any(axis=1))
         _, first_of_track = np.unique(p["track_id"][changing], return_index=True)  # distinct vehicles
-        picks = [*changing[np.sort(first_of_track)][:2].tolist(), int(np.argmax(err5))]
-        for i in dict.fromkeys(picks):
+        false_change = np.flatnonzero((p["maneuver_pred"] > 0).any(axis=1) & (p["maneuver"] == 0).all(axis=1))
+        kinds = {i: ("example", "lane change") for i in changing[np.sort(first_of_track)][:2].tolist()}
+        kinds.setdefault(int(np.argmax(err5)), ("failure", "largest error at 5 s"))
+        if false_change.size:  # the most confident lane change that did not happen
+            confidence = 1.0 - np.nan_to_num(p["probs"][false_change, :, 0], nan=1.0).min(axis=1)
+            kinds.setdefault(int(false_change[np.argmax(confidence)]), ("failure", "false lane change"))
+        for i, (kind, label) in kinds.items():
             cand = p["candidates"][i] if p["candidates"] is not None else p["offsets"][i][None]
             scenes.append(
                 Scene(
                     title=(
-                        f"{p['log'].name}: track {p['track_id'][i]} at t0 = {p['t0_ns'][i] / 1e9:.1f} s "
+                        f"{label}: {p['log'].name} track {p['track_id'][i]} at t0 = {p['t0_ns'][i] / 1e9:.1f} s "
                         f"(error at 5 s {err5[i]:.2f} m)"
                     ),
                     inputs=p["inputs"][i],
@@ -269,6 +275,7 @@ def example_scenes(parts: list[dict[str, Any]], count: int) -> list[Scene]:
                     alternatives=cand,
                     alt_probs=p["alt_probs"][i] if p["candidates"] is not None else np.full(1, np.nan),
                     probs=p["probs"][i] if np.isfinite(p["probs"][i]).all() else None,
+                    kind=kind,
                 )
             )
         if len(scenes) >= count:
