@@ -249,7 +249,7 @@ def train(
         raise InputError(
             None, "no labelled training windows (split 'train')", expected="windows with known futures"
         )
-    input_stats = compute_stats(windows.inputs[train_idx], windows.present[train_idx])
+    input_stats = compute_stats(windows.inputs, windows.present, rows=train_idx)  # chunked: no copy
     future_mean, future_std = future_stats(windows.future[train_idx])
     batches = _Batches(windows, input_stats, future_mean, future_std, transform)
     train_counts = np.bincount(np.asarray(windows.maneuver[train_idx]).ravel(), minlength=3)

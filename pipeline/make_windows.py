@@ -1,14 +1,20 @@
 """Track table -> windows dataset: resample (10 Hz) -> neighbours -> tensors -> labels -> split.
 
-The one entry point the CLI, training and annotation use (see helpers' WINDOWS_CONTRACT).
+Two entry points: :func:`make_windows` (a table in memory -> Windows in memory, for library users,
+annotation and reports) and :func:`write_windows` (a dataset's pieces -> a dataset directory on
+disk, one piece in memory at a time, optionally on worker processes or Ray; what `lanecast
+windows` runs).
 """
 
 from __future__ import annotations
 
+import functools
 import time
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from importlib import metadata
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -26,9 +32,13 @@ from lanecast.io_adapters.contracts.windows import (
     MANEUVERS,
     ROWS,
     SPLITS,
+    DatasetWriter,
     Windows,
+    load_windows,
+    save_shard,
 )
 from lanecast.io_adapters.errors import InputError
+from lanecast.io_adapters.streaming import Piece
 from lanecast.pipeline import labels as labels_mod
 from lanecast.pipeline import neighbours as nb_mod
 from lanecast.pipeline import window_tensors as wt
@@ -170,22 +180,16 @@ def make_windows(
     windows.manifest = build_manifest(
         windows,
         meta,
-        parameters={
-            "stride": stride,
-            "require_future": require_future,
-            "split": split,
-            "seed": seed,
-            "t0_ns_given": t0_ns is not None,
-            "neighbours": neighbours,
-            "lane_width_m": lane_width,
-            "neighbour_range_m": neighbour_range,
-            "rate_hz": RATE_HZ,
-            "gap_factor": GAP_FACTOR,
-            "history_frames": HISTORY,
-            "future_frames": wt.FUTURE,
-            "horizons_s": [1, 2, 3, 4, 5],
-            "lane_change_window_s": labels_mod.WINDOW_S,
-        },
+        parameters=window_parameters(
+            stride=stride,
+            require_future=require_future,
+            split=split,
+            seed=seed,
+            t0_ns_given=t0_ns is not None,
+            neighbours=neighbours,
+            lane_width=lane_width,
+            neighbour_range=neighbour_range,
+        ),
         neighbour_methods=methods,
         skipped=skipped,
         timings=timings,
@@ -333,20 +337,36 @@ def window_splits(
     split: str,
     seed: int,
 ) -> np.ndarray:
-    """The split of every window (str [W]) from its track; for ``pip`` the max id is taken over
-    every track of the input's source recording (recordings sharing source files, e.g. highD's two
-    directions, are one source recording)."""
+    """The split of every window (str [W]) from its track (see :func:`splits_of_windows`); the
+    largest track id of each recording is taken over the rows of ``table``."""
+    max_of_rec = np.full(names.size, np.iinfo(np.int64).min, dtype=np.int64)
+    if split == "pip":
+        np.maximum.at(max_of_rec, row_codes, table.column("track_id").to_numpy())
+    return splits_of_windows(meta, names, max_of_rec, window_codes, track_ids, split, seed)
+
+
+def splits_of_windows(
+    meta: track_table.TableMeta,
+    names: np.ndarray,
+    max_track_of_rec: np.ndarray,
+    window_codes: np.ndarray,
+    track_ids: np.ndarray,
+    split: str,
+    seed: int,
+) -> np.ndarray:
+    """The split of every window (str [W]) from its track: ``names`` str [R] the recordings,
+    ``max_track_of_rec`` int64 [R] their largest track id (over input rows), ``window_codes`` int
+    [W] index into names. For ``pip`` the max id is taken over every track of the input's source
+    recording (recordings sharing source files, e.g. highD's two directions, are one source
+    recording)."""
     if split == "hash":
         return split_from_unit(hash_unit_codes(names, window_codes, track_ids, seed))
     if split != "pip":
         return track_splits(names[window_codes], track_ids, split, seed)
-    track = table.column("track_id").to_numpy()
-    max_of_rec = np.full(names.size, np.iinfo(np.int64).min, dtype=np.int64)
-    np.maximum.at(max_of_rec, row_codes, track)
     groups = np.array(
         ["|".join(sorted(meta.recordings[str(n)].source_files)) or str(n) for n in names], dtype=object
     )
-    max_of_group = {g: int(max_of_rec[groups == g].max()) for g in set(groups.tolist())}
+    max_of_group = {g: int(max_track_of_rec[groups == g].max()) for g in set(groups.tolist())}
     max_id = np.array([max_of_group[g] for g in groups], dtype=np.int64)[window_codes]
     return pip_split_by_max(track_ids, max_id)
 
@@ -365,6 +385,36 @@ def _skipped(
         str(name): f"longest gap-free track is {longest[r]} frame(s) at 10 Hz, a window needs {need}"
         for r, name in enumerate(cols.names)
         if per_rec[r] == 0
+    }
+
+
+def window_parameters(
+    *,
+    stride: int,
+    require_future: bool,
+    split: str,
+    seed: int,
+    t0_ns_given: bool,
+    neighbours: str,
+    lane_width: float,
+    neighbour_range: float,
+) -> dict[str, Any]:
+    """The ``parameters`` section of a windows manifest."""
+    return {
+        "stride": stride,
+        "require_future": require_future,
+        "split": split,
+        "seed": seed,
+        "t0_ns_given": t0_ns_given,
+        "neighbours": neighbours,
+        "lane_width_m": lane_width,
+        "neighbour_range_m": neighbour_range,
+        "rate_hz": RATE_HZ,
+        "gap_factor": GAP_FACTOR,
+        "history_frames": HISTORY,
+        "future_frames": wt.FUTURE,
+        "horizons_s": [1, 2, 3, 4, 5],
+        "lane_change_window_s": labels_mod.WINDOW_S,
     }
 
 
@@ -443,3 +493,240 @@ def build_manifest(
         "horizons": HORIZONS,
         "timings": timings or {},
     }
+
+
+# ------------------------------------------------------------------------------ streaming to disk
+
+
+@dataclass(frozen=True)
+class WindowOptions:
+    """How windows are cut (the options of :func:`make_windows` that a streamed dataset supports)."""
+
+    stride: int = 10
+    require_future: bool = True
+    split: str = "pip"
+    seed: int = 0
+    neighbours: str = "auto"
+    lane_width: float = nb_mod.LANE_WIDTH
+    neighbour_range: float = nb_mod.NEIGHBOUR_RANGE_M
+
+    def check(self) -> None:
+        if self.stride < 1:
+            raise InputError(None, f"stride {self.stride}", expected="a stride of at least 1 frame")
+        if not self.neighbour_range > 0:
+            raise InputError(
+                None, f"neighbour range {self.neighbour_range}", expected="a positive range in metres"
+            )
+        if self.split not in SPLIT_METHODS:
+            raise InputError(None, f"unknown split method {self.split!r}", expected=f"one of {SPLIT_METHODS}")
+
+
+@dataclass
+class PieceWindows:
+    """The windows of one piece of a dataset (whole recordings), in dataset order.
+
+    ``arrays``: inputs/present/future/maneuver in memory, or None when a worker wrote them to
+    ``shard`` (then only the small per-window columns travel back to the driver).
+    """
+
+    meta_json: str  # the piece's TableMeta
+    names: list[str]  # recordings with rows
+    max_track: dict[str, int]  # largest track id of each recording (over input rows)
+    rec_code: np.ndarray  # int64 [W] into names
+    track: np.ndarray  # int64 [W]
+    t0_ns: np.ndarray  # int64 [W]
+    origin: np.ndarray  # float64 [W, 3]
+    methods: dict[str, str]
+    skipped: dict[str, str]
+    timings: dict[str, float]
+    arrays: dict[str, np.ndarray] | None = None
+    shard: str | None = None
+
+
+class _Buffers:
+    """Input and presence buffers reused from piece to piece (no fresh memory to fault in)."""
+
+    def __init__(self) -> None:
+        self.inputs = np.empty((0, 4, len(ROWS), HISTORY), dtype=np.float32)
+        self.present = np.empty((0, len(ROWS), HISTORY), dtype=bool)
+
+    def take(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        if n > len(self.inputs):
+            size = max(n, int(len(self.inputs) * 1.5))
+            self.inputs = np.empty((size, 4, len(ROWS), HISTORY), dtype=np.float32)
+            self.present = np.empty((size, len(ROWS), HISTORY), dtype=bool)
+        return self.inputs[:n], self.present[:n]
+
+
+def piece_windows(table: pa.Table, options: WindowOptions, buffers: _Buffers | None = None) -> PieceWindows:
+    """Every window of one piece (a validated track table of whole recordings); inputs and
+    presence go into ``buffers`` when given (valid until their next use)."""
+    meta = track_table.read_meta(table)
+    prep = _prepare(
+        table,
+        meta,
+        options.stride,
+        options.require_future,
+        None,
+        options.neighbours,
+        options.lane_width,
+        options.neighbour_range,
+    )
+    n = prep.t0_rows.size
+    out = (buffers or _Buffers()).take(n)
+    t = time.perf_counter()
+    arrays = wt.gather(prep.cols, prep.neighbour_rows, prep.labels, prep.t0_rows, prep.fwd, out=out)
+    prep.timings["windows_s"] += time.perf_counter() - t
+    names, codes = track_table.recording_codes(table)
+    max_track = np.full(names.size, np.iinfo(np.int64).min, dtype=np.int64)
+    np.maximum.at(max_track, codes, table.column("track_id").to_numpy())
+    cols = prep.cols
+    return PieceWindows(
+        meta_json=meta.to_json(),
+        names=[str(v) for v in cols.names],
+        max_track={str(k): int(v) for k, v in zip(names, max_track, strict=True)},
+        rec_code=cols.rec[prep.t0_rows].astype(np.int64),
+        track=cols.track[prep.t0_rows].astype(np.int64),
+        t0_ns=cols.time_ns[prep.t0_rows].astype(np.int64),
+        origin=arrays.origin,
+        methods=prep.methods,
+        skipped=prep.skipped,
+        timings=prep.timings,
+        arrays={
+            "inputs": arrays.inputs,
+            "present": arrays.present,
+            "future": arrays.future,
+            "maneuver": arrays.maneuver,
+        },
+    )
+
+
+def piece_shard(piece: Piece, options: WindowOptions, shard_root: str, number: int) -> PieceWindows:
+    """A worker's task: read ``piece``, cut its windows, write their arrays as shard ``number``
+    under ``shard_root`` (storage the driver names) and return the rest (small)."""
+    result = piece_windows(piece.read(), options)
+    assert result.arrays is not None
+    shard = save_shard(Path(shard_root) / f"{number:06d}", result.arrays)
+    result.arrays, result.shard = None, str(shard)
+    return result
+
+
+#: runs a task over items, yielding results in item order (inline, a process pool, Ray: workflows)
+OrderedMap = Callable[[Callable[[Any], PieceWindows], Sequence[Any]], Iterator[PieceWindows]]
+
+
+def write_windows(
+    pieces: Sequence[Piece],
+    out: str | Path,
+    options: WindowOptions | None = None,
+    *,
+    ordered_map: OrderedMap | None = None,
+    allow_empty: bool = False,
+    sources: dict[str, Any] | None = None,
+) -> Windows:
+    """Stream the windows of a dataset's pieces (whole recordings each) into the dataset directory
+    ``out``, written atomically; return it memory-mapped.
+
+    Memory is set by the largest piece: each piece's windows are appended to the arrays on disk
+    before the next is read. With ``ordered_map`` (e.g. worker processes or Ray tasks) each piece
+    is a task that writes a shard beside the output, appended in piece order, so the dataset is
+    the same as with one process. Equal to :func:`make_windows` of the whole table (but for the
+    manifest's timings).
+    """
+    options = options or WindowOptions()
+    options.check()
+    parts: list[PieceWindows] = []
+    with DatasetWriter(out) as writer:
+        if ordered_map is None:
+            buffers = _Buffers()
+            for piece in pieces:
+                part = piece_windows(piece.read(), options, buffers)
+                assert part.arrays is not None
+                writer.append(part.arrays)
+                part.arrays = None
+                parts.append(part)
+        else:
+            root = str(writer.shard_root)
+            task = functools.partial(_numbered_shard, options=options, shard_root=root)
+            for part in ordered_map(task, list(enumerate(pieces))):
+                assert part.shard is not None
+                writer.append_shard(Path(part.shard))
+                parts.append(part)
+        writer.finish(*_index_and_manifest(parts, options, allow_empty, sources))
+    return load_windows(out)
+
+
+def _numbered_shard(item: tuple[int, Piece], options: WindowOptions, shard_root: str) -> PieceWindows:
+    number, piece = item
+    return piece_shard(piece, options, shard_root, number)
+
+
+def _index_and_manifest(
+    parts: list[PieceWindows], options: WindowOptions, allow_empty: bool, sources: dict[str, Any] | None
+) -> tuple[pa.Table, Callable[[Windows], dict[str, Any]]]:
+    """The index of all windows (splits need every piece) and the manifest builder."""
+    meta = track_table.merge_meta(track_table.TableMeta.from_json(p.meta_json) for p in parts)
+    max_track = {k: v for p in parts for k, v in p.max_track.items()}
+    names = np.array(sorted(max_track), dtype=str)
+    rec_codes = (
+        np.concatenate([np.searchsorted(names, np.array(p.names, dtype=str))[p.rec_code] for p in parts])
+        if parts
+        else np.zeros(0, dtype=np.int64)
+    ).astype(np.int64)
+    track_ids = np.concatenate([p.track for p in parts]) if parts else np.zeros(0, dtype=np.int64)
+    t0_times = np.concatenate([p.t0_ns for p in parts]) if parts else np.zeros(0, dtype=np.int64)
+    origin = _concat([p.origin for p in parts], (0, 3), np.float64)
+    max_of_rec = np.array([max_track[str(n)] for n in names], dtype=np.int64)
+    win_split = splits_of_windows(meta, names, max_of_rec, rec_codes, track_ids, options.split, options.seed)
+    index = pa.Table.from_arrays(
+        [
+            pa.array(names[rec_codes].astype(object), pa.string()),
+            pa.array(track_ids, pa.int64()),
+            pa.array(t0_times, pa.int64()),
+            pa.array(win_split.astype(object), pa.string()),
+            pa.array(origin[:, 0], pa.float64()),
+            pa.array(origin[:, 1], pa.float64()),
+            pa.array(origin[:, 2], pa.float64()),
+        ],
+        schema=INDEX_SCHEMA,
+    )
+    skipped = {k: v for p in parts for k, v in p.skipped.items()}
+    methods = {k: v for p in parts for k, v in p.methods.items()}
+    for name in meta.recordings:
+        if name not in methods:
+            skipped.setdefault(name, "no rows at 10 Hz (no sample on a multiple of 0.1 s within any track)")
+    timings = {"resample_s": 0.0, "neighbours_s": 0.0, "windows_s": 0.0}
+    for p in parts:
+        for k, v in p.timings.items():
+            timings[k] += v
+    if index.num_rows == 0 and not allow_empty:
+        reasons = "; ".join(f"{name}: {why}" for name, why in skipped.items()) or "no tracks"
+        raise InputError(
+            ", ".join(meta.source_files) or None,
+            f"no windows: {reasons}",
+            expected=f"tracks with {HISTORY / RATE_HZ:g} s of gap-free history"
+            + (f" and {wt.FUTURE / RATE_HZ:g} s of future" if options.require_future else ""),
+        )
+
+    def manifest(windows: Windows) -> dict[str, Any]:
+        doc = build_manifest(
+            windows,
+            meta,
+            parameters=window_parameters(
+                stride=options.stride,
+                require_future=options.require_future,
+                split=options.split,
+                seed=options.seed,
+                t0_ns_given=False,
+                neighbours=options.neighbours,
+                lane_width=options.lane_width,
+                neighbour_range=options.neighbour_range,
+            ),
+            neighbour_methods=methods,
+            skipped=skipped,
+            timings=timings,
+        )
+        doc["sources"].update(sources or {})
+        return doc
+
+    return index, manifest

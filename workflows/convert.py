@@ -3,15 +3,17 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import time
 from pathlib import Path
 
-from lanecast.io_adapters import registry
+from lanecast.io_adapters import registry, streaming
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.errors import InputError, UsageError
 from lanecast.io_adapters.files import check_output
 from lanecast.io_adapters.logs.rosbag_writer import STORAGES
+from lanecast.workflows import engines
 from lanecast.workflows.vocabulary import HelpFormatter, add_location_option
 
 _SUFFIX_TO_FORMAT = {".parquet": "parquet", ".pq": "parquet", ".mcap": "mcap", ".bag": "ros1"}
@@ -24,7 +26,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="convert highD, NGSIM, MCAP, ROS bags or a track table into a track table or a drive log",
         description=(
             "Read INPUTs (format detected per file, or --format) into lanecast's track table and write it as "
-            "Parquet (default) or as a drive log (--to mcap|ros2|ros1; the format follows --out's suffix)."
+            "Parquet (default) or as a drive log (--to mcap|ros2|ros1; the format follows --out's suffix). Parquet output streams: one "
+            "recording (or a group of small ones) at a time is read and written, so memory is set by "
+            "the largest recording; --partition writes a dataset directory of one Parquet file per "
+            "piece instead of one file (every command reads either). --workers/--engine ray read "
+            "recordings in parallel with the same result as one process."
         ),
         epilog=(
             "examples:\n"
@@ -32,7 +38,8 @@ def register(sub: argparse._SubParsersAction) -> None:
             "  lanecast convert sim.parquet --out logs/sim.mcap\n"
             "  lanecast convert sim.parquet --to ros2 --out logs/sim-bag   # a ROS 2 bag, MCAP storage\n"
             "  lanecast convert data/highD/01_tracks.csv --out highd-01.parquet\n"
-            "  lanecast convert ngsim/ --out us101.parquet   # trajectories-0750am-0805am.txt … are US-101"
+            "  lanecast convert ngsim/ --out us101.parquet   # trajectories-0750am-0805am.txt … are US-101\n"
+            "  lanecast convert data/highD/ --out highd/ --partition --workers 2"
         ),
         formatter_class=HelpFormatter,
     )
@@ -57,6 +64,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--salvage", action="store_true", help="for damaged MCAP: read every intact chunk and report the loss"
     )
+    p.add_argument(
+        "--partition",
+        action="store_true",
+        help="Parquet: write a dataset directory, one file per recording or group of small ones "
+        "(default: one file)",
+    )
+    engines.add_arguments(p, "recordings")
     p.set_defaults(func=run)
 
 
@@ -93,14 +107,34 @@ def run(args: argparse.Namespace) -> int:
     if args.location:
         options["location"] = args.location
     fmt = output_format(args.out, args.to)
-    check_output(args.out, directory=fmt == "ros2")
+    directory = fmt == "ros2" or (fmt == "parquet" and args.partition)
+    check_output(args.out, directory=directory)
     if os.path.realpath(args.out) in {os.path.realpath(p) for p in args.inputs}:
         raise InputError(args.out, "the output would overwrite an input", expected="a new output path")
-    table = registry.read_any(args.inputs, fmt=args.format, **options)
-    path = registry.write_any(table, args.out, fmt, **({"storage": args.storage} if fmt == "ros2" else {}))
-    n_tracks = len(track_table.track_boundaries(table)) - 1
-    print(
-        f"wrote {path} ({fmt}): {table.num_rows:,} rows, {n_tracks:,} tracks "
-        f"in {time.perf_counter() - started:.1f} s"
-    )
+    engines.check(args.workers, args.engine)
+    if fmt != "parquet":  # drive logs are written from the whole table
+        table = registry.read_any(args.inputs, fmt=args.format, **options)
+        path = registry.write_any(
+            table, args.out, fmt, **({"storage": args.storage} if fmt == "ros2" else {})
+        )
+        rows, tracks = table.num_rows, len(track_table.track_boundaries(table)) - 1
+    else:
+        with streaming.spill_directory(args.out) as spill:  # NGSIM exports: a spill per recording
+            pieces = streaming.plan(args.inputs, fmt=args.format, spill_dir=spill.path, options=options)
+            parallel = args.workers > 1 or args.engine == "ray"
+            ordered_map = (
+                functools.partial(
+                    engines.ordered_map,
+                    workers=args.workers,
+                    engine=args.engine,
+                    address=args.address,
+                    retries=args.retries,
+                    paths=[*(Path(p).resolve() for p in args.inputs), args.out.resolve().parent],
+                )
+                if parallel
+                else None
+            )
+            rows, tracks = streaming.convert(pieces, args.out, directory=directory, ordered_map=ordered_map)
+        path = args.out
+    print(f"wrote {path} ({fmt}): {rows:,} rows, {tracks:,} tracks in {time.perf_counter() - started:.1f} s")
     return 0

@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import time
 from pathlib import Path
 
-from lanecast.io_adapters import registry
-from lanecast.io_adapters.contracts.windows import save_windows
+from lanecast.io_adapters import registry, streaming
 from lanecast.io_adapters.errors import InputError
-from lanecast.pipeline.make_windows import make_windows
+from lanecast.pipeline.make_windows import WindowOptions, write_windows
+from lanecast.workflows import engines
 from lanecast.workflows.vocabulary import HelpFormatter, add_location_option
 
 
@@ -21,12 +22,17 @@ def register(sub: argparse._SubParsersAction) -> None:
             "Resample TABLE to 10 Hz, find every vehicle's seven neighbours, cut windows (3 s history, "
             "5 s future, every --stride frames), label maneuvers, split by track, and write the dataset "
             "directory training memory-maps: inputs.npy, present.npy, future.npy, maneuver.npy, "
-            "windows.parquet, manifest.json. Windows never span a gap in a track."
+            "windows.parquet, manifest.json. Windows never span a gap in a track. Streams: one recording "
+            "(or a group of small ones) at a time is read, cut and appended to the dataset on disk, so "
+            "memory is set by the largest recording, not by the dataset; the directory appears only "
+            "when complete. --workers/--engine ray spread recordings over processes or a cluster with "
+            "the same result as one process."
         ),
         epilog=(
             "examples:\n"
             "  lanecast windows sim.parquet --out windows/sim\n"
-            "  lanecast windows us101.parquet --out windows/us101 --split hash --seed 3 --stride 5   # NGSIM"
+            "  lanecast windows us101.parquet --out windows/us101 --split hash --seed 3 --stride 5   # NGSIM\n"
+            "  lanecast windows data/highD/ --out windows/highd --workers 2"
         ),
         formatter_class=HelpFormatter,
     )
@@ -59,6 +65,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="also cut windows without 5 s of future (future NaN, maneuver -1 where unknown)",
     )
+    engines.add_arguments(p, "recordings")
     p.set_defaults(func=run)
 
 
@@ -68,25 +75,44 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(args.out, "exists and is not a directory", expected="a directory path")
     if args.stride < 1:
         raise InputError(None, f"--stride {args.stride}", expected="at least 1")
-    table = registry.read_any(
-        args.table, fmt=args.format, **({"location": args.location} if args.location else {})
-    )
-    windows = make_windows(
-        table,
-        stride=args.stride,
-        require_future=not args.no_future,
-        split=args.split,
-        seed=args.seed,
-        neighbours=args.neighbours,
-        neighbour_range=args.neighbour_range,
-        validated=True,  # every reader validates what it returns
-    )
-    windows.manifest["sources"]["inputs"] = [str(Path(p)) for p in args.table]
-    path = save_windows(windows, args.out)
+    engines.check(args.workers, args.engine)
+    with streaming.spill_directory(args.out) as spill:  # NGSIM exports: a spill per recording
+        options = {"location": args.location} if args.location else {}
+        pieces = streaming.plan(args.table, fmt=args.format, spill_dir=spill.path, options=options)
+        parallel = args.workers > 1 or args.engine == "ray"
+        ordered_map = (
+            functools.partial(
+                engines.ordered_map,
+                workers=args.workers,
+                engine=args.engine,
+                address=args.address,
+                retries=args.retries,
+                paths=[*(Path(p).resolve() for p in args.table), args.out.resolve().parent],
+            )
+            if parallel
+            else None
+        )
+        windows = write_windows(
+            pieces,
+            args.out,
+            WindowOptions(
+                stride=args.stride,
+                require_future=not args.no_future,
+                split=args.split,
+                seed=args.seed,
+                neighbours=args.neighbours,
+                neighbour_range=args.neighbour_range,
+            ),
+            ordered_map=ordered_map,
+            sources={"inputs": [str(Path(p)) for p in args.table]},
+        )
     m = windows.manifest
     counts = ", ".join(f"{k} {v:,}" for k, v in m["counts"].items() if v)
     labels = ", ".join(f"{k} {v:,}" for k, v in m["label_distribution"].items())
-    print(f"wrote {path}: {len(windows):,} windows ({counts}) in {time.perf_counter() - started:.1f} s")
+    print(
+        f"wrote {args.out}: {len(windows):,} windows ({counts}) from {len(pieces):,} piece(s) "
+        f"in {time.perf_counter() - started:.1f} s"
+    )
     print(f"  maneuver labels (all steps): {labels}")
     methods = sorted(
         {r["neighbour_method"] for r in m["sources"]["recordings"].values() if r["neighbour_method"]}

@@ -327,6 +327,31 @@ def track_boundaries(table: pa.Table) -> np.ndarray:
     return run_bounds(recording_codes(table)[1], table.column("track_id").to_numpy())
 
 
+def merge_meta(metas: Iterable[TableMeta]) -> TableMeta:
+    """The metadata of several track tables (or pieces of one dataset) as one document.
+
+    Recording names must be unique across them; formats are joined with ``+``.
+    """
+    metas = list(metas)
+    recordings: dict[str, RecordingMeta] = {}
+    for m in metas:
+        clash = set(recordings) & set(m.recordings)
+        if clash:
+            raise TrackTableError(f"recording names {sorted(clash)} occur in more than one input")
+        recordings.update(m.recordings)
+    formats = sorted({m.source_format for m in metas})
+    files = list(dict.fromkeys(f for m in metas for f in m.source_files))
+    return TableMeta("+".join(formats), recordings, files)
+
+
+def restrict_meta(meta: TableMeta, names: Iterable[str]) -> TableMeta:
+    """``meta`` with only the recordings ``names`` (a piece of a dataset describes only its own)."""
+    keep = set(names)
+    recordings = {n: r for n, r in meta.recordings.items() if n in keep}
+    files = list(dict.fromkeys(f for r in recordings.values() for f in r.source_files)) or meta.source_files
+    return TableMeta(meta.source_format, recordings, files)
+
+
 def concat(tables: Iterable[pa.Table], sources: Sequence[str] | None = None) -> pa.Table:
     """Concatenate track tables from several sources into one, merging their metadata.
 
@@ -384,13 +409,24 @@ def read_parquet(path: str | Path) -> pa.Table:
     what they do not cover (the footer) is checked by :func:`validate`.
     """
     try:
-        table = pq.read_table(path, page_checksum_verification=True)
+        pf = pq.ParquetFile(path, page_checksum_verification=True)
+        table = pf.read().replace_schema_metadata(file_schema(pf).metadata)
     except (OSError, pa.ArrowException) as exc:
         raise InputError(
             path, f"not a readable Parquet file: {exc}", expected="a lanecast track table"
         ) from exc
     validate(table, source=path)
     return table
+
+
+def file_schema(pf: pq.ParquetFile) -> pa.Schema:
+    """The Arrow schema of a Parquet track table with its ``lanecast`` metadata, which a file
+    written piece by piece stores in the file's key-value metadata when it is complete."""
+    schema_ = pf.schema_arrow
+    stored = (pf.metadata.metadata or {}).get(META_KEY)
+    if stored is None:
+        return schema_
+    return schema_.with_metadata({**(schema_.metadata or {}), META_KEY: stored})
 
 
 def lane_change_rows(table: pa.Table) -> np.ndarray:

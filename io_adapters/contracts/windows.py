@@ -17,10 +17,14 @@ them; after normalisation absent entries are exactly 0 again ("zero means absent
 
 from __future__ import annotations
 
+import contextlib
 import json
+import shutil
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from types import TracebackType
+from typing import Any, BinaryIO
 
 import numpy as np
 import pyarrow as pa
@@ -67,6 +71,13 @@ INDEX_SCHEMA = pa.schema(
     ]
 )
 _ARRAYS = ("inputs", "present", "future", "maneuver")
+#: dtype and shape of one window in each array file
+ARRAY_LAYOUT: dict[str, tuple[np.dtype, tuple[int, ...]]] = {
+    "inputs": (np.dtype(np.float32), (4, len(ROWS), HISTORY)),
+    "present": (np.dtype(np.bool_), (len(ROWS), HISTORY)),
+    "future": (np.dtype(np.float32), (HORIZONS, 2)),
+    "maneuver": (np.dtype(np.int64), (HORIZONS,)),
+}
 
 
 @dataclass
@@ -172,6 +183,88 @@ def save_windows(windows: Windows, directory: str | Path) -> Path:
     return directory
 
 
+def save_shard(directory: Path, arrays: dict[str, np.ndarray]) -> Path:
+    """Write the four arrays of some windows as .npy files into ``directory`` (a worker's part of a
+    dataset that :meth:`DatasetWriter.append_shard` then appends)."""
+    directory.mkdir(parents=True, exist_ok=True)
+    for name in _ARRAYS:
+        np.save(directory / f"{name}.npy", np.ascontiguousarray(arrays[name]), allow_pickle=False)
+    return directory
+
+
+class DatasetWriter:
+    """A windows dataset grown on disk, block by block (or shard by shard), in a temporary directory
+    renamed into place only when complete: an interrupted run leaves no half-written dataset.
+
+    Memory: one block; the arrays are appended to their .npy files (:class:`NpyAppender`) and the
+    manifest is computed from the finished files memory-mapped.
+    """
+
+    def __init__(self, directory: str | Path) -> None:
+        self.directory = Path(directory)
+        self._stack = contextlib.ExitStack()
+        self._tmp: Path | None = None
+        self._appenders: dict[str, NpyAppender] = {}
+
+    def __enter__(self) -> DatasetWriter:
+        self._tmp = self._stack.enter_context(atomic_path(self.directory, directory=True))
+        self._appenders = {
+            name: NpyAppender(self._tmp / f"{name}.npy", dtype, shape)
+            for name, (dtype, shape) in ARRAY_LAYOUT.items()
+        }
+        return self
+
+    def __exit__(
+        self, kind: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        for appender in self._appenders.values():
+            appender.abort()
+        self._stack.__exit__(kind, exc, tb)
+
+    @property
+    def rows(self) -> int:
+        return self._appenders["inputs"].rows
+
+    @property
+    def shard_root(self) -> Path:
+        """A directory inside the temporary dataset where workers put their shards."""
+        assert self._tmp is not None, "use DatasetWriter as a context manager"
+        return self._tmp / "_shards"
+
+    def append(self, arrays: dict[str, np.ndarray]) -> None:
+        """Append windows: ``inputs``, ``present``, ``future``, ``maneuver`` with the same length."""
+        lengths = {name: len(arrays[name]) for name in _ARRAYS}
+        if len(set(lengths.values())) != 1:
+            raise ValueError(f"arrays of different lengths {lengths}")
+        for name in _ARRAYS:
+            self._appenders[name].append(arrays[name])
+
+    def append_shard(self, shard: Path) -> int:
+        """Append the windows of a shard written by :func:`save_shard`, then remove it; its length."""
+        counts = {name: self._appenders[name].append_npy(shard / f"{name}.npy") for name in _ARRAYS}
+        if len(set(counts.values())) != 1:
+            raise InputError(shard, f"shard arrays of different lengths {counts}")
+        shutil.rmtree(shard, ignore_errors=True)
+        return counts["inputs"]
+
+    def finish(self, index: pa.Table, manifest: Callable[[Windows], dict[str, Any]]) -> Windows:
+        """Close the arrays, write the index and ``manifest(windows)`` (the dataset memory-mapped);
+        the directory is renamed into place when the ``with`` block ends."""
+        assert self._tmp is not None, "use DatasetWriter as a context manager"
+        for appender in self._appenders.values():
+            appender.close()
+        shutil.rmtree(self.shard_root, ignore_errors=True)
+        pq.write_table(index.cast(INDEX_SCHEMA), self._tmp / "windows.parquet", compression="zstd")
+        arrays = {name: np.load(self._tmp / f"{name}.npy", mmap_mode="r") for name in _ARRAYS}
+        windows = Windows(index=index, **arrays)
+        windows.check()
+        windows.manifest = manifest(windows)
+        (self._tmp / "manifest.json").write_text(
+            json.dumps(_jsonable(windows.manifest), indent=2, sort_keys=True)
+        )
+        return windows
+
+
 def load_windows(directory: str | Path, mmap: bool = True) -> Windows:
     """Load a dataset written by :func:`save_windows` in one call; arrays memory-mapped (read-only)."""
     directory = Path(directory)
@@ -233,6 +326,67 @@ def concat_windows(parts: list[Windows], manifest: dict[str, Any] | None = None)
     )
 
 
+_NPY_HEADER = 128  # bytes of a grown .npy file's header (magic + length + dict, padded)
+
+
+def _npy_header(dtype: np.dtype, shape: tuple[int, ...]) -> bytes:
+    """A version 1.0 .npy header of exactly ``_NPY_HEADER`` bytes (room for any row count)."""
+    text = f"{{'descr': {dtype.str!r}, 'fortran_order': False, 'shape': {shape!r}, }}"
+    pad = _NPY_HEADER - 10 - len(text) - 1
+    if pad < 0:
+        raise ValueError(f"shape {shape} does not fit a {_NPY_HEADER}-byte header")
+    body = (text + " " * pad + "\n").encode("latin1")
+    return b"\x93NUMPY\x01\x00" + len(body).to_bytes(2, "little") + body
+
+
+class NpyAppender:
+    """A .npy file grown on disk row block by row block: the header is rewritten with the final
+    row count on :meth:`close`, so a dataset of any size is written with one block in memory and
+    then memory-mapped by ``np.load`` like any other .npy file."""
+
+    def __init__(self, path: Path, dtype: np.dtype, row_shape: tuple[int, ...]) -> None:
+        self.path, self.dtype, self.row_shape = path, np.dtype(dtype), tuple(row_shape)
+        self.rows = 0
+        self._fh: BinaryIO = path.open("wb")
+        self._fh.write(_npy_header(self.dtype, (0, *self.row_shape)))
+
+    def append(self, block: np.ndarray) -> None:
+        """Append rows [B, *row_shape] (C order)."""
+        if block.dtype != self.dtype or block.shape[1:] != self.row_shape:
+            raise ValueError(f"{self.path.name}: block {block.dtype}{block.shape} does not match the array")
+        if block.size:
+            self._fh.write(np.ascontiguousarray(block).reshape(-1).view(np.uint8).data)
+        self.rows += block.shape[0]
+
+    def append_npy(self, path: Path) -> int:
+        """Append the rows of a .npy file (same dtype and row shape) by copying its bytes; its row count."""
+        with path.open("rb") as src:
+            version = np.lib.format.read_magic(src)
+            read_header = (
+                np.lib.format.read_array_header_1_0
+                if version == (1, 0)
+                else np.lib.format.read_array_header_2_0
+            )
+            shape, fortran, dtype = read_header(src)
+            if fortran or dtype != self.dtype or tuple(shape[1:]) != self.row_shape:
+                raise InputError(
+                    path, f"shard array {dtype}{list(shape)}", expected=f"{self.dtype}[N, *{self.row_shape}]"
+                )
+            shutil.copyfileobj(src, self._fh, 1 << 22)
+        self.rows += int(shape[0])
+        return int(shape[0])
+
+    def close(self) -> None:
+        """Write the final shape into the header and close (data flushed to the OS)."""
+        self._fh.flush()
+        self._fh.seek(0)
+        self._fh.write(_npy_header(self.dtype, (self.rows, *self.row_shape)))
+        self._fh.close()
+
+    def abort(self) -> None:
+        self._fh.close()
+
+
 def _jsonable(value: Any) -> Any:
     if isinstance(value, dict):
         return {str(k): _jsonable(v) for k, v in value.items()}
@@ -280,12 +434,13 @@ class NormStats:
         return cls(mean, std)
 
 
-def compute_stats(inputs: np.ndarray, present: np.ndarray) -> NormStats:
+def compute_stats(inputs: np.ndarray, present: np.ndarray, rows: np.ndarray | None = None) -> NormStats:
     """Mean and std per channel over present entries.
 
-    inputs float32 [N, 4, 8, 30], present bool [N, 8, 30]. Sums in float32 within a chunk of 1024
-    windows and in float64 across chunks (relative error ~1e-7), chunk by chunk so that
-    memory-mapped datasets are fine. A channel with zero spread gets std 1.
+    inputs float32 [N, 4, 8, 30], present bool [N, 8, 30]; ``rows`` int [M]: only these windows
+    (ascending; e.g. the training split), read chunk by chunk so that a memory-mapped dataset is
+    never loaded whole. Sums in float32 within a chunk of 1024 windows and in float64 across
+    chunks (relative error ~1e-7). A channel with zero spread gets std 1.
     """
     if inputs.ndim != 4 or inputs.shape[1] != 4 or present.shape != (inputs.shape[0], *inputs.shape[2:]):
         raise InputError(
@@ -294,9 +449,13 @@ def compute_stats(inputs: np.ndarray, present: np.ndarray) -> NormStats:
     total = np.zeros(4)
     total_sq = np.zeros(4)
     count = 0
-    for start in range(0, inputs.shape[0], _CHUNK):
-        m = np.asarray(present[start : start + _CHUNK])
-        x = (np.asarray(inputs[start : start + _CHUNK]) * m[:, None]).reshape(m.shape[0], 4, -1)
+    n = inputs.shape[0] if rows is None else len(rows)
+    for start in range(0, n, _CHUNK):
+        sel: slice | np.ndarray = (
+            slice(start, start + _CHUNK) if rows is None else np.asarray(rows[start : start + _CHUNK])
+        )
+        m = np.asarray(present[sel])
+        x = (np.asarray(inputs[sel]) * m[:, None]).reshape(m.shape[0], 4, -1)
         count += int(np.count_nonzero(m))
         # float32 sums over one chunk (<= 250k values per channel), float64 across chunks
         total += np.einsum("ncj->c", x).astype(np.float64)

@@ -1,4 +1,5 @@
-"""The track table's own on-disk form: one Parquet file (zstd)."""
+"""The track table's own on-disk form: one Parquet file (zstd), or a dataset directory of Parquet
+files (one per piece of a dataset written piece by piece, ``part-00000.parquet``, …) read as one."""
 
 from __future__ import annotations
 
@@ -9,21 +10,51 @@ from typing import Any
 import pyarrow as pa
 
 from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.errors import InputError
 
 FORMAT = "parquet"
 _MAGIC = b"PAR1"
 
 
-def sniff(path: Path) -> bool:
+def _is_parquet(path: Path) -> bool:
     if not path.is_file():
         return False
     with path.open("rb") as fh:
         return fh.read(4) == _MAGIC
 
 
+def dataset_files(directory: Path) -> list[Path]:
+    """The Parquet files of a dataset directory, in name order (hidden and temporary ones skipped)."""
+    return sorted(p for p in directory.glob("*.parquet") if not p.name.startswith((".", "_")) and p.is_file())
+
+
+def sniff(path: Path) -> bool:
+    if path.is_dir():
+        found = dataset_files(path)
+        return bool(found) and all(_is_parquet(p) for p in found)
+    return _is_parquet(path)
+
+
+def files(paths: Sequence[Path]) -> list[Path]:
+    """``paths`` with every dataset directory replaced by its Parquet files."""
+    out: list[Path] = []
+    for p in map(Path, paths):
+        if p.is_dir():
+            found = dataset_files(p)
+            if not found:
+                raise InputError(
+                    p, "no Parquet files in the directory", expected="a track table dataset directory"
+                )
+            out.extend(found)
+        else:
+            out.append(p)
+    return out
+
+
 def read(paths: Sequence[Path], **_: Any) -> pa.Table:
-    tables = [track_table.read_parquet(p) for p in paths]
-    return tables[0] if len(tables) == 1 else track_table.concat(tables, [str(p) for p in paths])
+    found = files(paths)
+    tables = [track_table.read_parquet(p) for p in found]
+    return tables[0] if len(tables) == 1 else track_table.concat(tables, [str(p) for p in found])
 
 
 def write(table: pa.Table, out: Path, fmt: str = FORMAT, **_: Any) -> Path:

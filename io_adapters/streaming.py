@@ -1,0 +1,379 @@
+"""Whole datasets piece by piece: bounded parts of the inputs, each read on its own (in any process
+or on any machine), and the track table written as the pieces come.
+
+A :class:`Piece` is whole recordings of one input: a highD recording, a range of rows of a Parquet
+track table (found from its row groups, never by loading it), one log, one NGSIM location and
+period. Memory is set by the largest piece, not by the dataset (docs/design.md, streaming).
+
+Outputs: :class:`TrackTableWriter` writes one Parquet file (row groups per piece; the table
+metadata naming every recording is stored when the file is complete) or a dataset directory of
+one Parquet file per piece (``part-00000.parquet``, …), which every reader of track tables
+accepts in place of a file.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import shutil
+import tempfile
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from lanecast.io_adapters import registry
+from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.datasets import highd, ngsim_stream
+from lanecast.io_adapters.datasets import parquet as parquet_format
+from lanecast.io_adapters.errors import InputError, TrackTableError
+from lanecast.io_adapters.files import atomic_path, check_input
+
+MAX_ROWS = 4_000_000  # input rows per piece where recordings are small enough to group
+ROW_GROUP_ROWS = 1 << 20  # rows per Parquet row group of written track tables
+STREAM_BYTES = 256 << 20  # NGSIM CSV exports from this size on are read incrementally
+
+
+@dataclass(frozen=True)
+class Piece:
+    """Whole recordings of one input, read on their own.
+
+    ``fmt``: reader name; ``paths``: what the reader is given; for Parquet, ``row_groups`` to read
+    and the ``offset``/``rows`` of the piece within them (``rows`` -1: all); ``options``: reader
+    options (picklable, e.g. ``location``).
+    """
+
+    fmt: str
+    paths: tuple[str, ...]
+    row_groups: tuple[int, ...] = ()
+    offset: int = 0
+    rows: int = -1
+    options: tuple[tuple[str, Any], ...] = field(default_factory=tuple)
+    spilled: str = ""  # NGSIM CSV export: a recording spilled by ngsim_stream (JSON)
+
+    @property
+    def label(self) -> str:
+        if self.spilled:
+            return f"{self.paths[0]} recording {ngsim_stream.SpilledRecording.from_json(self.spilled).name}"
+        where = f" rows {self.offset}+{self.rows} of row groups {self.row_groups[0]}…{self.row_groups[-1]}"
+        return ", ".join(self.paths) + (where if self.row_groups else "")
+
+    def read(self) -> pa.Table:
+        """The piece as a validated track table whose metadata names only its recordings."""
+        if self.spilled:
+            return ngsim_stream.read_spilled(ngsim_stream.SpilledRecording.from_json(self.spilled))
+        if not self.row_groups:
+            return registry.reader(self.fmt).read([Path(p) for p in self.paths], **dict(self.options))
+        path = Path(self.paths[0])
+        try:
+            pf = pq.ParquetFile(path, page_checksum_verification=True)
+            table = pf.read_row_groups(list(self.row_groups))
+        except (OSError, pa.ArrowException) as exc:
+            raise InputError(
+                path, f"not a readable Parquet file: {exc}", expected="a lanecast track table"
+            ) from exc
+        table = table.slice(self.offset, table.num_rows - self.offset if self.rows < 0 else self.rows)
+        meta = track_table.read_meta(track_table.file_schema(pf))
+        names = track_table.recording_codes(table)[0]
+        meta = track_table.restrict_meta(meta, names.tolist())
+        table = table.replace_schema_metadata({track_table.META_KEY: meta.to_json().encode()})
+        track_table.validate(table, source=path)
+        return table
+
+
+def plan(
+    paths: Sequence[str | Path],
+    fmt: str | None = None,
+    max_rows: int = MAX_ROWS,
+    *,
+    spill_dir: Path | None = None,
+    stream_bytes: int | None = None,
+    options: Mapping[str, Any] | None = None,
+) -> list[Piece]:
+    """The pieces of ``paths`` (formats detected per path unless ``fmt``; ``options`` for the
+    readers, e.g. ``location``), in dataset order.
+
+    With ``spill_dir`` (storage every worker sees, removed by the caller), NGSIM CSV exports of at
+    least ``stream_bytes`` (default STREAM_BYTES) are read incrementally into one spill per
+    recording there.
+    """
+    stream_bytes = STREAM_BYTES if stream_bytes is None else stream_bytes
+    options = dict(options or {})
+    opts = tuple(sorted(options.items()))
+    groups: dict[str, list[Path]] = {}
+    for p in map(check_input, paths):  # before anything opens it (a FIFO would block)
+        groups.setdefault(fmt or registry.detect(p), []).append(p)
+    pieces: list[Piece] = []
+    for name, group in groups.items():
+        if name == parquet_format.FORMAT:
+            for file in parquet_format.files(group):
+                pieces.extend(parquet_pieces(file, max_rows))
+        elif name == highd.FORMAT:
+            pieces.extend(
+                Piece(name, (str(rec.path("tracks")),), options=opts) for rec in highd.recordings(group)
+            )
+        elif name == "ngsim":  # recordings are per file (location, file, period)
+            for p in group:
+                pieces.extend(_ngsim_pieces(p, spill_dir, stream_bytes, options))
+        elif name in ("mcap", "rosbag"):
+            pieces.extend(Piece(name, (str(p),), options=opts) for p in group)
+        else:
+            pieces.append(Piece(name, tuple(map(str, group)), options=opts))
+    return pieces
+
+
+class SpillDirectory:
+    """A temporary directory beside an output for the spills of a run; removed on exit."""
+
+    def __init__(self, out: Path) -> None:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        self.path = Path(tempfile.mkdtemp(prefix=f".{out.name}.spill-", dir=out.parent))
+
+    def __enter__(self) -> SpillDirectory:
+        return self
+
+    def __exit__(self, *_: object) -> None:
+        shutil.rmtree(self.path, ignore_errors=True)
+
+
+def spill_directory(out: str | Path) -> SpillDirectory:
+    return SpillDirectory(Path(out))
+
+
+def _ngsim_pieces(
+    path: Path, spill_dir: Path | None, stream_bytes: int, options: dict[str, Any]
+) -> list[Piece]:
+    whole = [Piece("ngsim", (str(path),), options=tuple(sorted(options.items())))]
+    if spill_dir is None or not path.is_file() or path.stat().st_size < stream_bytes:
+        return whole
+    if not ngsim_stream.streamable(path):
+        return whole
+    spilled = ngsim_stream.split_csv(
+        path,
+        Path(spill_dir),
+        location=options.get("location"),
+        split_periods=bool(options.get("split_periods", True)),
+    )
+    if spilled is None:
+        return whole
+    return [Piece("ngsim", (str(path),), spilled=rec.to_json()) for rec in spilled]
+
+
+def recording_runs(path: Path) -> tuple[list[str], np.ndarray, np.ndarray]:
+    """(names, first row, end row) of each recording of a Parquet track table, in file order,
+    from its ``recording`` column only, one row group at a time."""
+    pf = pq.ParquetFile(path, page_checksum_verification=True)
+    names: list[str] = []
+    starts: list[int] = []
+    offset = 0
+    for i in range(pf.num_row_groups):
+        col = pf.read_row_group(i, columns=["recording"]).column("recording")
+        for chunk in col.chunks:
+            chunk = chunk if pa.types.is_dictionary(chunk.type) else chunk.dictionary_encode()
+            codes = chunk.indices.to_numpy(zero_copy_only=False)
+            if codes.size == 0:
+                continue
+            dictionary = chunk.dictionary.to_pylist()
+            change = np.r_[0, np.flatnonzero(codes[1:] != codes[:-1]) + 1]
+            for row, code in zip(change.tolist(), codes[change].tolist(), strict=True):
+                name = str(dictionary[code])
+                if not names or names[-1] != name:
+                    names.append(name)
+                    starts.append(offset + row)
+            offset += codes.size
+    first = np.asarray(starts, dtype=np.int64)
+    return names, first, np.r_[first[1:], offset].astype(np.int64)
+
+
+def parquet_pieces(path: Path, max_rows: int = MAX_ROWS) -> list[Piece]:
+    """Pieces of whole recordings of one Parquet track table, each at most ``max_rows`` rows unless
+    one recording alone is larger, each reading only the row groups that hold its rows."""
+    try:
+        pf = pq.ParquetFile(path, page_checksum_verification=True)
+        names, first, end = recording_runs(path)
+    except (OSError, pa.ArrowException, KeyError) as exc:
+        raise InputError(
+            path, f"not a readable Parquet track table: {exc}", expected="a lanecast track table"
+        ) from exc
+    if len(set(names)) != len(names):
+        raise TrackTableError(f"{path}: rows of one recording are not contiguous (not sorted by recording)")
+    group_rows = [pf.metadata.row_group(i).num_rows for i in range(pf.num_row_groups)]
+    group_start = np.r_[0, np.cumsum(group_rows)].astype(np.int64)
+    pieces: list[Piece] = []
+    i = 0
+    while i < len(names):
+        j = i + 1
+        while j < len(names) and end[j] - first[i] <= max_rows:
+            j += 1
+        lo, hi = int(first[i]), int(end[j - 1])
+        g0 = int(np.searchsorted(group_start, lo, side="right") - 1)
+        g1 = int(np.searchsorted(group_start, hi, side="left"))
+        pieces.append(
+            Piece(
+                parquet_format.FORMAT,
+                (str(path),),
+                row_groups=tuple(range(g0, g1)),
+                offset=lo - int(group_start[g0]),
+                rows=hi - lo,
+            )
+        )
+        i = j
+    return pieces
+
+
+def iter_tables(pieces: Sequence[Piece]) -> Iterator[pa.Table]:
+    """Read the pieces one after the other (one in memory at a time)."""
+    for piece in pieces:
+        yield piece.read()
+
+
+class TrackTableWriter:
+    """Writes a track table piece by piece, atomically: one Parquet file, or (``directory``) a
+    dataset directory of one Parquet file per piece. Recording names must be unique across pieces."""
+
+    def __init__(self, out: str | Path, *, directory: bool) -> None:
+        self.out, self.directory = Path(out), directory
+        self.rows = self.tracks = 0
+        self._metas: list[track_table.TableMeta] = []
+        self._stack = contextlib.ExitStack()
+        self._tmp: Path | None = None
+        self._writer: pq.ParquetWriter | None = None
+        self._parts = 0
+
+    def __enter__(self) -> TrackTableWriter:
+        self._tmp = self._stack.enter_context(atomic_path(self.out, directory=self.directory))
+        return self
+
+    def __exit__(
+        self, kind: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        try:
+            if kind is None:
+                self._finish()
+            elif self._writer is not None:
+                self._writer.close()
+        finally:
+            self._stack.__exit__(kind, exc, tb)
+
+    def part_root(self) -> Path:
+        """The temporary directory output, where workers write their ``part-NNNNN.parquet``."""
+        assert self._tmp is not None and self.directory
+        return self._tmp
+
+    def part_path(self, index: int) -> Path:
+        """Where part ``index`` of a directory output goes."""
+        return self.part_root() / f"part-{index:05d}.parquet"
+
+    def write(self, table: pa.Table) -> None:
+        """Append one validated piece (its metadata names its recordings)."""
+        assert self._tmp is not None, "use TrackTableWriter as a context manager"
+        meta = track_table.read_meta(table)
+        self._metas.append(meta)
+        track_table.merge_meta(self._metas)  # raises on a recording given twice
+        self.rows += table.num_rows
+        self.tracks += len(track_table.track_boundaries(table)) - 1
+        if self.directory:
+            pq.write_table(
+                table,
+                self.part_path(self._parts),
+                compression="zstd",
+                row_group_size=ROW_GROUP_ROWS,
+                write_page_checksum=True,
+            )
+            self._parts += 1
+            return
+        if self._writer is None:
+            self._writer = pq.ParquetWriter(
+                self._tmp, table.schema.remove_metadata(), compression="zstd", write_page_checksum=True
+            )
+        self._writer.write_table(self._aligned(table), row_group_size=ROW_GROUP_ROWS)
+
+    def add_part(self, path: Path) -> None:
+        """Account for a part file a worker wrote (directory output) or append it (file output)."""
+        table = track_table.read_parquet(path)
+        if self.directory:
+            self._metas.append(track_table.read_meta(table))
+            track_table.merge_meta(self._metas)
+            self.rows += table.num_rows
+            self.tracks += len(track_table.track_boundaries(table)) - 1
+            self._parts += 1
+        else:
+            self.write(table)
+
+    def _aligned(self, table: pa.Table) -> pa.Table:
+        """``table`` in the file's schema: optional neighbour columns it lacks become nulls."""
+        assert self._writer is not None
+        target = self._writer.schema
+        extra = set(table.column_names) - set(target.names)
+        if extra:
+            raise InputError(
+                self.out,
+                f"inputs differ in their neighbour columns ({sorted(extra)} not in the first input)",
+                expected="inputs of one kind per Parquet file, or a dataset directory (--out DIR)",
+            )
+        arrays = [
+            table.column(f.name) if f.name in table.column_names else pa.nulls(table.num_rows, f.type)
+            for f in target
+        ]
+        return pa.Table.from_arrays(arrays, schema=target)
+
+    def _finish(self) -> None:
+        if not self._metas:
+            raise InputError(self.out, "no rows to write", expected="at least one recording")
+        if self.directory:
+            return
+        assert self._writer is not None
+        meta = track_table.merge_meta(self._metas)
+        self._writer.add_key_value_metadata({track_table.META_KEY: meta.to_json().encode()})
+        self._writer.close()
+
+
+#: runs a task over items, yielding results in item order (inline, processes, Ray: workflows/engines)
+OrderedMap = Callable[[Callable[[Any], str], Sequence[Any]], Iterator[str]]
+
+
+def write_part(item: tuple[int, Piece], root: str) -> str:
+    """A worker's task: read piece ``item[1]`` and write it as ``root/part-NNNNN.parquet``."""
+    number, piece = item
+    path = Path(root) / f"part-{number:05d}.parquet"
+    pq.write_table(
+        piece.read(), path, compression="zstd", row_group_size=ROW_GROUP_ROWS, write_page_checksum=True
+    )
+    return str(path)
+
+
+def convert(
+    pieces: Sequence[Piece], out: str | Path, *, directory: bool, ordered_map: OrderedMap | None = None
+) -> tuple[int, int]:
+    """Write the pieces as one track table (a Parquet file, or a dataset ``directory``), one piece
+    in memory at a time; with ``ordered_map`` pieces are read by workers that write parts, which
+    the driver appends in order (the same output as one process). Returns (rows, tracks)."""
+    with TrackTableWriter(out, directory=directory) as writer:
+        if ordered_map is None:
+            for piece in pieces:
+                writer.write(piece.read())
+        else:
+            with contextlib.ExitStack() as stack:
+                root = writer.part_root() if directory else stack.enter_context(_parts_dir(Path(out)))
+                task = functools.partial(write_part, root=str(root))
+                for path in ordered_map(task, list(enumerate(pieces))):
+                    writer.add_part(Path(path))
+                    if not directory:
+                        Path(path).unlink()
+    return writer.rows, writer.tracks
+
+
+@contextlib.contextmanager
+def _parts_dir(out: Path) -> Iterator[Path]:
+    """A temporary directory beside ``out`` for workers' parts, removed at the end."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.parts-", dir=out.parent))
+    try:
+        yield tmp
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)

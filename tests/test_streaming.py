@@ -1,0 +1,262 @@
+"""Streaming convert and windows: pieces of whole recordings, datasets grown on disk, workers."""
+
+from __future__ import annotations
+
+import shutil
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
+import pytest
+
+from lanecast.io_adapters import registry, streaming
+from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.contracts.windows import NpyAppender, Windows, compute_stats, load_windows
+from lanecast.io_adapters.datasets import ngsim, ngsim_stream
+from lanecast.io_adapters.errors import InputError
+from lanecast.pipeline.make_windows import WindowOptions, make_windows, write_windows
+from lanecast.workflows.cli import main
+
+ARRAYS = ("inputs", "present", "future", "maneuver")
+
+
+@pytest.fixture(scope="module")
+def dataset(sim_recording_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Three highD recordings (01, 02, 03): the simulated one, its first and its last vehicles."""
+    out = tmp_path_factory.mktemp("multi")
+    lines = (sim_recording_dir / "01_tracks.csv").read_text().splitlines(keepends=True)
+    header, rows = lines[0], lines[1:]
+    vehicle = np.array([int(line.split(",", 2)[1]) for line in rows])
+    middle = int(np.median(vehicle))
+    parts = {"01": vehicle > 0, "02": vehicle <= middle, "03": vehicle > middle}
+    meta_lines = (sim_recording_dir / "01_tracksMeta.csv").read_text().splitlines(keepends=True)
+    rec_lines = (sim_recording_dir / "01_recordingMeta.csv").read_text().splitlines(keepends=True)
+    for prefix, keep in parts.items():
+        ids = {str(v) for v in np.unique(vehicle[keep])}
+        (out / f"{prefix}_tracks.csv").write_text(header + "".join(np.array(rows)[keep]))
+        kept = [m for m in meta_lines[1:] if m.split(",", 1)[0] in ids]
+        (out / f"{prefix}_tracksMeta.csv").write_text(meta_lines[0] + "".join(kept))
+        rec = rec_lines[1].split(",", 1)
+        (out / f"{prefix}_recordingMeta.csv").write_text(rec_lines[0] + f"{int(prefix)},{rec[1]}")
+    return out
+
+
+def _assert_same_windows(a: Windows, b: Windows) -> None:
+    for name in ARRAYS:
+        np.testing.assert_array_equal(
+            np.asarray(getattr(a, name)), np.asarray(getattr(b, name)), err_msg=name
+        )
+    assert a.index.equals(b.index.cast(a.index.schema))
+    skip = {"timings", "sources"}
+    assert {k: v for k, v in a.manifest.items() if k not in skip} == {
+        k: v for k, v in b.manifest.items() if k not in skip
+    }
+
+
+def test_pieces_of_a_highd_directory_are_its_recordings(dataset: Path) -> None:
+    pieces = streaming.plan([dataset])
+    assert [Path(p.paths[0]).name for p in pieces] == ["01_tracks.csv", "02_tracks.csv", "03_tracks.csv"]
+    names = [track_table.recording_codes(p.read())[0].tolist() for p in pieces]
+    assert names == [[f"highd-{n}-lower", f"highd-{n}-upper"] for n in ("01", "02", "03")]
+
+
+def test_windows_streamed_in_pieces_equal_the_in_memory_result(dataset: Path, tmp_path: Path) -> None:
+    table = registry.read_any([dataset])
+    expected = make_windows(table)
+    # one Parquet file with small row groups that cut through recordings, pieces of one recording
+    path = tmp_path / "all.parquet"
+    pq.write_table(table, path, row_group_size=10_000)
+    pieces = streaming.parquet_pieces(path, max_rows=1)
+    assert len(pieces) == 6 and all(len(p.row_groups) >= 1 for p in pieces)
+    streamed = write_windows(pieces, tmp_path / "w")
+    assert isinstance(streamed.inputs, np.memmap)  # loaded in one call, memory-mapped
+    _assert_same_windows(expected, streamed)
+    _assert_same_windows(expected, load_windows(tmp_path / "w"))
+    assert sorted(p.name for p in (tmp_path / "w").iterdir()) == sorted(
+        ["inputs.npy", "present.npy", "future.npy", "maneuver.npy", "windows.parquet", "manifest.json"]
+    )
+
+
+def test_hash_split_and_no_future_stream_the_same(dataset: Path, tmp_path: Path) -> None:
+    table = registry.read_any([dataset])
+    expected = make_windows(table, split="hash", seed=3, require_future=False, stride=7)
+    options = WindowOptions(split="hash", seed=3, require_future=False, stride=7)
+    streamed = write_windows(streaming.plan([dataset]), tmp_path / "w", options)
+    _assert_same_windows(expected, streamed)
+
+
+def test_windows_with_two_workers_equal_one_process(dataset: Path, tmp_path: Path) -> None:
+    assert main(["windows", str(dataset), "--out", str(tmp_path / "one")]) == 0
+    assert main(["windows", str(dataset), "--out", str(tmp_path / "two"), "--workers", "2"]) == 0
+    for name in ("inputs.npy", "present.npy", "future.npy", "maneuver.npy"):
+        assert (tmp_path / "one" / name).read_bytes() == (tmp_path / "two" / name).read_bytes(), name
+    one, two = load_windows(tmp_path / "one"), load_windows(tmp_path / "two")
+    _assert_same_windows(one, two)
+    assert not list((tmp_path / "two").glob("_shards*"))
+
+
+def _interrupting_map(after: int) -> Callable[..., Iterator[Any]]:
+    def ordered_map(fn: Callable[[Any], Any], items: Sequence[Any]) -> Iterator[Any]:
+        for i, item in enumerate(items):
+            if i == after:
+                raise KeyboardInterrupt
+            yield fn(item)
+
+    return ordered_map
+
+
+def test_an_interrupted_windows_run_leaves_no_half_written_dataset(dataset: Path, tmp_path: Path) -> None:
+    pieces = streaming.plan([dataset])
+    with pytest.raises(KeyboardInterrupt):
+        write_windows(pieces, tmp_path / "w", ordered_map=_interrupting_map(2))
+    assert list(tmp_path.iterdir()) == []  # neither the dataset nor a temporary
+    # an existing dataset is left as it was
+    first = write_windows(pieces[:1], tmp_path / "w")
+    before = {p.name: p.read_bytes() for p in (tmp_path / "w").iterdir()}
+    with pytest.raises(KeyboardInterrupt):
+        write_windows(pieces, tmp_path / "w", ordered_map=_interrupting_map(1))
+    assert {p.name: p.read_bytes() for p in (tmp_path / "w").iterdir()} == before
+    assert [p.name for p in tmp_path.iterdir()] == ["w"]
+    assert len(load_windows(tmp_path / "w")) == len(first)
+
+
+def test_convert_streams_into_one_file_or_a_dataset_directory(dataset: Path, tmp_path: Path) -> None:
+    expected = registry.read_any([dataset])
+    assert main(["convert", str(dataset), "--out", str(tmp_path / "one.parquet")]) == 0
+    assert (
+        main(["convert", str(dataset), "--out", str(tmp_path / "parts"), "--partition", "--workers", "2"])
+        == 0
+    )
+    assert sorted(p.name for p in (tmp_path / "parts").iterdir()) == [
+        "part-00000.parquet",
+        "part-00001.parquet",
+        "part-00002.parquet",
+    ]
+    one = registry.read_any([tmp_path / "one.parquet"])
+    parts = registry.read_any([tmp_path / "parts"])  # a dataset directory reads as one table
+    assert track_table.read_meta(one) == track_table.read_meta(expected)
+    for table in (one, parts):  # equal values (dictionaries are per piece)
+        assert table.num_rows == expected.num_rows
+        assert track_table.read_meta(table).recordings == track_table.read_meta(expected).recordings
+        for name in expected.column_names:
+            assert table.column(name).to_pylist() == expected.column(name).to_pylist(), name
+    # the windows of the directory equal those of the single file
+    assert main(["windows", str(tmp_path / "parts"), "--out", str(tmp_path / "wp")]) == 0
+    assert main(["windows", str(tmp_path / "one.parquet"), "--out", str(tmp_path / "wo")]) == 0
+    _assert_same_windows(load_windows(tmp_path / "wo"), load_windows(tmp_path / "wp"))
+
+
+def test_convert_of_mixed_neighbour_columns_into_one_file_is_refused_clearly(
+    dataset: Path, tmp_path: Path
+) -> None:
+    table = registry.read_any([dataset / "01_tracks.csv"])
+    without = table.drop_columns(list(track_table.NEIGHBOUR_COLUMNS))
+    meta = track_table.read_meta(without)
+    renamed = {f"x-{k}": v for k, v in meta.recordings.items()}
+    recs = without.column("recording").cast("string")
+    without = without.set_column(
+        0, "recording", pc.dictionary_encode(pc.binary_join_element_wise("x-", recs, ""))
+    )
+    without = without.replace_schema_metadata(
+        {
+            track_table.META_KEY: track_table.TableMeta(meta.source_format, renamed, meta.source_files)
+            .to_json()
+            .encode()
+        }
+    )
+    pq.write_table(without, tmp_path / "a.parquet")
+    # neighbour-less first, then with neighbours: the file's schema cannot take them
+    with pytest.raises(InputError, match="neighbour columns"):
+        streaming.convert(
+            streaming.plan([tmp_path / "a.parquet", dataset / "02_tracks.csv"]),
+            tmp_path / "o.parquet",
+            directory=False,
+        )
+    assert not (tmp_path / "o.parquet").exists()
+
+
+def test_npy_appender_grows_a_file_numpy_memory_maps(tmp_path: Path) -> None:
+    rng = np.random.default_rng(0)
+    blocks = [rng.normal(size=(n, 4, 8, 30)).astype(np.float32) for n in (3, 0, 5)]
+    np.save(tmp_path / "shard.npy", blocks[2])
+    app = NpyAppender(tmp_path / "a.npy", np.dtype(np.float32), (4, 8, 30))
+    app.append(blocks[0])
+    app.append(blocks[1])
+    assert app.append_npy(tmp_path / "shard.npy") == 5
+    app.close()
+    loaded = np.load(tmp_path / "a.npy", mmap_mode="r")
+    assert loaded.shape == (8, 4, 8, 30)
+    np.testing.assert_array_equal(loaded, np.concatenate(blocks))
+
+
+def test_statistics_over_selected_rows_equal_the_masked_ones() -> None:
+    rng = np.random.default_rng(1)
+    inputs = rng.normal(3.0, 2.0, size=(3000, 4, 8, 30)).astype(np.float32)
+    present = rng.random((3000, 8, 30)) < 0.6
+    rows = np.flatnonzero(rng.random(3000) < 0.3)
+    by_rows = compute_stats(inputs, present, rows=rows)
+    by_copy = compute_stats(inputs[rows], present[rows])
+    np.testing.assert_allclose(by_rows.mean, by_copy.mean, rtol=1e-6)
+    np.testing.assert_allclose(by_rows.std, by_copy.std, rtol=1e-6)
+    assert not np.allclose(by_rows.mean, compute_stats(inputs, present).mean, rtol=1e-3)
+
+
+@pytest.mark.slow
+def test_windows_on_a_local_ray_equal_one_process(dataset: Path, tmp_path: Path) -> None:
+    pytest.importorskip("ray")
+    assert main(["windows", str(dataset), "--out", str(tmp_path / "one")]) == 0
+    args = ["windows", str(dataset), "--out", str(tmp_path / "ray"), "--engine", "ray", "--workers", "2"]
+    assert main(args) == 0
+    _assert_same_windows(load_windows(tmp_path / "one"), load_windows(tmp_path / "ray"))
+    shutil.rmtree(tmp_path / "ray")
+
+
+NGSIM_SAMPLE = Path(__file__).parent / "data" / "ngsim" / "peachtree_sample.csv"
+
+
+def _assert_same_tracks(expected: pa.Table, table: pa.Table) -> None:
+    assert track_table.read_meta(table) == track_table.read_meta(expected)
+    assert table.num_rows == expected.num_rows
+    for name in expected.column_names:
+        a, b = expected.column(name), table.column(name)
+        if pa.types.is_floating(a.type):  # per-recording smoothing: equal up to float rounding
+            np.testing.assert_allclose(b.to_numpy(), a.to_numpy(), rtol=0, atol=1e-9, err_msg=name)
+        else:
+            assert b.to_pylist() == a.to_pylist(), name
+
+
+def test_ngsim_csv_export_read_block_by_block_equals_the_whole_read(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(ngsim_stream, "BLOCK_BYTES", 1 << 16)  # the sample spans several blocks
+    pieces = streaming.plan([NGSIM_SAMPLE], spill_dir=tmp_path / "spill", stream_bytes=0)
+    assert [track_table.recording_codes(p.read())[0].tolist() for p in pieces] == [
+        ["ngsim-peachtree-peachtree_sample-p1"],
+        ["ngsim-peachtree-peachtree_sample-p2"],
+    ]
+    _assert_same_tracks(ngsim.read([NGSIM_SAMPLE]), track_table.concat(p.read() for p in pieces))
+    # through the command, on two workers, the spills beside the output removed at the end
+    monkeypatch.setattr(streaming, "STREAM_BYTES", 0)
+    out = tmp_path / "out" / "ngsim.parquet"
+    assert main(["convert", str(NGSIM_SAMPLE), "--out", str(out), "--workers", "2"]) == 0
+    _assert_same_tracks(ngsim.read([NGSIM_SAMPLE]), registry.read_any([out]))
+    assert [p.name for p in out.parent.iterdir()] == ["ngsim.parquet"]
+
+
+def test_a_bad_cell_deep_in_a_streamed_export_is_named_by_line(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(ngsim_stream, "BLOCK_BYTES", 1 << 16)
+    lines = NGSIM_SAMPLE.read_text().splitlines(keepends=True)
+    cells = lines[4000].split(",")
+    cells[5] = "-x-"  # Local_Y
+    lines[4000] = ",".join(cells)
+    bad = tmp_path / "bad.csv"
+    bad.write_text("".join(lines))
+    with pytest.raises(InputError) as err:
+        streaming.plan([bad], spill_dir=tmp_path / "spill", stream_bytes=0)
+    assert "line 4001" in str(err.value) and "Local_Y" in str(err.value)
