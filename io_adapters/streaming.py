@@ -240,6 +240,7 @@ class TrackTableWriter:
         self.out, self.directory = Path(out), directory
         self.rows = self.tracks = 0
         self._metas: list[track_table.TableMeta] = []
+        self._sources: list[str] = []
         self._stack = contextlib.ExitStack()
         self._tmp: Path | None = None
         self._writer: pq.ParquetWriter | None = None
@@ -269,12 +270,11 @@ class TrackTableWriter:
         """Where part ``index`` of a directory output goes."""
         return self.part_root() / f"part-{index:05d}.parquet"
 
-    def write(self, table: pa.Table) -> None:
-        """Append one validated piece (its metadata names its recordings)."""
+    def write(self, table: pa.Table, source: str = "") -> None:
+        """Append one validated piece (its metadata names its recordings; ``source`` names the
+        input in errors)."""
         assert self._tmp is not None, "use TrackTableWriter as a context manager"
-        meta = track_table.read_meta(table)
-        self._metas.append(meta)
-        track_table.merge_meta(self._metas)  # raises on a recording given twice
+        self._account(track_table.read_meta(table), source)
         self.rows += table.num_rows
         self.tracks += len(track_table.track_boundaries(table)) - 1
         if self.directory:
@@ -293,17 +293,21 @@ class TrackTableWriter:
             )
         self._writer.write_table(self._aligned(table), row_group_size=ROW_GROUP_ROWS)
 
-    def add_part(self, path: Path) -> None:
+    def add_part(self, path: Path, source: str = "") -> None:
         """Account for a part file a worker wrote (directory output) or append it (file output)."""
         table = track_table.read_parquet(path)
         if self.directory:
-            self._metas.append(track_table.read_meta(table))
-            track_table.merge_meta(self._metas)
+            self._account(track_table.read_meta(table), source)
             self.rows += table.num_rows
             self.tracks += len(track_table.track_boundaries(table)) - 1
             self._parts += 1
         else:
-            self.write(table)
+            self.write(table, source)
+
+    def _account(self, meta: track_table.TableMeta, source: str) -> None:
+        self._metas.append(meta)
+        self._sources.append(source or ", ".join(meta.source_files))
+        track_table.merge_meta(self._metas, self._sources)  # raises on a recording given twice
 
     def _aligned(self, table: pa.Table) -> pa.Table:
         """``table`` in the file's schema: optional neighbour columns it lacks become nulls."""
@@ -328,7 +332,7 @@ class TrackTableWriter:
         if self.directory:
             return
         assert self._writer is not None
-        meta = track_table.merge_meta(self._metas)
+        meta = track_table.merge_meta(self._metas, self._sources)
         self._writer.add_key_value_metadata({track_table.META_KEY: meta.to_json().encode()})
         self._writer.close()
 
@@ -356,13 +360,13 @@ def convert(
     with TrackTableWriter(out, directory=directory) as writer:
         if ordered_map is None:
             for piece in pieces:
-                writer.write(piece.read())
+                writer.write(piece.read(), piece.paths[0])
         else:
             with contextlib.ExitStack() as stack:
                 root = writer.part_root() if directory else stack.enter_context(_parts_dir(Path(out)))
                 task = functools.partial(write_part, root=str(root))
-                for path in ordered_map(task, list(enumerate(pieces))):
-                    writer.add_part(Path(path))
+                for piece, path in zip(pieces, ordered_map(task, list(enumerate(pieces))), strict=False):
+                    writer.add_part(Path(path), piece.paths[0])
                     if not directory:
                         Path(path).unlink()
     return writer.rows, writer.tracks

@@ -327,18 +327,25 @@ def track_boundaries(table: pa.Table) -> np.ndarray:
     return run_bounds(recording_codes(table)[1], table.column("track_id").to_numpy())
 
 
-def merge_meta(metas: Iterable[TableMeta]) -> TableMeta:
+def merge_meta(metas: Iterable[TableMeta], sources: Sequence[str] | None = None) -> TableMeta:
     """The metadata of several track tables (or pieces of one dataset) as one document.
 
-    Recording names must be unique across them; formats are joined with ``+``.
+    Recording names must be unique across them (``sources``, one per document, name the inputs in
+    the error); formats are joined with ``+``, source files listed once.
     """
     metas = list(metas)
     recordings: dict[str, RecordingMeta] = {}
-    for m in metas:
-        clash = set(recordings) & set(m.recordings)
+    origin: dict[str, str] = {}
+    for i, m in enumerate(metas):
+        clash = sorted(set(recordings) & set(m.recordings))
+        here = sources[i] if sources is not None else ", ".join(m.source_files) or "an input"
         if clash:
-            raise TrackTableError(f"recording names {sorted(clash)} occur in more than one input")
+            raise TrackTableError(
+                f"{here}: recording names {clash} occur in more than one input (also in {origin[clash[0]]}); "
+                "expected inputs with distinct recording names (rename a file)"
+            )
         recordings.update(m.recordings)
+        origin.update(dict.fromkeys(m.recordings, here))
     formats = sorted({m.source_format for m in metas})
     files = list(dict.fromkeys(f for m in metas for f in m.source_files))
     return TableMeta("+".join(formats), recordings, files)
@@ -361,22 +368,7 @@ def concat(tables: Iterable[pa.Table], sources: Sequence[str] | None = None) -> 
     tables = list(tables)
     if not tables:
         raise TrackTableError("nothing to concatenate")
-    metas = [read_meta(t) for t in tables]
-    recordings: dict[str, RecordingMeta] = {}
-    origin: dict[str, str] = {}
-    for i, m in enumerate(metas):
-        clash = sorted(set(recordings) & set(m.recordings))
-        here = sources[i] if sources is not None else ", ".join(m.source_files) or "an input"
-        if clash:
-            raise TrackTableError(
-                f"{here}: recording names {clash} occur in more than one input (also in {origin[clash[0]]}); "
-                "expected inputs with distinct recording names (rename a file)"
-            )
-        recordings.update(m.recordings)
-        origin.update(dict.fromkeys(m.recordings, here))
-    formats = sorted({m.source_format for m in metas})
-    files = [f for m in metas for f in m.source_files]
-    meta = TableMeta("+".join(formats), recordings, files)
+    meta = merge_meta([read_meta(t) for t in tables], sources)
     with_neighbours = any(NEIGHBOUR_COLUMNS[0] in t.column_names for t in tables)
     target = schema(with_neighbours)
     aligned = []
