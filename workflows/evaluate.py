@@ -26,8 +26,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="metrics and a report of a model against constant-velocity/-acceleration baselines",
         description=(
             "Evaluate the ST-CNN (default: the shipped model) and the kinematic baselines on a windows "
-            "dataset: RMSE at 1-5 s (per window and per vehicle), ADE/FDE, minADE/minFDE@K, maneuver "
-            "accuracy, precision/recall, confusion matrix, RMSE on lane-change windows. Writes "
+            "dataset: RMSE at 1-5 s (per window and per vehicle, 95 % bootstrap intervals), ADE/FDE, "
+            "minADE/minFDE@K, miss rate (FDE > 2 m), RMSE on lane-change windows; maneuver accuracy beside "
+            "always-straight's, macro-F1 over the classes present or predicted (a false lane change counts), "
+            "F1 per class with its support, precision/recall, confusion matrix, Brier score and a "
+            "calibration plot; one row per recording; example scenes and a failure gallery. Writes "
             "metrics.json, report.md and report.html into --out."
         ),
         epilog="example:\n  lanecast evaluate windows/sim --model runs/model --out runs/report --split test",
