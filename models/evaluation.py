@@ -71,7 +71,31 @@ def evaluate(
             probs=p.probs,
             recording=recording,
         )
+        ood = p.out_of_distribution
+        metrics[f.name]["n_out_of_distribution"] = None if ood is None else int(np.count_nonzero(ood))
     return metrics, preds, idx
+
+
+def out_of_distribution_note(
+    preds: dict[str, Predictions], future: np.ndarray, model: str = "stcnn"
+) -> str | None:
+    """One line on the windows ``model`` flags as outside its training distribution: how many, and
+    the RMSE at 5 s of every forecaster on them (None when the model gives no flags)."""
+    flags = preds[model].out_of_distribution if model in preds else None
+    if flags is None:
+        return None
+    n = int(np.count_nonzero(flags))
+    text = (
+        f"{n:,} of {flags.size:,} windows ({100 * n / max(flags.size, 1):.1f} %) out of the {model} model's "
+        "training distribution (target speed or acceleration outside its 0.5-99.5 percentiles)"
+    )
+    if n:
+        err = {
+            name: float(np.sqrt(np.mean(np.sum((p.offsets[flags, -1] - future[flags, -1]) ** 2, axis=-1))))
+            for name, p in preds.items()
+        }
+        text += "; RMSE at 5 s on them: " + ", ".join(f"{k} {v:.2f} m" for k, v in err.items())
+    return text
 
 
 def _distinct_tracks(

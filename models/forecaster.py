@@ -21,6 +21,9 @@ class Predictions:
     top_sequences: np.ndarray | None  # int64 [N, K, 5]: K most probable maneuver sequences
     top_probs: np.ndarray  # float32 [N, K]: their probabilities (product of per-step probabilities)
     top_offsets: np.ndarray  # float32 [N, K, 5, 2]: trajectory regressed for each sequence
+    #: bool [N]: the target's state lies outside the model's training distribution (lanecast.models.ood);
+    #: None when unknown (baselines, cards without a distribution)
+    out_of_distribution: np.ndarray | None = None
 
 
 class Forecaster(Protocol):

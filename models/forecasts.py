@@ -22,7 +22,9 @@ def forecasts_table(index: pa.Table, preds: Predictions) -> pa.Table:
     maneuver_probs list[5] of list[3] (straight, left, right; null for baselines), maneuver list[5]
     (null for baselines), the K alternatives: alt_probs list[K], alt_maneuvers list[K] of list[5],
     alt_x, alt_y list[K] of list[5], and origin_x, origin_y (m, source frame): the target's centre
-    at t0, where the drawn line starts (kept from the window, never interpolated again).
+    at t0, where the drawn line starts (kept from the window, never interpolated again), and
+    out_of_distribution (bool: the target's state lies outside the model's training distribution;
+    null where unknown, e.g. baselines).
     """
     n = index.num_rows
     ox, oy, heading = (index.column(c).to_numpy() for c in ("origin_x", "origin_y", "origin_heading"))
@@ -53,6 +55,9 @@ def forecasts_table(index: pa.Table, preds: Predictions) -> pa.Table:
         "alt_y": nested(alt[..., 1]),
         "origin_x": pa.array(ox, pa.float64()),
         "origin_y": pa.array(oy, pa.float64()),
+        "out_of_distribution": pa.array(preds.out_of_distribution, pa.bool_())
+        if preds.out_of_distribution is not None
+        else pa.nulls(n, pa.bool_()),
     }
     return pa.table(columns)
 

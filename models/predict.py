@@ -22,6 +22,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from lanecast.io_adapters.contracts.windows import NormStats, normalise
+from lanecast.models import ood
 from lanecast.models.checkpoint import load_checkpoint
 from lanecast.models.forecaster import Predictions
 from lanecast.models.forecasts import forecasts_table as forecasts_table
@@ -169,4 +170,8 @@ class STCNNForecaster:
         out.top_offsets *= self.future_std
         out.top_offsets += self.future_mean
         out.offsets[:] = out.top_offsets[:, 0]  # the top sequence is the per-step argmax
+        distribution = self.card.get("training", {}).get("data", {}).get("distribution")
+        out.out_of_distribution = ood.out_of_distribution(
+            inputs[:, :, :, -1:], present[:, :, -1:], distribution
+        )
         return out

@@ -37,6 +37,7 @@ from torch.nn import functional as F
 from lanecast.io_adapters.contracts.windows import NormStats, Windows, compute_stats, labelled, normalise
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import bar
+from lanecast.models import ood
 from lanecast.models.checkpoint import torch_device
 from lanecast.models.metrics import confusion_matrix, macro_f1, precision_recall
 from lanecast.models.stcnn import STCNN, STCNNConfig
@@ -88,6 +89,9 @@ class TrainConfig:
     select_classifier: str = "nll"
     #: learning rate over the run, both networks: "constant" (the paper) or "cosine" (lr → 0 at the end)
     lr_schedule: str = "constant"
+    #: std (m) of Gaussian noise added to the x, y inputs of training batches (tracker-like jitter,
+    #: augmentation beyond the paper; 0 = none). Targets stay clean.
+    position_noise_m: float = 0.0
     model: STCNNConfig = field(default_factory=STCNNConfig)
 
     def __post_init__(self) -> None:
@@ -97,6 +101,8 @@ class TrainConfig:
             )
         if self.lr_schedule not in ("constant", "cosine"):
             raise ValueError(f"lr_schedule must be 'constant' or 'cosine', not {self.lr_schedule!r}")
+        if not self.position_noise_m >= 0:
+            raise ValueError(f"position_noise_m must be >= 0, not {self.position_noise_m}")
         if not self.class_weight_power >= 0:
             raise ValueError(f"class_weight_power must be >= 0, not {self.class_weight_power}")
 
@@ -159,9 +165,23 @@ class _Batches:
         self.mean, self.std = future_mean, future_std
         self.transform = transform
 
-    def get(self, idx: np.ndarray, device: torch.device) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def get(
+        self,
+        idx: np.ndarray,
+        device: torch.device,
+        noise_m: float = 0.0,
+        rng: np.random.Generator | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Normalised (inputs, future, maneuver) of windows ``idx``; ``noise_m`` > 0 adds Gaussian
+        noise of that std to the present x, y inputs (metres, before normalising)."""
         idx = np.sort(idx)  # sequential reads of the memory map; order inside a batch is irrelevant
-        x = normalise(self.w.inputs[idx], self.w.present[idx], self.stats)
+        inputs = np.asarray(self.w.inputs[idx])
+        present = np.asarray(self.w.present[idx])
+        if noise_m > 0 and rng is not None:
+            inputs = inputs.copy()
+            jitter = rng.normal(0.0, noise_m, size=(len(idx), 2, *present.shape[1:])).astype(np.float32)
+            inputs[:, :2] += jitter * present[:, None]
+        x = normalise(inputs, present, self.stats)
         if self.transform is not None:
             x = np.ascontiguousarray(self.transform(x), dtype=np.float32)
         y = (np.asarray(self.w.future[idx]) - self.mean) / self.std
@@ -227,6 +247,7 @@ def train(
     data_card: dict[str, Any] | None = None,
     classifier_from: STCNN | None = None,
     transform: Callable[[np.ndarray], np.ndarray] | None = None,
+    init_from: tuple[STCNN, dict[str, Any]] | None = None,
 ) -> TrainResult:
     """Train both networks on the ``train`` split, validating on ``val`` each epoch; keep the best epochs.
 
@@ -234,8 +255,12 @@ def train(
     that model's (trained) classifier and train only the regressor (e.g. for the regression-only
     ablation, whose classifier is the same network). ``transform``: applied to every normalised input
     batch [B, 4, 8, 30] before the networks see it (the input ablations of ``lanecast.models.ablation``;
-    its output must fit ``config.model.channels``). Reproducible for a seed on a given machine and
-    thread count. Raises InputError when there is nothing to train on.
+    its output must fit ``config.model.channels``). ``init_from`` (model, card): fine-tune, starting
+    from that model's weights and keeping its normalisation (input and offset statistics): the
+    trained filters expect inputs scaled as in their training, and recomputing the statistics on
+    a small new dataset would shift every input the network sees before the first step. (The best
+    epoch is then chosen among the fine-tuning epochs.) Reproducible for a seed on a given machine
+    and thread count. Raises InputError when there is nothing to train on.
     """
     config = config or TrainConfig()
     torch.set_num_threads(config.threads)
@@ -249,8 +274,14 @@ def train(
         raise InputError(
             None, "no labelled training windows (split 'train')", expected="windows with known futures"
         )
-    input_stats = compute_stats(windows.inputs, windows.present, rows=train_idx)  # chunked: no copy
-    future_mean, future_std = future_stats(windows.future[train_idx])
+    if init_from is not None:
+        norm = init_from[1]["normalisation"]
+        input_stats = NormStats.from_dict(norm["inputs"])
+        future_mean = np.asarray(norm["future"]["mean"], dtype=np.float32)
+        future_std = float(norm["future"]["std"])
+    else:
+        input_stats = compute_stats(windows.inputs, windows.present, rows=train_idx)  # chunked: no copy
+        future_mean, future_std = future_stats(windows.future[train_idx])
     batches = _Batches(windows, input_stats, future_mean, future_std, transform)
     train_counts = np.bincount(np.asarray(windows.maneuver[train_idx]).ravel(), minlength=3)
     weights = class_weights(windows.maneuver[train_idx], config.class_weight_power, config.model.classes)
@@ -259,6 +290,8 @@ def train(
     check_idx = val_idx if len(val_idx) else train_idx
 
     model = STCNN(config.model)
+    if init_from is not None:
+        model.load_state_dict(init_from[0].state_dict())
     if classifier_from is not None:
         model.classifier.load_state_dict(classifier_from.classifier.state_dict())
     model.to(device)
@@ -283,7 +316,12 @@ def train(
         sum_c = sum_r = 0.0
         t_start = time.perf_counter()
         for b in range(n_batches):
-            x, y, m = batches.get(perm[b * config.batch_size : (b + 1) * config.batch_size], device)
+            x, y, m = batches.get(
+                perm[b * config.batch_size : (b + 1) * config.batch_size],
+                device,
+                config.position_noise_m,
+                rng,
+            )
             if train_classifier:
                 loss_c = classifier_loss(model.classifier(x), m, weight_t)
                 opt_c.zero_grad(set_to_none=True)
@@ -344,6 +382,10 @@ def train(
                 "train_windows": len(train_idx),
                 "val_windows": len(val_idx),
                 "train_maneuver_counts": train_counts.tolist(),
+                # t0 only: [N, 4, 8, 1] instead of the whole [N, 4, 8, 30] tensors
+                "distribution": ood.distribution(
+                    windows.inputs[:, :, :, -1:][train_idx], windows.present[:, :, -1:][train_idx]
+                ),
             },
             "classifier_loss": (
                 "sum over steps of the NLL (the paper's)"
@@ -352,6 +394,7 @@ def train(
                 f" = inverse frequency ** {config.class_weight_power:g}, mean 1 over training steps (beyond the paper)"
             ),
             "selected_on": select_on,
+            "initialised_from": None if init_from is None else init_from[1].get("training", {}).get("data"),
             "classifier_selected_by": sel_key,
             "best_epoch": {"classifier": best_c[1] if train_classifier else "copied", "regressor": best_r[1]},
             "train_seconds": round(train_seconds, 2),

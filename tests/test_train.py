@@ -230,3 +230,63 @@ def test_forecaster_equals_the_plain_networks(windows: Windows) -> None:
     assert pred.probs is not None
     np.testing.assert_allclose(pred.probs, torch.softmax(logits, 2).numpy(), atol=1e-6)
     np.testing.assert_allclose(pred.top_probs[:, 0], pred.probs.max(axis=2).prod(axis=1), rtol=1e-5)
+
+
+def test_init_starts_from_the_given_weights_and_normalisation(windows: Windows, tmp_path) -> None:
+    """--init: with lr 0 fine-tuning keeps the given weights exactly; the normalisation is the init
+    model's even on data with other statistics; with lr > 0 the weights move away from them."""
+    base = train(windows, TrainConfig(epochs=1, batch_size=128, seed=3, threads=1))
+    other = synthetic_windows(300, seed=5)
+    other.inputs[:, 2] *= 0.3  # slower traffic: other input statistics
+    still = train(
+        other, TrainConfig(epochs=1, batch_size=64, lr=0.0, threads=1), init_from=(base.model, base.card)
+    )
+    for k, v in base.model.state_dict().items():
+        assert torch.equal(v, still.model.state_dict()[k]), k
+    assert still.card["normalisation"] == base.card["normalisation"]
+    fresh = train(other, TrainConfig(epochs=1, batch_size=64, threads=1))
+    assert fresh.card["normalisation"]["inputs"] != base.card["normalisation"]["inputs"]
+    moved = train(other, TrainConfig(epochs=1, batch_size=64, threads=1), init_from=(base.model, base.card))
+    w0, w1 = base.model.state_dict(), moved.model.state_dict()
+    assert not all(torch.equal(w0[k], w1[k]) for k in w0)
+    # closer to the init than a model trained from scratch
+    dist = lambda a, b: sum(float((a[k] - b[k]).norm()) for k in a)  # noqa: E731
+    assert dist(w0, w1) < dist(w0, fresh.model.state_dict())
+
+
+def test_cli_train_init(windows: Windows, tmp_path, capsys) -> None:
+    from lanecast.io_adapters.contracts.windows import save_windows
+    from lanecast.workflows.cli import main as cli_main
+
+    base = train(windows, TrainConfig(epochs=1, batch_size=128, seed=3, threads=1))
+    save_checkpoint(base.model, base.card, tmp_path / "base")
+    save_windows(windows, tmp_path / "w")
+    code = cli_main(
+        ["train", str(tmp_path / "w"), "--init", str(tmp_path / "base"), "--out", str(tmp_path / "tuned"),
+         "--epochs", "1", "--lr", "0", "--threads", "1"]
+    )  # fmt: skip
+    assert code == 0
+    net, card = load_checkpoint(tmp_path / "tuned")
+    assert card["training"]["data"]["init"] == str(tmp_path / "base")
+    for k, v in base.model.state_dict().items():
+        assert torch.equal(v, net.state_dict()[k]), k
+
+
+def test_position_noise_changes_training_only(windows: Windows) -> None:
+    clean = train(windows, TrainConfig(epochs=1, batch_size=64, seed=1, threads=1))
+    noisy = train(windows, TrainConfig(epochs=1, batch_size=64, seed=1, threads=1, position_noise_m=0.3))
+    a, b = clean.model.state_dict(), noisy.model.state_dict()
+    assert not all(torch.equal(a[k], b[k]) for k in a)
+    assert clean.card["normalisation"] == noisy.card["normalisation"]
+    with pytest.raises(ValueError):
+        TrainConfig(position_noise_m=-1.0)
+
+
+def test_card_has_the_training_distribution(windows: Windows) -> None:
+    card = train(windows, TrainConfig(epochs=1, batch_size=128, threads=1)).card
+    dist = card["training"]["data"]["distribution"]
+    train_idx = labelled(windows, ("train",))
+    speed = windows.inputs[train_idx, 2, 4, -1]
+    assert dist["speed_mps"]["p50"] == pytest.approx(float(np.median(speed)), abs=1e-3)
+    assert dist["speed_mps"]["p0.5"] >= 20.0 and dist["speed_mps"]["p99.5"] <= 35.0
+    assert dist["neighbours_present"]["p50"] == 1.0  # only F

@@ -295,6 +295,15 @@ def annotate_log(
         "forecast_frames": n_frames,
         "forecast_targets": forecasts.num_rows,
         "what_if_forecasts": 0 if what_ifs is None else what_ifs.num_rows,
+        "out_of_distribution": (
+            int(
+                np.count_nonzero(
+                    forecasts.column("out_of_distribution").fill_null(False).to_numpy(zero_copy_only=False)
+                )
+            )
+            if "out_of_distribution" in forecasts.column_names
+            else None
+        ),
         "read_s": round(read_s, 3),
         "model_s": round(model_s, 3),
         "write_s": round(write_s, 3),

@@ -101,6 +101,17 @@ class BulkResult:
             + f" -> {self.out_dir} (manifest: {self.out_dir / MANIFEST})"
         ]
         lines += [f"  FAILED {e['input']}: {e['error']}" for e in self.failed]
+        counted = [
+            e["counts"] for e in self.done if (e.get("counts") or {}).get("out_of_distribution") is not None
+        ]
+        if counted:
+            flagged = sum(int(c["out_of_distribution"]) for c in counted)
+            total = sum(int(c["forecast_targets"]) for c in counted)
+            lines.append(
+                f"out of distribution: {flagged:,} of {total:,} forecasts in {len(counted)} log(s) "
+                "(target speed or acceleration outside the model's training range; field "
+                "out_of_distribution in /lanecast/prediction)"
+            )
         return "\n".join(lines)
 
 

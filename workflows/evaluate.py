@@ -9,10 +9,18 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+import numpy as np
+
 from lanecast.io_adapters.contracts.windows import load_windows
 from lanecast.models.baselines import constant_acceleration, constant_velocity
 from lanecast.models.card import resolve
-from lanecast.models.evaluation import always_straight, evaluate, example_scenes, write_metrics
+from lanecast.models.evaluation import (
+    always_straight,
+    evaluate,
+    example_scenes,
+    out_of_distribution_note,
+    write_metrics,
+)
 from lanecast.models.forecaster import Forecaster
 from lanecast.models.report import write_report
 from lanecast.workflows.vocabulary import HelpFormatter, add_model_option
@@ -79,6 +87,9 @@ def run(args: argparse.Namespace) -> int:
         "always_straight": always_straight(windows, idx),
         "sources": windows.manifest.get("sources"),
     }
+    ood_note = out_of_distribution_note(preds, np.asarray(windows.future[idx]))
+    if ood_note is not None:
+        meta["out_of_distribution"] = ood_note
     args.out.mkdir(parents=True, exist_ok=True)
     write_metrics(args.out / "metrics.json", metrics, meta)
     scenes = example_scenes(windows, idx, preds["stcnn"], args.examples)
@@ -96,4 +107,6 @@ def run(args: argparse.Namespace) -> int:
     )
     print("  (macro-F1 over the maneuver classes present or predicted: a false lane change counts)")
     print(f"wrote {args.out / 'metrics.json'}, report.md, report.html")
+    if ood_note is not None:
+        print(f"out of distribution: {ood_note}")
     return 0

@@ -7,6 +7,7 @@ from pathlib import Path
 
 from lanecast.io_adapters import registry
 from lanecast.io_adapters.contracts import track_table
+from lanecast.pipeline.traffic import traffic_statistics
 from lanecast.workflows.table_summary import summarise
 from lanecast.workflows.vocabulary import HelpFormatter, add_location_option
 
@@ -15,7 +16,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "info",
         help="summarise a dataset, track table or drive log",
-        description="Print the format, recordings, tracks, frames, duration, frame rate and lane changes of PATH.",
+        description=(
+            "Print the format, recordings, tracks, frames, duration, frame rate and lane changes of PATH, "
+            "and each recording's traffic statistics: speed percentiles, density, lane changes per vehicle "
+            "and per vehicle-km, lateral-acceleration percentiles."
+        ),
         epilog="examples:\n  lanecast info sim.parquet\n  lanecast info logs/sim.mcap",
         formatter_class=HelpFormatter,
     )
@@ -41,6 +46,23 @@ def run(args: argparse.Namespace) -> int:
         print(
             f"  {r['recording']:<28}{r['tracks']:>8,}{r['frames']:>9,}{r['duration_s']:>10.1f}s"
             f"{r['frame_rate']:>6g}Hz{r['lane_changes']:>10,}  {classes}"
+        )
+    print(
+        "  traffic (speed percentiles p5/p50/p95; density; lane changes; |lateral acceleration| p50/p95/p99):"
+    )
+    stats = traffic_statistics(table)
+    width = max([28, *(len(n) + 2 for n in stats)])
+    for name, st in stats.items():
+        sp, la = st["speed_mps"], st["lateral_acc_abs_mps2"]
+        per_lane = st["density_veh_per_km_lane"]
+        density = f"{st['density_veh_per_km']:.1f} veh/km" + (
+            f" ({per_lane:.1f} per lane, {st['lanes']} lanes)" if per_lane is not None else ""
+        )
+        print(
+            f"  {name:<{width}}speed {sp['p5']:.1f}/{sp['p50']:.1f}/{sp['p95']:.1f} m/s; {density}; "
+            f"{st['lane_changes_per_vehicle']:.3f} lane changes per vehicle "
+            f"({st['lane_changes_per_vehicle_km']:.2f} per vehicle-km); "
+            f"lat. acc. {la['p50']:.2f}/{la['p95']:.2f}/{la['p99']:.2f} m/s²"
         )
     total_tracks = sum(int(r["tracks"]) for r in rows)  # type: ignore[call-overload]
     total_changes = sum(int(r["lane_changes"]) for r in rows)  # type: ignore[call-overload]

@@ -6,7 +6,8 @@ import argparse
 import time
 from pathlib import Path
 
-from lanecast.io_adapters.sim import sumo_highway
+from lanecast.io_adapters.sim import scenarios, sumo_highway
+from lanecast.io_adapters.sim.scenarios import SCENARIOS
 from lanecast.workflows.vocabulary import HelpFormatter
 
 DENSITIES = ("low", "medium", "high")
@@ -21,12 +22,16 @@ def register(sub: argparse._SubParsersAction) -> None:
             "spread desired speeds and continuous lane changes, and write the recorded middle section as "
             "highD's three CSV files (NN_tracks.csv, NN_tracksMeta.csv, NN_recordingMeta.csv; 25 Hz) into "
             "OUT_DIR. Neighbour ids come from SUMO. The same arguments give byte-identical files; about 15 "
-            "minutes at medium density give a recording of highD's size (about 1,000 vehicles)."
+            "minutes at medium density give a recording of highD's size (about 1,000 vehicles). "
+            "--scenario NAME simulates a named traffic scenario instead (its road, limit, demand, bottleneck "
+            "and drivers; 10 Hz; --minutes, --seed, --recording-id still apply): "
+            + "; ".join(f"{name}: {desc}" for name, (desc, _) in SCENARIOS.items())
         ),
         epilog=(
             "examples:\n"
             "  lanecast simulate --out sim/ --minutes 5 --seed 1\n"
             "  lanecast simulate --out sim-dense/ --minutes 5 --seed 7 --density high --lanes-per-direction 2\n"
+            "  lanecast simulate --out sim-queue/ --minutes 5 --seed 3 --scenario stop_and_go\n"
             "  lanecast convert sim/ --out sim.parquet"
         ),
         formatter_class=HelpFormatter,
@@ -36,6 +41,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--minutes", type=float, required=True, help="simulated minutes to record")
     p.add_argument("--seed", type=int, required=True, help="SUMO's random seed")
+    p.add_argument(
+        "--scenario",
+        choices=list(SCENARIOS),
+        help="a named traffic scenario (replaces the road and traffic options below)",
+    )
     p.add_argument("--lanes-per-direction", type=int, default=3, help="lanes per carriageway")
     p.add_argument("--density", choices=DENSITIES, default="medium", help="traffic density")
     p.add_argument("--truck-share", type=float, default=0.2, help="share of trucks, 0…1")
@@ -66,6 +76,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
+    config = (
+        scenarios.scenario_config(args.scenario, minutes=args.minutes, seed=args.seed)
+        if args.scenario
+        else None
+    )
     out = sumo_highway.simulate(
         args.out,
         minutes=args.minutes,
@@ -77,12 +92,15 @@ def run(args: argparse.Namespace) -> int:
         section_length_m=args.section_length,
         approach_length_m=args.approach_length,
         lane_change_duration_s=args.lane_change_duration,
+        config=config,
     )
     names = sumo_highway.file_names(args.recording_id)
     summary = sumo_highway.summary(out / names["tracksMeta"])
     print(
         f"wrote {out}: {', '.join(names.values())}; {summary['vehicles']:,} vehicles "
         f"({summary['cars']:,} cars, {summary['trucks']:,} trucks), {summary['lane_changes']:,} lane changes, "
-        f"{args.minutes:g} simulated minutes in {time.perf_counter() - started:.1f} s"
+        f"{args.minutes:g} simulated minutes"
+        + (f" of scenario {args.scenario}" if args.scenario else "")
+        + f" in {time.perf_counter() - started:.1f} s"
     )
     return 0

@@ -38,7 +38,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         ),
         epilog=(
             "examples:\n  lanecast train windows/sim --out runs/model --epochs 20 --seed 1\n"
-            "  lanecast train windows/sim --out runs/regonly --regression-only   # ablation: no maneuver input"
+            "  lanecast train windows/sim --out runs/regonly --regression-only   # ablation: no maneuver input\n"
+            "  lanecast train windows/mine --init default --out runs/tuned --epochs 5   # fine-tune the shipped model"
         ),
         formatter_class=HelpFormatter,
     )
@@ -67,6 +68,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--regression-only", action="store_true", help="regressor without maneuver input (ablation)"
     )
+    p.add_argument(
+        "--init",
+        metavar="MODEL_DIR",
+        help="fine-tune: start from this model's weights ('default': the shipped model) and keep its "
+        "normalisation; the architecture is the init model's",
+    )
+    p.add_argument(
+        "--position-noise",
+        type=float,
+        metavar="M",
+        help="augmentation: Gaussian noise (std, m) on the x, y inputs of training batches (default 0)",
+    )
     p.set_defaults(func=run)
 
 
@@ -81,8 +94,11 @@ def default_config() -> TrainConfig:
         return TrainConfig()
 
 
-def train_and_save(windows_dir: Path, out: Path, config: TrainConfig, *, top_k: int = 3) -> dict[str, Any]:
-    """Train, evaluate on val and test (if present), save; return the card."""
+def train_and_save(
+    windows_dir: Path, out: Path, config: TrainConfig, *, top_k: int = 3, init: str | None = None
+) -> dict[str, Any]:
+    """Train (from the weights of model ``init`` if given, "default" = the shipped model), evaluate
+    on val and test (if present), save; return the card."""
     from lanecast.models.checkpoint import save_checkpoint
     from lanecast.models.predict import STCNNForecaster
     from lanecast.models.train import train
@@ -93,7 +109,14 @@ def train_and_save(windows_dir: Path, out: Path, config: TrainConfig, *, top_k: 
         "sources": windows.manifest.get("sources"),
         "counts": windows.manifest.get("counts"),
     }
-    result = train(windows, config, data_card=data)
+    init_from = None
+    if init is not None:
+        from lanecast.models.checkpoint import load_checkpoint
+
+        init_from = load_checkpoint(None if init == "default" else init)
+        config = dataclasses.replace(config, model=init_from[0].config)
+        data["init"] = "shipped model" if init == "default" else str(init)
+    result = train(windows, config, data_card=data, init_from=init_from)
     forecaster = STCNNForecaster(result.model, result.card)
     metrics: dict[str, Any] = {}
     for name, splits in (("validation", ("val",)), ("test", ("test",))):
@@ -119,12 +142,13 @@ def run(args: argparse.Namespace) -> int:
         "device",
         "class_weight_power",
         "select_classifier",
+        "position_noise",
     )
-    overrides = {k: getattr(args, k) for k in names}
+    overrides = {("position_noise_m" if k == "position_noise" else k): getattr(args, k) for k in names}
     config = dataclasses.replace(config, **{k: v for k, v in overrides.items() if v is not None})
     if args.regression_only:
         config = dataclasses.replace(config, model=dataclasses.replace(config.model, maneuver_input=False))
-    card = train_and_save(args.windows, args.out, config)
+    card = train_and_save(args.windows, args.out, config, init=args.init)
     t = card["training"]
     print(
         f"trained {t['data']['train_windows']:,} windows x {config.epochs} epochs in {t['train_seconds']:.0f} s "

@@ -69,10 +69,16 @@ LANE_WIDTH_M = 3.75
 MEDIAN_M = 4.0
 TOP_MARGIN_M = 8.0  # image y of the upper carriageway's top marking
 X_MARGIN_M = 10.0  # image x of the section's start (so that bounding boxes stay at x > 0)
-SPEED_LIMIT_MPS = 130.0 / 3.6
+SPEED_LIMIT_KMH = 130.0  # the default limit (German autobahn advisory speed, highD)
 # Mean arrival rate per carriageway (vehicles/s, Poisson arrivals); "medium" gives about 1,000
 # vehicles in 15 simulated minutes over both carriageways, like one highD recording.
 DENSITY_RATES: dict[str, float] = {"low": 0.25, "medium": 0.56, "high": 1.0}
+BOTTLENECKS = ("none", "on_ramp", "lane_drop", "slow_zone", "signal")
+DRIVERS = ("uniform", "mixed")
+BOTTLENECK_GAP_M = 50.0  # from the section's end to the bottleneck (the queue grows back into the section)
+SIGNAL_GAP_M = 20.0  # a traffic light right after the section: its queue stands in the section
+BOTTLENECK_LENGTH_M = 300.0  # the slow zone, the lane-drop taper, the ramp's acceleration lane
+RAMP_LENGTH_M = 300.0
 # (type id, class, length m, width m, share within its class)
 _CAR_TYPES = (
     ("car_s", "Car", 4.2, 1.75, 0.3),
@@ -112,19 +118,52 @@ class HighwayConfig:
     section_length_m: float = 1000.0
     approach_length_m: float = 1000.0
     lane_change_duration_s: float = 3.0
+    speed_limit_kmh: float = SPEED_LIMIT_KMH
+    lane_width_m: float = LANE_WIDTH_M
+    #: Poisson arrivals per carriageway (vehicles/s); None: the rate of ``density``
+    demand_per_s: float | None = None
+    #: downstream of the section: "none", "on_ramp" (a merging ramp with an acceleration lane),
+    #: "lane_drop" (the right-most lane ends), "slow_zone" (a stretch at ``bottleneck_speed_kmh``)
+    #: or "signal" (a traffic light, ``signal_green_s`` green then ``signal_red_s`` red, queues)
+    bottleneck: str = "none"
+    bottleneck_speed_kmh: float = 40.0
+    signal_green_s: float = 40.0
+    signal_red_s: float = 30.0
+    ramp_demand_per_s: float = 0.3
+    #: "uniform" (one car and one truck behaviour) or "mixed" (three driving styles, IDM and Krauss)
+    drivers: str = "uniform"
+    #: width (s) of the triangular kernel that smooths lateral positions (0: SUMO's constant-speed
+    #: sideways motion with acceleration spikes at its ends)
+    lateral_smoothing_s: float = 0.0
+    #: extra warm-up before frame 1 (s), e.g. for a queue to grow back from a bottleneck
+    extra_warmup_s: float = 0.0
+    #: simulation steps = frames per second (highD: 25; 10 is what the windows use, 2.5× cheaper)
+    frame_rate: float = FRAME_RATE
+
+    @property
+    def step_s(self) -> float:
+        return 1.0 / self.frame_rate
 
     @property
     def road_length_m(self) -> float:
         return 2 * self.approach_length_m + self.section_length_m
 
     @property
+    def speed_limit_mps(self) -> float:
+        return self.speed_limit_kmh / 3.6
+
+    @property
+    def rate_per_s(self) -> float:
+        return DENSITY_RATES[self.density] if self.demand_per_s is None else self.demand_per_s
+
+    @property
     def warmup_s(self) -> float:
         """Long enough for a truck (≈ 20 m/s) inserted at t = 0 to cross the section's end."""
-        return round((self.approach_length_m + self.section_length_m) / 20.0 + 20.0)
+        return round((self.approach_length_m + self.section_length_m) / 20.0 + 20.0 + self.extra_warmup_s)
 
     @property
     def n_frames(self) -> int:
-        return round(self.minutes * 60.0 * FRAME_RATE)
+        return round(self.minutes * 60.0 * self.frame_rate)
 
     def check(self) -> None:
         """Raise InputError for parameters that cannot give a recording."""
@@ -143,8 +182,35 @@ class HighwayConfig:
             problems.append(("section_length_m", f"{self.section_length_m}", "at least 50 m"))
         if not self.approach_length_m >= 100.0:
             problems.append(("approach_length_m", f"{self.approach_length_m}", "at least 100 m"))
-        if not self.lane_change_duration_s > STEP_S:
-            problems.append(("lane_change_duration_s", f"{self.lane_change_duration_s}", "> 0.04 s"))
+        if self.frame_rate not in (10.0, 20.0, 25.0, 50.0):
+            problems.append(("frame_rate", f"{self.frame_rate}", "10, 20, 25 or 50 Hz"))
+        elif not self.lane_change_duration_s > self.step_s:
+            problems.append(
+                ("lane_change_duration_s", f"{self.lane_change_duration_s}", "longer than a step")
+            )
+        if not 20.0 <= self.speed_limit_kmh <= 250.0:
+            problems.append(("speed_limit_kmh", f"{self.speed_limit_kmh}", "20 … 250 km/h"))
+        if not 2.5 <= self.lane_width_m <= 5.0:
+            problems.append(("lane_width_m", f"{self.lane_width_m}", "2.5 … 5 m"))
+        if self.demand_per_s is not None and not 0 < self.demand_per_s <= 5.0:
+            problems.append(("demand_per_s", f"{self.demand_per_s}", "0 < vehicles/s <= 5"))
+        if self.bottleneck not in BOTTLENECKS:
+            problems.append(("bottleneck", repr(self.bottleneck), f"one of {BOTTLENECKS}"))
+        if self.bottleneck == "lane_drop" and self.lanes_per_direction < 2:
+            problems.append(("lanes_per_direction", "1", "at least 2 lanes for a lane drop"))
+        if (
+            self.bottleneck != "none"
+            and self.approach_length_m < BOTTLENECK_GAP_M + BOTTLENECK_LENGTH_M + 100
+        ):
+            problems.append(
+                ("approach_length_m", f"{self.approach_length_m}", "at least 700 m with a bottleneck")
+            )
+        if self.drivers not in DRIVERS:
+            problems.append(("drivers", repr(self.drivers), f"one of {DRIVERS}"))
+        if not 0.0 <= self.lateral_smoothing_s <= 10.0:
+            problems.append(("lateral_smoothing_s", f"{self.lateral_smoothing_s}", "0 … 10 s"))
+        if not self.extra_warmup_s >= 0.0:
+            problems.append(("extra_warmup_s", f"{self.extra_warmup_s}", "a non-negative time"))
         if problems:
             name, got, expected = problems[0]
             raise InputError(None, f"invalid simulation parameter {name} = {got}", expected=expected)
@@ -160,29 +226,106 @@ def _sumo_home() -> Path:
     return Path(sumo.SUMO_HOME)
 
 
+def road_edges(cfg: HighwayConfig) -> tuple[list[tuple[str, float]], list[str]]:
+    """Nodes (name, along-road distance) of a carriageway and the suffixes of the edges between them.
+
+    The original highway (uniform drivers, no bottleneck) is one edge. Scenarios (mixed drivers or a
+    bottleneck) split it at the section's start and end: approach ``_in``, section (no suffix),
+    ``_out``, and with a bottleneck ``_bn`` and ``_end``. (SUMO's neighbour queries then cross the
+    junction at the section's start; measured on the shipped training recordings, 0.01 % of the
+    left/right neighbour ids are on the wrong side, e.g. dense: 11 of 105,449 right-following.)
+    """
+    length = cfg.road_length_m
+    if cfg.drivers == "uniform" and cfg.bottleneck == "none":
+        return [("0", 0.0), ("1", length)], [""]
+    a, b = cfg.approach_length_m, cfg.approach_length_m + cfg.section_length_m
+    stops = [("0", 0.0), ("a", a), ("b", b)]
+    names = ["_in", "", "_out"]
+    if cfg.bottleneck != "none":
+        c = b + (SIGNAL_GAP_M if cfg.bottleneck == "signal" else BOTTLENECK_GAP_M)
+        stops += [("c", c), ("d", c + BOTTLENECK_LENGTH_M)]
+        names += ["_bn", "_end"]
+    return [*stops, ("1", length)], names
+
+
 def write_network(cfg: HighwayConfig, directory: Path) -> Path:
-    """Write plain nodes/edges for the two carriageways and build ``highway.net.xml`` with netconvert.
+    """Write plain nodes/edges (and lane connections) for the two carriageways; build
+    ``highway.net.xml`` with netconvert.
 
     The lower carriageway runs along y = −median/2 towards +x, the upper one along +median/2 towards
-    −x; each edge spreads its lanes to its right, so lane 0 (the slow lane) is the outermost.
+    −x; each edge spreads its lanes to its right, so lane 0 (the slow lane) is the outermost. Each
+    carriageway is the edges of :func:`road_edges`; the filmed section is ``lower``/``upper``, and
+    ``…_bn`` is the bottleneck (the slow zone, the lanes after a drop, or the ramp's acceleration
+    lane beside the main lanes, fed by ``…_ramp``).
     """
     length = cfg.road_length_m
     half = MEDIAN_M / 2
-    (directory / "highway.nod.xml").write_text(
-        "<nodes>\n"
-        f'  <node id="l0" x="0" y="{-half}" type="priority"/>\n'
-        f'  <node id="l1" x="{length}" y="{-half}" type="priority"/>\n'
-        f'  <node id="u1" x="{length}" y="{half}" type="priority"/>\n'
-        f'  <node id="u0" x="0" y="{half}" type="priority"/>\n'
-        "</nodes>\n"
-    )
     lanes = cfg.lanes_per_direction
-    edge = f'numLanes="{lanes}" speed="{SPEED_LIMIT_MPS:.4f}" width="{LANE_WIDTH_M}" spreadType="right"'
-    (directory / "highway.edg.xml").write_text(
-        "<edges>\n"
-        f'  <edge id="lower" from="l0" to="l1" {edge}/>\n'
-        f'  <edge id="upper" from="u1" to="u0" {edge}/>\n'
-        "</edges>\n"
+    w = cfg.lane_width_m
+    c = road_edges(cfg)[0][-3][1] if cfg.bottleneck != "none" else 0.0
+    stops, names = road_edges(cfg)
+    nodes, edges, connections = [], [], []
+    for side, sign in (("lower", 1.0), ("upper", -1.0)):
+        p = side[0]
+
+        def xy(s: float, off: float = 0.0, sign: float = sign) -> str:
+            # along-road distance s (and offset to the right of travel) -> network coordinates
+            x = s if sign > 0 else length - s
+            y = -sign * (half + off)
+            return f'x="{x:.2f}" y="{y:.2f}"'
+
+        for name, at in stops:
+            kind = "traffic_light" if name == "c" and cfg.bottleneck == "signal" else "priority"
+            nodes.append(f'  <node id="{p}{name}" {xy(at)} type="{kind}"/>')
+        for (n0, _), (n1, _), suffix in zip(stops[:-1], stops[1:], names, strict=True):
+            n_lanes, speed = lanes, cfg.speed_limit_mps
+            if suffix == "_bn" and cfg.bottleneck == "slow_zone":
+                speed = cfg.bottleneck_speed_kmh / 3.6
+            if suffix in ("_bn", "_end") and cfg.bottleneck == "lane_drop":
+                n_lanes = lanes - 1
+            if suffix == "_bn" and cfg.bottleneck == "on_ramp":
+                n_lanes = lanes + 1
+            edges.append(
+                f'  <edge id="{side}{suffix}" from="{p}{n0}" to="{p}{n1}" numLanes="{n_lanes}" '
+                f'speed="{speed:.4f}" width="{w}" spreadType="right"/>'
+            )
+        if cfg.bottleneck == "on_ramp":
+            nodes.append(f'  <node id="{p}r" {xy(c - RAMP_LENGTH_M, lanes * w + 30.0)} type="priority"/>')
+            edges.append(
+                f'  <edge id="{side}_ramp" from="{p}r" to="{p}c" numLanes="1" '
+                f'speed="{min(cfg.speed_limit_mps, 80 / 3.6):.4f}" width="{w}" spreadType="right"/>'
+            )
+            connections.append(f'  <connection from="{side}_ramp" to="{side}_bn" fromLane="0" toLane="0"/>')
+            for i in range(lanes):
+                connections.append(
+                    f'  <connection from="{side}_out" to="{side}_bn" fromLane="{i}" toLane="{i + 1}"/>'
+                )
+                connections.append(
+                    f'  <connection from="{side}_bn" to="{side}_end" fromLane="{i + 1}" toLane="{i}"/>'
+                )
+        if cfg.bottleneck == "lane_drop":
+            for i in range(1, lanes):
+                connections.append(
+                    f'  <connection from="{side}_out" to="{side}_bn" fromLane="{i}" toLane="{i - 1}"/>'
+                )
+    (directory / "highway.nod.xml").write_text("<nodes>\n" + "\n".join(nodes) + "\n</nodes>\n")
+    (directory / "highway.edg.xml").write_text("<edges>\n" + "\n".join(edges) + "\n</edges>\n")
+    lanes_str = "G" * lanes
+    (directory / "highway.add.xml").write_text(
+        "<additional>\n"
+        + "".join(
+            f'  <tlLogic id="{p}c" type="static" programID="lanecast" offset="{offset:g}">\n'
+            f'    <phase duration="{cfg.signal_green_s:g}" state="{lanes_str}"/>\n'
+            f'    <phase duration="3" state="{"y" * lanes}"/>\n'
+            f'    <phase duration="{cfg.signal_red_s:g}" state="{"r" * lanes}"/>\n'
+            "  </tlLogic>\n"
+            for p, offset in (("l", 0.0), ("u", cfg.signal_green_s / 2))
+            if cfg.bottleneck == "signal"
+        )
+        + "</additional>\n"
+    )
+    (directory / "highway.con.xml").write_text(
+        "<connections>\n" + "\n".join(connections) + ("\n" if connections else "") + "</connections>\n"
     )
     net = directory / "highway.net.xml"
     home = _sumo_home()
@@ -190,6 +333,7 @@ def write_network(cfg: HighwayConfig, directory: Path) -> Path:
         str(home / "bin" / "netconvert"),
         "--node-files", str(directory / "highway.nod.xml"),
         "--edge-files", str(directory / "highway.edg.xml"),
+        "--connection-files", str(directory / "highway.con.xml"),
         "--output-file", str(net),
         "--offset.disable-normalization", "true",
         "--no-turnarounds", "true",
@@ -201,41 +345,93 @@ def write_network(cfg: HighwayConfig, directory: Path) -> Path:
     return net
 
 
-def vehicle_types(truck_share: float) -> list[tuple[str, str, float, float, float]]:
-    """(type id, highD class, length, width, probability) of every vehicle type in the mix."""
-    types = [(t, c, ln, w, p * (1.0 - truck_share)) for t, c, ln, w, p in _CAR_TYPES]
+# Driving styles of the "mixed" drivers: (style, share among cars, vType attributes). Desired speeds
+# (speedFactor × the lane's limit), headways (tau), accelerations and imperfection (Krauss sigma)
+# spread between styles and, through speedFactor's distribution, within each.
+_CAR_STYLES = (
+    (
+        "calm",
+        0.3,
+        'carFollowModel="IDM" accel="1.2" decel="2.5" emergencyDecel="9" tau="1.6" minGap="2.5" '
+        'speedFactor="normc(0.92,0.08,0.7,1.15)" lcSpeedGain="0.3" lcKeepRight="1.0"',
+    ),
+    (
+        "normal",
+        0.5,
+        'carFollowModel="Krauss" sigma="0.5" accel="2.0" decel="4.0" emergencyDecel="9" tau="1.2" '
+        'minGap="2.0" speedFactor="normc(1.0,0.1,0.75,1.3)" lcSpeedGain="0.7" lcKeepRight="0.8"',
+    ),
+    (
+        "brisk",
+        0.2,
+        'carFollowModel="IDM" accel="2.6" decel="3.5" emergencyDecel="9" tau="0.8" minGap="1.5" '
+        'speedFactor="normc(1.1,0.1,0.85,1.4)" lcSpeedGain="1.5" lcKeepRight="0.5" lcAssertive="1.5"',
+    ),
+)
+_TRUCK_STYLE = (
+    'carFollowModel="Krauss" sigma="0.3" accel="0.6" decel="2.5" emergencyDecel="7" tau="1.8" minGap="3.0" '
+    'maxSpeed="25" speedFactor="normc(1.0,0.05,0.9,1.1)" lcSpeedGain="0.2" lcKeepRight="2.0"'
+)
+
+
+def vehicle_types(truck_share: float, drivers: str = "uniform") -> list[tuple[str, str, float, float, float]]:
+    """(type id, highD class, length, width, probability) of every vehicle type in the mix; with
+    ``drivers="mixed"`` every car size comes in each driving style of ``_CAR_STYLES``."""
+    if drivers == "mixed":
+        types = [
+            (f"{t}_{style}", c, ln, w, p * share * (1.0 - truck_share))
+            for t, c, ln, w, p in _CAR_TYPES
+            for style, share, _ in _CAR_STYLES
+        ]
+    else:
+        types = [(t, c, ln, w, p * (1.0 - truck_share)) for t, c, ln, w, p in _CAR_TYPES]
     types += [(t, c, ln, w, p * truck_share) for t, c, ln, w, p in _TRUCK_TYPES]
     return [t for t in types if t[4] > 0]
 
 
-def write_routes(cfg: HighwayConfig, directory: Path) -> Path:
-    """Vehicle types (cars fast and spread, trucks slow) and one Poisson flow per carriageway."""
-    car = (
-        'vClass="passenger" carFollowModel="IDM" accel="1.6" decel="3.0" emergencyDecel="9" tau="1.2" '
-        'minGap="2.0" maxSpeed="55" speedFactor="normc(0.95,0.12,0.65,1.35)" '
-        'laneChangeModel="LC2013" lcKeepRight="1.0" lcSpeedGain="1.5" lcCooperative="1.0"'
-    )
-    truck = (
+def _type_attributes(type_id: str, cls: str, drivers: str) -> str:
+    if drivers == "mixed":
+        if cls != "Car":
+            return f'vClass="truck" laneChangeModel="LC2013" lcCooperative="1.0" {_TRUCK_STYLE}'
+        style = {name: attrs for name, _, attrs in _CAR_STYLES}[type_id.rsplit("_", 1)[1]]
+        return f'vClass="passenger" maxSpeed="55" laneChangeModel="LC2013" lcCooperative="1.0" {style}'
+    if cls == "Car":
+        return (
+            'vClass="passenger" carFollowModel="IDM" accel="1.6" decel="3.0" emergencyDecel="9" tau="1.2" '
+            'minGap="2.0" maxSpeed="55" speedFactor="normc(0.95,0.12,0.65,1.35)" '
+            'laneChangeModel="LC2013" lcKeepRight="1.0" lcSpeedGain="1.5" lcCooperative="1.0"'
+        )
+    return (
         'vClass="truck" carFollowModel="IDM" accel="0.6" decel="2.5" emergencyDecel="7" tau="1.6" '
         'minGap="2.5" maxSpeed="26" speedFactor="normc(0.64,0.04,0.55,0.72)" '
         'laneChangeModel="LC2013" lcKeepRight="2.0" lcSpeedGain="0.5" lcCooperative="1.0"'
     )
+
+
+def write_routes(cfg: HighwayConfig, directory: Path) -> Path:
+    """Vehicle types and one Poisson flow per carriageway (plus one per on-ramp)."""
     lines = ["<routes>"]
-    types = vehicle_types(cfg.truck_share)
+    types = vehicle_types(cfg.truck_share, cfg.drivers)
     for type_id, cls, length, width, _ in types:
-        attrs = car if cls == "Car" else truck
+        attrs = _type_attributes(type_id, cls, cfg.drivers)
         lines.append(f'  <vType id="{type_id}" length="{length}" width="{width}" {attrs}/>')
     ids = " ".join(t[0] for t in types)
     probs = " ".join(f"{t[4]:.6f}" for t in types)
     lines.append(f'  <vTypeDistribution id="mix" vTypes="{ids}" probabilities="{probs}"/>')
-    rate = DENSITY_RATES[cfg.density]
     end = cfg.warmup_s + cfg.minutes * 60.0 + 10.0
+    suffixes = road_edges(cfg)[1]
     for name in ("lower", "upper"):
-        lines.append(f'  <route id="r_{name}" edges="{name}"/>')
+        lines.append(f'  <route id="r_{name}" edges="{" ".join(name + x for x in suffixes)}"/>')
         lines.append(
             f'  <flow id="{name}" route="r_{name}" type="mix" begin="0" end="{end:.2f}" '
-            f'period="exp({rate})" departLane="random" departSpeed="max"/>'
+            f'period="exp({cfg.rate_per_s})" departLane="random" departSpeed="max"/>'
         )
+        if cfg.bottleneck == "on_ramp":
+            lines.append(f'  <route id="r_{name}_ramp" edges="{name}_ramp {name}_bn {name}_end"/>')
+            lines.append(
+                f'  <flow id="{name}_ramp" route="r_{name}_ramp" type="mix" begin="0" end="{end:.2f}" '
+                f'period="exp({cfg.ramp_demand_per_s})" departLane="0" departSpeed="max"/>'
+            )
     lines.append("</routes>")
     path = directory / "highway.rou.xml"
     path.write_text("\n".join(lines) + "\n")
@@ -283,6 +479,7 @@ class Samples:
     lane_centres_upper: np.ndarray  # network y of the upper lanes' centres, by lane index
     lane_centres_lower: np.ndarray
     wall_time_s: float
+    lane_width_m: float = LANE_WIDTH_M
 
 
 def _sumo_args(cfg: HighwayConfig, net: Path, routes: Path) -> list[str]:
@@ -290,7 +487,8 @@ def _sumo_args(cfg: HighwayConfig, net: Path, routes: Path) -> list[str]:
         "sumo",
         "--net-file", str(net),
         "--route-files", str(routes),
-        "--step-length", f"{STEP_S}",
+        "--additional-files", str(net.parent / "highway.add.xml"),
+        "--step-length", f"{cfg.step_s}",
         "--lanechange.duration", f"{cfg.lane_change_duration_s}",
         "--seed", str(int(cfg.seed)),
         "--begin", "0",
@@ -356,7 +554,7 @@ def run_simulation(
     started = time.perf_counter()
     net = write_network(cfg, workdir)
     routes = write_routes(cfg, workdir)
-    types = vehicle_types(cfg.truck_share)
+    types = vehicle_types(cfg.truck_share, cfg.drivers)
     type_of = {t[0]: i for i, t in enumerate(types)}
     libsumo = import_libsumo()
     from traci import constants as tc
@@ -377,7 +575,7 @@ def run_simulation(
     s0 = cfg.approach_length_m  # the section along the direction of travel (same for both directions)
     s1 = cfg.approach_length_m + cfg.section_length_m
     s_watch = s0 - 60.0
-    warm_steps = round(cfg.warmup_s * FRAME_RATE)
+    warm_steps = round(cfg.warmup_s * cfg.frame_rate)
     total_steps = warm_steps + cfg.n_frames
 
     number: dict[str, int] = {}
@@ -409,7 +607,7 @@ def run_simulation(
                 half_length[vid] = types[t][2] / 2
                 lower[vid] = vid.startswith("lower")
                 direction.append(2 if lower[vid] else 1)
-            if on_second is not None and step % round(FRAME_RATE) == 0:
+            if on_second is not None and step % round(cfg.frame_rate) == 0:
                 on_second()
             results = vehicle.getAllSubscriptionResults()
             # Along-road extent (back, front) of the vehicles in the section; staged subscriptions.
@@ -470,6 +668,7 @@ def run_simulation(
         lane_centres_upper=centres_u,
         lane_centres_lower=centres_l,
         wall_time_s=time.perf_counter() - started,
+        lane_width_m=cfg.lane_width_m,
     )
 
 
@@ -479,7 +678,7 @@ def run_simulation(
 
 def lane_markings(samples: Samples) -> tuple[np.ndarray, np.ndarray, float]:
     """Image y of the upper and lower markings (top to bottom) and the offset: y_img = offset − y_net."""
-    half = LANE_WIDTH_M / 2
+    half = samples.lane_width_m / 2
     cu, cl = samples.lane_centres_upper, samples.lane_centres_lower
     offset = TOP_MARGIN_M + cu[0] + half
     upper_net = np.concatenate([[cu[0] + half], cu - half])  # lane 0 is the top (outer) lane
@@ -491,6 +690,38 @@ def highd_lane_id(lane_index: np.ndarray, direction: np.ndarray, lanes_per_direc
     """highD laneId from SUMO's lane index [R] and drivingDirection [R] (1 upper, 2 lower)."""
     n = lanes_per_direction
     return np.where(direction == 1, 2 + lane_index, 2 * n + 2 - lane_index).astype(np.int64)
+
+
+def _box_mean(values: np.ndarray, new_track: np.ndarray, half: int) -> np.ndarray:
+    """Mean over rows i-half … i+half of each row's track, the track's end values repeated
+    beyond its ends (rows sorted by track then frame). float64 [n]."""
+    n = values.size
+    idx = np.arange(n)
+    start = np.maximum.accumulate(np.where(new_track, idx, 0))
+    last = np.zeros(n, dtype=bool)
+    last[:-1] = new_track[1:]
+    last[-1] = True
+    end = np.minimum.accumulate(np.where(last, idx, n - 1)[::-1])[::-1]
+    lo, hi = idx - half, idx + half
+    csum = np.concatenate([[0.0], np.cumsum(values)])
+    a, b = np.maximum(lo, start), np.minimum(hi, end)
+    inner = csum[b + 1] - csum[a]
+    below = np.maximum(start - lo, 0) * values[start]
+    above = np.maximum(hi - end, 0) * values[end]
+    return (inner + below + above) / (2 * half + 1)
+
+
+def smooth_lateral(y: np.ndarray, new_track: np.ndarray, width_s: float, rate_hz: float) -> np.ndarray:
+    """Lateral positions [n] smoothed per track by a triangular kernel ``width_s`` wide (two box
+    filters of half that width).
+
+    SUMO moves a lane-changing vehicle sideways at constant speed (lateral acceleration spikes of
+    ~15 m/s² at the start and end at 25 Hz); the triangle turns the ramp into an S-curve whose
+    lateral acceleration peaks at about lane width / (duration × width_s / 2), e.g. 0.6 m/s² for a
+    3.75 m change over 4 s with a 3 s kernel, like measured lane changes. Straight driving (constant
+    y) is unchanged."""
+    half = max(round(width_s * rate_hz / 4), 1)
+    return _box_mean(_box_mean(y, new_track, half), new_track, half)
 
 
 def _round(values: np.ndarray, decimals: int) -> np.ndarray:
@@ -532,12 +763,17 @@ def to_highd(samples: Samples, cfg: HighwayConfig, recording_id: int = 1) -> dic
     x_origin = cfg.approach_length_m - X_MARGIN_M
     x_front = samples.x_front[order] - x_origin
     x_left = np.where(lower, x_front - lengths, x_front)
-    y_top = y_offset - samples.y_centre[order] - widths / 2
+    y_net = samples.y_centre[order]
+    if cfg.lateral_smoothing_s > 0:
+        y_net = smooth_lateral(y_net, run_starts(veh), cfg.lateral_smoothing_s, cfg.frame_rate)
+        y_vel = -along_track_derivative(y_net, frame, first, last, t_unit=cfg.step_s)  # image y points down
+    else:
+        y_vel = np.where(lower, -1.0, 1.0) * samples.speed_lat[order]
+    y_top = y_offset - y_net - widths / 2
     image_length = cfg.section_length_m + 2 * X_MARGIN_M
     x_vel = sign * samples.speed[order]
-    y_vel = np.where(lower, -1.0, 1.0) * samples.speed_lat[order]
     x_acc = sign * samples.accel[order]
-    y_acc = along_track_derivative(y_vel, frame, first, last, t_unit=STEP_S)
+    y_acc = along_track_derivative(y_vel, frame, first, last, t_unit=cfg.step_s)
     front_sight = np.where(lower, image_length - x_front, x_front)
     back_sight = np.where(lower, x_left, image_length - (x_left + lengths))
 
@@ -649,15 +885,17 @@ def _recording_meta(meta: pa.Table, samples: Samples, cfg: HighwayConfig, record
     return pa.table(
         {
             "id": [recording_id],
-            "frameRate": [int(FRAME_RATE)],
+            "frameRate": [int(cfg.frame_rate)],
             "locationId": [0],  # not a highD location: simulated
-            "speedLimit": [round(SPEED_LIMIT_MPS, 2)],
+            "speedLimit": [round(cfg.speed_limit_mps, 2)],
             "month": ["01.2000"],  # format fields of highD; a simulation has no calendar date
             "weekDay": ["Sat"],
             "startTime": ["12:00"],
-            "duration": [round(cfg.n_frames / FRAME_RATE, 2)],
+            "duration": [round(cfg.n_frames / cfg.frame_rate, 2)],
             "totalDrivenDistance": [round(float(np.sum(meta.column("traveledDistance").to_numpy())), 2)],
-            "totalDrivenTime": [round(float(np.sum(meta.column("numFrames").to_numpy())) / FRAME_RATE, 2)],
+            "totalDrivenTime": [
+                round(float(np.sum(meta.column("numFrames").to_numpy())) / cfg.frame_rate, 2)
+            ],
             "numVehicles": [meta.num_rows],
             "numCars": [int(np.sum(classes == "Car"))],
             "numTrucks": [int(np.sum(classes == "Truck"))],
@@ -753,13 +991,16 @@ def simulate(
     lane_change_duration_s: float = 3.0,
     show_progress: bool = True,
     overwrite: bool = False,
+    config: HighwayConfig | None = None,
 ) -> Path:
     """Simulate ``minutes`` of highway traffic and write a highD recording into ``out_dir``.
 
-    Returns ``out_dir``. The same arguments give byte-identical files. An existing recording of the
-    same number in ``out_dir`` is refused before simulating, unless ``overwrite``.
+    ``config`` (e.g. a named scenario's, :mod:`lanecast.io_adapters.sim.scenarios`) replaces every
+    other simulation argument. Returns ``out_dir``. The same arguments give byte-identical files. An
+    existing recording of the same number in ``out_dir`` is refused before simulating, unless
+    ``overwrite``.
     """
-    cfg = HighwayConfig(
+    cfg = config or HighwayConfig(
         minutes=minutes,
         seed=seed,
         lanes_per_direction=lanes_per_direction,
@@ -776,7 +1017,7 @@ def simulate(
         raise InputError(out_dir, "exists and is not a directory", expected="a directory for the CSV files")
     if not overwrite:
         refuse_existing_recording(Path(out_dir), recording_id)
-    total_s = cfg.warmup_s + cfg.n_frames / FRAME_RATE
+    total_s = cfg.warmup_s + cfg.n_frames / cfg.frame_rate
     with tempfile.TemporaryDirectory(prefix="lanecast-sumo-") as work:
         if show_progress:
             with bar(desc="simulating", total=round(total_s), unit="sim s") as progress_bar:
