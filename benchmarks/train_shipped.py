@@ -153,6 +153,12 @@ def deviations(config: Any) -> list[str]:
         )
     if config.select_classifier != "nll":
         out.append(f"classifier's best epoch chosen by validation {config.select_classifier} (not NLL)")
+    if config.future_relative_to == "cv":
+        out.append(
+            "regressor output: offsets relative to the constant-velocity extrapolation of the input history "
+            "(the last 5 positions), i.e. the network learns the correction to CV (the paper: absolute offsets); "
+            "same network, same loss on the resulting trajectory"
+        )
     if config.position_noise_m > 0:
         out.append(
             f"augmentation: Gaussian noise (std {config.position_noise_m:g} m) on the x, y inputs of training "
@@ -176,6 +182,12 @@ def main() -> int:
     ap.add_argument("--select-classifier", choices=("nll", "macro_f1"), default="macro_f1")
     ap.add_argument("--lr-schedule", choices=("constant", "cosine"), default="cosine")
     ap.add_argument("--position-noise", type=float, default=0.1, help="m, std of input jitter in training")
+    ap.add_argument(
+        "--relative-to",
+        choices=("none", "cv"),
+        default="cv",
+        help="regress offsets relative to the constant-velocity extrapolation (cv) or absolute (none, the paper)",
+    )
     ap.add_argument("--max-windows", type=int, default=15000, help="per training recording")
     ap.add_argument("--max-test-windows", type=int, default=6000, help="per held-out recording")
     ap.add_argument("--jobs", type=int, default=2, help="simulations in parallel")
@@ -227,6 +239,7 @@ def main() -> int:
         select_classifier=args.select_classifier,
         lr_schedule=args.lr_schedule,
         position_noise_m=args.position_noise,
+        future_relative_to=args.relative_to,
     )
     data = {
         "kind": "SUMO simulated traffic, named scenarios (lanecast.io_adapters.sim.scenarios), highD format, 10 Hz",

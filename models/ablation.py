@@ -33,6 +33,7 @@ import torch
 
 from lanecast.io_adapters.contracts.windows import ROWS, TARGET_ROW, NormStats, Windows, labelled, normalise
 from lanecast.io_adapters.errors import InputError
+from lanecast.models.baselines import reference_offsets
 from lanecast.models.metrics import (
     accuracy,
     confusion_matrix,
@@ -206,6 +207,9 @@ def predict_variant(
         if maneuver is not None:
             m = torch.from_numpy(np.asarray(maneuver[sl], np.int64))
         offsets[sl] = model.regressor(x, m).numpy() * std + mean
+    base = reference_offsets(np.asarray(inputs), str(fut.get("relative_to", "none")))
+    if base is not None:  # offsets relative to the constant-velocity extrapolation
+        offsets += base
     return VariantForecast(offsets, probs, chosen)
 
 

@@ -49,6 +49,22 @@ def extrapolate(inputs: np.ndarray, *, degree: int, span: int) -> np.ndarray:
     return out.astype(np.float32)
 
 
+#: Reference trajectories a regressor may predict offsets relative to (card: normalisation.future.relative_to).
+RELATIVE_TO = ("none", "cv")
+CV_SPAN = 5  # history positions of the constant-velocity fit (0.4 s)
+
+
+def reference_offsets(inputs: np.ndarray, relative_to: str) -> np.ndarray | None:
+    """The trajectory a model's regressed offsets are relative to: inputs float32 [N, 4, 8, 30] →
+    float32 [N, 5, 2] (``cv``: the constant-velocity extrapolation, :func:`extrapolate` of degree 1
+    over the last ``CV_SPAN`` positions), or None for ``none`` (absolute offsets, the paper's)."""
+    if relative_to == "none":
+        return None
+    if relative_to != "cv":
+        raise ValueError(f"relative_to must be one of {RELATIVE_TO}, not {relative_to!r}")
+    return extrapolate(inputs, degree=1, span=CV_SPAN)
+
+
 @dataclass(frozen=True)
 class PolynomialBaseline:
     """A kinematic baseline: ``degree`` 1 = constant velocity, 2 = constant acceleration."""

@@ -24,9 +24,10 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from lanecast.io_adapters.contracts.windows import NormStats
+from lanecast.io_adapters.contracts.windows import HORIZON_S, TARGET_ROW, NormStats
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import atomic_path
+from lanecast.models.baselines import CV_SPAN, _fit_matrix
 from lanecast.models.card import file_sha256, lanecast_version, normalisation_sha256, write_card
 from lanecast.models.checkpoint import load_checkpoint, resolve
 from lanecast.models.onnx_predict import OnnxForecaster
@@ -66,6 +67,8 @@ class PredictionGraph(nn.Module):
     in_std: torch.Tensor
     out_mean: torch.Tensor
     out_std: torch.Tensor
+    cv_weights: torch.Tensor
+    horizons: torch.Tensor
 
     def __init__(self, model: STCNN, card: dict[str, Any]) -> None:
         super().__init__()
@@ -83,6 +86,13 @@ class PredictionGraph(nn.Module):
         self.register_buffer("in_std", torch.from_numpy(stats.std.copy()).view(1, -1, 1, 1))
         self.register_buffer("out_mean", torch.from_numpy(reference.future_mean.copy()))
         self.register_buffer("out_std", torch.tensor(float(reference.future_std)))
+        # offsets relative to the constant-velocity extrapolation (card normalisation.future.relative_to)
+        self.relative_to_cv = reference.relative_to == "cv"
+        velocity = _fit_matrix(CV_SPAN, 1)[
+            1
+        ]  # least-squares velocity weights over the last CV_SPAN positions
+        self.register_buffer("cv_weights", torch.tensor(velocity, dtype=torch.float64))
+        self.register_buffer("horizons", torch.tensor(HORIZON_S, dtype=torch.float64).view(1, -1, 1))
 
     def forward(
         self, inputs: torch.Tensor, present: torch.Tensor, k: torch.Tensor
@@ -99,6 +109,12 @@ class PredictionGraph(nn.Module):
         flat = features.unsqueeze(1).expand(n, kk, width).reshape(n * kk, width)
         offsets = self.regressor.head(flat, seqs.reshape(n * kk, self.horizon))
         offsets = offsets.view(n, kk, self.horizon, 2) * self.out_std + self.out_mean
+        if self.relative_to_cv:
+            # in float64 like lanecast.models.baselines.extrapolate, then float32 (the same rounding)
+            track = inputs[:, :2, TARGET_ROW, -CV_SPAN:].double()  # [N, 2, span]
+            velocity = (track * self.cv_weights).sum(-1)  # [N, 2]
+            base = track[:, None, :, -1] + velocity[:, None, :] * self.horizons  # [N, 5, 2]
+            offsets = offsets + base.float()[:, None]
         return log_probs.exp(), logits.argmax(dim=2), seqs, best.exp(), offsets
 
 

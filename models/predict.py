@@ -23,6 +23,7 @@ from torch.nn import functional as F
 
 from lanecast.io_adapters.contracts.windows import NormStats, normalise
 from lanecast.models import ood
+from lanecast.models.baselines import reference_offsets
 from lanecast.models.checkpoint import load_checkpoint
 from lanecast.models.forecaster import Predictions
 from lanecast.models.forecasts import forecasts_table as forecasts_table
@@ -105,6 +106,8 @@ class STCNNForecaster:
         future = card["normalisation"]["future"]
         self.future_mean = np.asarray(future["mean"], np.float32).reshape(model.config.horizon, 2)
         self.future_std = np.float32(future["std"])
+        #: offsets are relative to this reference trajectory (lanecast.models.baselines.reference_offsets)
+        self.relative_to = str(future.get("relative_to", "none"))
         # channels-last: oneDNN's faster layout for these small convolutions (measured, bench_inference)
         self.fused: Any = FusedSTCNN(self.model).eval().to(memory_format=torch.channels_last)  # type: ignore[call-overload]
         self.compiled = compile
@@ -169,6 +172,9 @@ class STCNNForecaster:
                 getattr(out, key)[sl] = value.numpy()
         out.top_offsets *= self.future_std
         out.top_offsets += self.future_mean
+        base = reference_offsets(inputs, self.relative_to)
+        if base is not None:
+            out.top_offsets += base[:, None]
         out.offsets[:] = out.top_offsets[:, 0]  # the top sequence is the per-step argmax
         distribution = self.card.get("training", {}).get("data", {}).get("distribution")
         out.out_of_distribution = ood.out_of_distribution(

@@ -38,6 +38,7 @@ from lanecast.io_adapters.contracts.windows import NormStats, Windows, compute_s
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import bar
 from lanecast.models import ood
+from lanecast.models.baselines import CV_SPAN, RELATIVE_TO, reference_offsets
 from lanecast.models.checkpoint import torch_device
 from lanecast.models.metrics import confusion_matrix, macro_f1, precision_recall
 from lanecast.models.stcnn import STCNN, STCNNConfig
@@ -89,6 +90,9 @@ class TrainConfig:
     select_classifier: str = "nll"
     #: learning rate over the run, both networks: "constant" (the paper) or "cosine" (lr → 0 at the end)
     lr_schedule: str = "constant"
+    #: the regressor predicts offsets relative to "cv" (the constant-velocity extrapolation of the
+    #: input history: it learns the correction) or "none" (absolute offsets, the paper's)
+    future_relative_to: str = "none"
     #: std (m) of Gaussian noise added to the x, y inputs of training batches (tracker-like jitter,
     #: augmentation beyond the paper; 0 = none). Targets stay clean.
     position_noise_m: float = 0.0
@@ -101,6 +105,10 @@ class TrainConfig:
             )
         if self.lr_schedule not in ("constant", "cosine"):
             raise ValueError(f"lr_schedule must be 'constant' or 'cosine', not {self.lr_schedule!r}")
+        if self.future_relative_to not in RELATIVE_TO:
+            raise ValueError(
+                f"future_relative_to must be one of {RELATIVE_TO}, not {self.future_relative_to!r}"
+            )
         if not self.position_noise_m >= 0:
             raise ValueError(f"position_noise_m must be >= 0, not {self.position_noise_m}")
         if not self.class_weight_power >= 0:
@@ -160,10 +168,12 @@ class _Batches:
         future_mean: np.ndarray,
         future_std: float,
         transform: Callable[[np.ndarray], np.ndarray] | None = None,
+        relative_to: str = "none",
     ) -> None:
         self.w, self.stats = windows, input_stats
         self.mean, self.std = future_mean, future_std
         self.transform = transform
+        self.relative_to = relative_to
 
     def get(
         self,
@@ -184,7 +194,11 @@ class _Batches:
         x = normalise(inputs, present, self.stats)
         if self.transform is not None:
             x = np.ascontiguousarray(self.transform(x), dtype=np.float32)
-        y = (np.asarray(self.w.future[idx]) - self.mean) / self.std
+        future = np.asarray(self.w.future[idx])
+        base = reference_offsets(inputs, self.relative_to)  # from the inputs the network sees
+        if base is not None:
+            future = future - base
+        y = (future - self.mean) / self.std
         m = np.asarray(self.w.maneuver[idx])
         return (
             torch.from_numpy(x).to(device),
@@ -274,15 +288,20 @@ def train(
         raise InputError(
             None, "no labelled training windows (split 'train')", expected="windows with known futures"
         )
+    relative_to = config.future_relative_to
     if init_from is not None:
         norm = init_from[1]["normalisation"]
         input_stats = NormStats.from_dict(norm["inputs"])
         future_mean = np.asarray(norm["future"]["mean"], dtype=np.float32)
         future_std = float(norm["future"]["std"])
+        relative_to = norm["future"].get("relative_to", "none")
     else:
         input_stats = compute_stats(windows.inputs, windows.present, rows=train_idx)  # chunked: no copy
-        future_mean, future_std = future_stats(windows.future[train_idx])
-    batches = _Batches(windows, input_stats, future_mean, future_std, transform)
+        target = np.asarray(windows.future[train_idx])
+        # the reference needs only the last positions: no copy of the whole inputs
+        base = reference_offsets(np.asarray(windows.inputs[:, :, :, -CV_SPAN:][train_idx]), relative_to)
+        future_mean, future_std = future_stats(target if base is None else target - base)
+    batches = _Batches(windows, input_stats, future_mean, future_std, transform, relative_to)
     train_counts = np.bincount(np.asarray(windows.maneuver[train_idx]).ravel(), minlength=3)
     weights = class_weights(windows.maneuver[train_idx], config.class_weight_power, config.model.classes)
     weight_t = torch.from_numpy(weights).to(device) if config.class_weight_power > 0 else None
@@ -372,7 +391,12 @@ def train(
         },
         "normalisation": {
             "inputs": input_stats.to_dict(),
-            "future": {"mean": future_mean.tolist(), "std": future_std, "units": "m"},
+            "future": {
+                "mean": future_mean.tolist(),
+                "std": future_std,
+                "units": "m",
+                "relative_to": relative_to,
+            },
         },
         "training": {
             "config": config.to_dict(),

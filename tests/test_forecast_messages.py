@@ -114,6 +114,8 @@ def prediction_dict(frame: fm.ForecastFrame) -> dict[str, Any]:
         alt_prob = [_nan_to_none(p) for p in frame.alt_prob.reshape(-1)]
     alt_x, alt_y = frame.alt_points[..., 0].tolist(), frame.alt_points[..., 1].tolist()
     alt_maneuver = frame.alt_maneuver.tolist()
+    flags = frame.out_of_distribution
+    ood = [None] * m if flags is None else [None if f < 0 else bool(f) for f in flags.tolist()]
     targets = [
         {
             "track_id": tid,
@@ -122,6 +124,7 @@ def prediction_dict(frame: fm.ForecastFrame) -> dict[str, Any]:
             "y": ys[i],
             "maneuver": maneuver[i],
             "maneuver_probs": probs[i],
+            "out_of_distribution": ood[i],
             "alternatives": [
                 {
                     "prob": alt_prob[i * k + j],

@@ -80,7 +80,7 @@ def test_scenario_traffic_in_its_stated_range(
 @pytest.mark.slow
 def test_cli_scenario(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     code = cli.main(
-        ["simulate", str(tmp_path / "s"), "--minutes", "0.5", "--seed", "2", "--scenario", "signal"]
+        ["simulate", "--out", str(tmp_path / "s"), "--minutes", "0.5", "--seed", "2", "--scenario", "signal"]
     )
     assert code == 0
     assert "of scenario signal" in capsys.readouterr().out

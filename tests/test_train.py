@@ -290,3 +290,28 @@ def test_card_has_the_training_distribution(windows: Windows) -> None:
     assert dist["speed_mps"]["p50"] == pytest.approx(float(np.median(speed)), abs=1e-3)
     assert dist["speed_mps"]["p0.5"] >= 20.0 and dist["speed_mps"]["p99.5"] <= 35.0
     assert dist["neighbours_present"]["p50"] == 1.0  # only F
+
+
+def test_offsets_relative_to_constant_velocity(windows: Windows) -> None:
+    """future_relative_to="cv": the card says so, the regressor learns the correction to the CV
+    extrapolation, and predictions (torch) add it back: an untrained correction of ~0 gives ~CV."""
+    from lanecast.models.baselines import constant_velocity
+
+    result = train(windows, TrainConfig(epochs=2, batch_size=64, threads=1, future_relative_to="cv"))
+    assert result.card["normalisation"]["future"]["relative_to"] == "cv"
+    idx = labelled(windows, ("test",))
+    pred = STCNNForecaster(result.model, result.card).predict(windows.inputs[idx], windows.present[idx])
+    cv = constant_velocity().predict(windows.inputs[idx], windows.present[idx])
+    err_model = rmse(displacement_errors(pred.offsets, windows.future[idx]))
+    err_cv = rmse(displacement_errors(cv.offsets, windows.future[idx]))
+    assert err_model[-1] < err_cv[-1]  # lane changes: the correction helps at 5 s
+    # zero the regressor's last layer: the prediction is CV + the mean correction
+    model = result.model
+    with torch.no_grad():
+        model.regressor.fc2.weight.zero_()
+        model.regressor.fc2.bias.zero_()
+    flat = STCNNForecaster(model, result.card).predict(windows.inputs[idx], windows.present[idx])
+    mean = np.asarray(result.card["normalisation"]["future"]["mean"], np.float32)
+    np.testing.assert_allclose(flat.offsets, cv.offsets + mean, atol=1e-3)
+    with pytest.raises(ValueError):
+        TrainConfig(future_relative_to="ca")

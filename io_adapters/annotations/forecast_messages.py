@@ -92,6 +92,11 @@ PREDICTION_SCHEMA: dict[str, Any] = {
                         "type": ["array", "null"],
                         "items": {"type": "array", "items": {"type": ["number", "null"]}},
                     },
+                    "out_of_distribution": {
+                        "type": ["boolean", "null"],
+                        "description": "the target's state (speed, acceleration) lies outside the model's "
+                        "training distribution: treat the forecast with caution (null: unknown)",
+                    },
                     "alternatives": {
                         "type": "array",
                         "items": {
@@ -129,6 +134,9 @@ class ForecastFrame:
     alt_maneuver: np.ndarray  # int64 [M, K, 5]
     lifetime_ns: int = 0
     removed: np.ndarray | None = None  # int64 [M]: what-ifs only, the neighbour slot removed (WHAT_IF_SLOTS)
+    #: int8 [M]: 1 the target's state lies outside the model's training distribution, 0 inside, -1
+    #: unknown (baselines); None: unknown for every target
+    out_of_distribution: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -153,6 +161,7 @@ class ForecastBatch:
     alt_maneuver: np.ndarray  # int64 [N, K, 5]
     lifetime_ns: int = 0
     removed: np.ndarray | None = None  # int64 [N]: what-ifs only, the neighbour slot removed (WHAT_IF_SLOTS)
+    out_of_distribution: np.ndarray | None = None  # int8 [N]: 1 out, 0 in, -1 unknown (None: all unknown)
 
     @property
     def n_frames(self) -> int:
@@ -189,6 +198,7 @@ class ForecastBatch:
             horizon_s=frame.horizon_s,
             lifetime_ns=frame.lifetime_ns,
             removed=frame.removed,
+            out_of_distribution=frame.out_of_distribution,
         )
 
     def slice(self, first: int, last: int) -> ForecastBatch:
@@ -203,6 +213,7 @@ class ForecastBatch:
             **{name: getattr(self, name)[lo:hi] for name in _ROW_FIELDS},
             lifetime_ns=self.lifetime_ns,
             removed=None if self.removed is None else self.removed[lo:hi],
+            out_of_distribution=None if self.out_of_distribution is None else self.out_of_distribution[lo:hi],
         )
 
     def frames(self) -> Iterator[ForecastFrame]:
@@ -217,6 +228,9 @@ class ForecastBatch:
                 **{name: getattr(self, name)[lo:hi] for name in _ROW_FIELDS},
                 lifetime_ns=self.lifetime_ns,
                 removed=None if self.removed is None else self.removed[lo:hi],
+                out_of_distribution=None
+                if self.out_of_distribution is None
+                else self.out_of_distribution[lo:hi],
             )
 
 
@@ -400,6 +414,12 @@ def batch_from_table(
     removed = None
     if "removed_slot" in forecasts.column_names:  # what-if forecasts (lanecast annotate --explain)
         removed = forecasts.column("removed_slot").to_numpy(zero_copy_only=False).astype(np.int64)
+    ood = None
+    if "out_of_distribution" in forecasts.column_names:
+        column = forecasts.column("out_of_distribution")
+        known = ~np.asarray(column.is_null())
+        flagged = np.asarray(column.fill_null(False).to_numpy(zero_copy_only=False), dtype=bool)
+        ood = np.where(known, flagged.astype(np.int8), np.int8(-1)).astype(np.int8)
     cuts = np.flatnonzero((np.diff(t0) != 0) | (np.diff(rec_code) != 0)) + 1
     bounds = np.r_[0, cuts, n].astype(np.int64)
     names = [str(rec_names[c]) for c in rec_code[bounds[:-1]].tolist()]
@@ -419,6 +439,7 @@ def batch_from_table(
         alt_maneuver=alt_maneuver,
         lifetime_ns=round(lifetime_s * 1e9),
         removed=removed,
+        out_of_distribution=ood,
     )
 
 
@@ -575,7 +596,8 @@ def prediction_texts(batch: ForecastBatch) -> list[bytes]:
     probs[np.isnan(batch.probs.reshape(n, -1)).all(axis=1)] = "null"
     list5 = [*[","] * (N_STEPS - 1), "]"]
     literals = ['{"track_id":', ',"origin":', ',"x":[', *list5[:-1], '],"y":[', *list5[:-1]]
-    literals += ['],"maneuver":[', *list5[:-1], '],"maneuver_probs":', ',"alternatives":[']
+    literals += ['],"maneuver":[', *list5[:-1], '],"maneuver_probs":', ',"out_of_distribution":']
+    literals += [',"alternatives":[']
     columns = [
         _int_texts(batch.track_id[:, None]),
         origin[:, None],
@@ -583,6 +605,7 @@ def prediction_texts(batch: ForecastBatch) -> list[bytes]:
         _number_texts(batch.points[..., 1]),
         _int_texts(batch.maneuver),
         probs[:, None],
+        _flag_texts(batch.out_of_distribution, n)[:, None],
     ]
     for j in range(k):
         literals[-1] += ("," if j else "") + '{"prob":'
@@ -643,6 +666,13 @@ def _fill_rows(literals: list[str], tokens: np.ndarray) -> list[str]:
     cells[:, 2 * m] = literals[m]
     cells[:, 2 * m + 1] = "\x01"
     return "".join(cells.ravel().tolist()).split("\x01")[:n]
+
+
+def _flag_texts(flags: np.ndarray | None, n: int) -> np.ndarray:
+    """JSON ``true`` / ``false`` / ``null`` per row from int8 flags [n] (1, 0, -1; None: all null): object [n]."""
+    if flags is None:
+        return np.full(n, "null", dtype=object)
+    return np.array(["null", "false", "true"], dtype=object)[np.asarray(flags, np.int64) + 1]
 
 
 def prediction_dict(frame: ForecastFrame) -> dict[str, Any]:
