@@ -29,6 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import reference_windows
 
+from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.contracts.windows import save_windows
 from lanecast.io_adapters.datasets import highd
 from lanecast.io_adapters.sim import sumo_highway
@@ -127,7 +128,8 @@ def main() -> int:
 
     # The reference on an evenly spread sample of the stride-10 windows, same inputs (source ids).
     ours, t_ours, _ = timed(make_windows, table, stride=10, neighbours="source")
-    tracks, t_prep, _ = timed(reference_windows.prepare, resample(table).to_pandas())
+    frames = {name: rec.coordinate_frame for name, rec in track_table.read_meta(table).recordings.items()}
+    tracks, t_prep, _ = timed(reference_windows.prepare, resample(table).to_pandas(), frames)
     n_ref = min(args.reference_windows, len(ours))
     sample = np.linspace(0, len(ours) - 1, n_ref).astype(int)
     rec = ours.index.column("recording").to_pylist()
