@@ -34,7 +34,7 @@ from lanecast.io_adapters.datasets import parquet as parquet_format
 from lanecast.io_adapters.errors import InputError, TrackTableError
 from lanecast.io_adapters.files import atomic_path, check_input
 
-MAX_ROWS = 4_000_000  # input rows per piece where recordings are small enough to group
+MAX_ROWS = 1_000_000  # input rows per piece where recordings are small enough to group (memory ~ rows)
 ROW_GROUP_ROWS = 1 << 20  # rows per Parquet row group of written track tables
 STREAM_BYTES = 256 << 20  # NGSIM CSV exports from this size on are read incrementally
 
