@@ -159,10 +159,11 @@ def deviations(config: Any) -> list[str]:
             "(the last 5 positions), i.e. the network learns the correction to CV (the paper: absolute offsets); "
             "same network, same loss on the resulting trajectory"
         )
-    if config.position_noise_m > 0:
+    if config.position_noise_m > 0 or config.speed_noise_mps > 0 or config.acc_noise_mps2 > 0:
         out.append(
-            f"augmentation: Gaussian noise (std {config.position_noise_m:g} m) on the x, y inputs of training "
-            "batches, like a real tracker's jitter (targets clean)"
+            f"augmentation: Gaussian noise on the inputs of training batches (std {config.position_noise_m:g} m "
+            f"on x, y; {config.speed_noise_mps:g} m/s on speed; {config.acc_noise_mps2:g} m/s² on acceleration), "
+            "like a real tracker's jitter and noisy derivatives (targets clean)"
         )
     if config.lr_schedule != "constant":
         out.append(f"learning-rate schedule: {config.lr_schedule} decay to 0 over the run, both networks")
@@ -182,6 +183,10 @@ def main() -> int:
     ap.add_argument("--select-classifier", choices=("nll", "macro_f1"), default="macro_f1")
     ap.add_argument("--lr-schedule", choices=("constant", "cosine"), default="cosine")
     ap.add_argument("--position-noise", type=float, default=0.1, help="m, std of input jitter in training")
+    ap.add_argument(
+        "--speed-noise", type=float, default=0.2, help="m/s, std of speed-input jitter in training"
+    )
+    ap.add_argument("--acc-noise", type=float, default=0.4, help="m/s², std of acceleration-input jitter")
     ap.add_argument(
         "--relative-to",
         choices=("none", "cv"),
@@ -240,6 +245,8 @@ def main() -> int:
         lr_schedule=args.lr_schedule,
         position_noise_m=args.position_noise,
         future_relative_to=args.relative_to,
+        speed_noise_mps=args.speed_noise,
+        acc_noise_mps2=args.acc_noise,
     )
     data = {
         "kind": "SUMO simulated traffic, named scenarios (lanecast.io_adapters.sim.scenarios), highD format, 10 Hz",

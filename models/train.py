@@ -96,6 +96,11 @@ class TrainConfig:
     #: std (m) of Gaussian noise added to the x, y inputs of training batches (tracker-like jitter,
     #: augmentation beyond the paper; 0 = none). Targets stay clean.
     position_noise_m: float = 0.0
+    #: std of Gaussian noise on the speed (m/s) and longitudinal acceleration (m/s²) inputs of
+    #: training batches: real trackers' derivatives are noisy (NGSIM's accelerations, standing
+    #: still, spread ±0.6 m/s²), simulated ones are exact. 0 = none.
+    speed_noise_mps: float = 0.0
+    acc_noise_mps2: float = 0.0
     model: STCNNConfig = field(default_factory=STCNNConfig)
 
     def __post_init__(self) -> None:
@@ -109,6 +114,8 @@ class TrainConfig:
             raise ValueError(
                 f"future_relative_to must be one of {RELATIVE_TO}, not {self.future_relative_to!r}"
             )
+        if not (self.speed_noise_mps >= 0 and self.acc_noise_mps2 >= 0):
+            raise ValueError("speed_noise_mps and acc_noise_mps2 must be >= 0")
         if not self.position_noise_m >= 0:
             raise ValueError(f"position_noise_m must be >= 0, not {self.position_noise_m}")
         if not self.class_weight_power >= 0:
@@ -181,9 +188,11 @@ class _Batches:
         device: torch.device,
         noise_m: float = 0.0,
         rng: np.random.Generator | None = None,
+        kinematic_noise: tuple[float, float] = (0.0, 0.0),
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Normalised (inputs, future, maneuver) of windows ``idx``; ``noise_m`` > 0 adds Gaussian
-        noise of that std to the present x, y inputs (metres, before normalising)."""
+        noise of that std to the present x, y inputs (metres, before normalising), ``kinematic_noise``
+        (speed m/s, acceleration m/s²) to the v and a inputs (speed kept >= 0)."""
         idx = np.sort(idx)  # sequential reads of the memory map; order inside a batch is irrelevant
         inputs = np.asarray(self.w.inputs[idx])
         present = np.asarray(self.w.present[idx])
@@ -191,6 +200,14 @@ class _Batches:
             inputs = inputs.copy()
             jitter = rng.normal(0.0, noise_m, size=(len(idx), 2, *present.shape[1:])).astype(np.float32)
             inputs[:, :2] += jitter * present[:, None]
+        if max(kinematic_noise) > 0 and rng is not None:
+            inputs = inputs.copy() if noise_m <= 0 else inputs
+            for channel, std in ((2, kinematic_noise[0]), (3, kinematic_noise[1])):
+                if std > 0:
+                    inputs[:, channel] += (
+                        rng.normal(0.0, std, size=present.shape).astype(np.float32) * present
+                    )
+            np.maximum(inputs[:, 2], 0.0, out=inputs[:, 2])
         x = normalise(inputs, present, self.stats)
         if self.transform is not None:
             x = np.ascontiguousarray(self.transform(x), dtype=np.float32)
@@ -340,6 +357,7 @@ def train(
                 device,
                 config.position_noise_m,
                 rng,
+                (config.speed_noise_mps, config.acc_noise_mps2),
             )
             if train_classifier:
                 loss_c = classifier_loss(model.classifier(x), m, weight_t)

@@ -280,6 +280,14 @@ def test_position_noise_changes_training_only(windows: Windows) -> None:
     assert clean.card["normalisation"] == noisy.card["normalisation"]
     with pytest.raises(ValueError):
         TrainConfig(position_noise_m=-1.0)
+    kinematic = train(
+        windows,
+        TrainConfig(epochs=1, batch_size=64, seed=1, threads=1, speed_noise_mps=0.5, acc_noise_mps2=0.5),
+    )
+    c = kinematic.model.state_dict()
+    assert not all(torch.equal(a[k], c[k]) for k in a)
+    with pytest.raises(ValueError):
+        TrainConfig(acc_noise_mps2=-0.1)
 
 
 def test_card_has_the_training_distribution(windows: Windows) -> None:
