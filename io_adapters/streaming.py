@@ -29,7 +29,7 @@ import pyarrow.parquet as pq
 
 from lanecast.io_adapters import registry
 from lanecast.io_adapters.contracts import track_table
-from lanecast.io_adapters.datasets import highd, ngsim_stream
+from lanecast.io_adapters.datasets import highd
 from lanecast.io_adapters.datasets import parquet as parquet_format
 from lanecast.io_adapters.errors import InputError, TrackTableError
 from lanecast.io_adapters.files import atomic_path, check_input
@@ -59,6 +59,8 @@ class Piece:
     @property
     def label(self) -> str:
         if self.spilled:
+            from lanecast.io_adapters.datasets import ngsim_stream  # pandas: not for `lanecast --help`
+
             return f"{self.paths[0]} recording {ngsim_stream.SpilledRecording.from_json(self.spilled).name}"
         where = f" rows {self.offset}+{self.rows} of row groups {self.row_groups[0]}…{self.row_groups[-1]}"
         return ", ".join(self.paths) + (where if self.row_groups else "")
@@ -66,6 +68,8 @@ class Piece:
     def read(self) -> pa.Table:
         """The piece as a validated track table whose metadata names only its recordings."""
         if self.spilled:
+            from lanecast.io_adapters.datasets import ngsim_stream  # pandas: not for `lanecast --help`
+
             return ngsim_stream.read_spilled(ngsim_stream.SpilledRecording.from_json(self.spilled))
         if not self.row_groups:
             return registry.reader(self.fmt).read([Path(p) for p in self.paths], **dict(self.options))
@@ -148,6 +152,8 @@ def spill_directory(out: str | Path) -> SpillDirectory:
 def _ngsim_pieces(
     path: Path, spill_dir: Path | None, stream_bytes: int, options: dict[str, Any]
 ) -> list[Piece]:
+    from lanecast.io_adapters.datasets import ngsim_stream  # pandas: not for `lanecast --help`
+
     whole = [Piece("ngsim", (str(path),), options=tuple(sorted(options.items())))]
     if spill_dir is None or not path.is_file() or path.stat().st_size < stream_bytes:
         return whole
