@@ -119,7 +119,9 @@ def check_card_fields(card: dict[str, Any]) -> None:
             raise jf.FieldError(
                 f"{where}.{key}", f"{pairs}"[:60], f"pairs of integers from 1 to {_KERNEL_MAX}"
             )
-    jf.get(config, "negative_slope", where, "number", None)
+    slope = jf.get(config, "negative_slope", where, "number", None)
+    if slope is not None and not 0 <= slope <= 1:
+        raise jf.FieldError(f"{where}.negative_slope", f"{slope}", "a leaky ReLU slope from 0 to 1")
     jf.get(config, "maneuver_input", where, "bool", None)
     norm = jf.get(card, "normalisation", "", "object")
     inputs = jf.get(norm, "inputs", "normalisation", "object")

@@ -403,7 +403,11 @@ def read_parquet(path: str | Path) -> pa.Table:
     try:
         pf = pq.ParquetFile(path, page_checksum_verification=True)
         table = pf.read().replace_schema_metadata(file_schema(pf).metadata)
-    except (OSError, pa.ArrowException) as exc:
+        # Arrow's own structural check (dictionary indices in range, offsets, …): page checksums
+        # do not cover page headers, whose counts a damaged file may get wrong.
+        table.validate(full=True)
+        _ = [f.name for f in table.schema]  # names decode lazily: a non-UTF-8 name fails here
+    except (OSError, pa.ArrowException, UnicodeDecodeError) as exc:
         raise InputError(
             path, f"not a readable Parquet file: {exc}", expected="a lanecast track table"
         ) from exc

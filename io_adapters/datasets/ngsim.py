@@ -617,6 +617,21 @@ def _check_period_continuity(parsed: _Parsed, period: np.ndarray) -> None:
     """Refuse a Global_Time that puts one frame of a vehicle in another recording period than the
     frame before it (a phantom recording made of one bad cell); ``period`` [n] per row of ``parsed``."""
     cols = parsed.columns
+    sizes = np.bincount(period)
+    if sizes.size > 1 and sizes.min() <= MAX_STRAY_ROWS:  # a "period" of a row or two is a bad cell
+        odd = int(np.flatnonzero(period == int(np.argmin(sizes)))[0])
+        header = "," in parsed.path.open("rb").readline().decode(errors="replace")
+        line = int(
+            record_lines(parsed.path.read_bytes(), whitespace=not header)[0][odd + (1 if header else 0)]
+        )
+        raise InputError(
+            parsed.path,
+            f"Global_Time {cols['global_time'][odd]} and Frame_ID {cols['frame_id'][odd]} put this row in a "
+            f"recording period of its own ({int(sizes.min())} rows)",
+            line=line,
+            column="Global_Time",
+            expected="Global_Time = epoch + 100 * Frame_ID with the epoch of a recording period",
+        )
     order = np.lexsort((cols["frame_id"], cols["vehicle_id"], parsed.location_code))
     vehicle, frame = cols["vehicle_id"][order], cols["frame_id"][order]
     loc, per = parsed.location_code[order], period[order]
