@@ -49,8 +49,11 @@ GRAPH_OUTPUTS: dict[str, tuple[str, list[Any]]] = {
     "top_probs": ("float32", ["N", "K"]),
     "top_offsets": ("float32", ["N", "K", 5, 2]),
 }
-#: Largest difference to torch accepted at export (physical units: metres, probabilities).
-EXPORT_TOLERANCE = 1e-4
+#: Difference to torch accepted at export, |onnx − torch| ≤ atol + rtol·|torch| (physical units:
+#: metres, probabilities). The relative part is float32's: offsets of a fast target reach ~200 m, where
+#: one float32 step is already 1.5e-5 m and a different summation order moves the last bits.
+EXPORT_ATOL = 1e-4
+EXPORT_RTOL = 1e-5
 
 
 class PredictionGraph(nn.Module):
@@ -150,10 +153,12 @@ def export_onnx(model: Path | str | None, out_dir: Path | str | None = None) -> 
                 if any(isinstance(d, str) for d in shape)
             },
         )
-        difference = parity_with_torch(tmp, STCNNForecaster(net, card), card)
-        if difference > EXPORT_TOLERANCE:
-            raise RuntimeError(
-                f"exported graph differs from torch by {difference:.3g} (> {EXPORT_TOLERANCE})"
+        difference, excess = parity_with_torch(tmp, STCNNForecaster(net, card), card)
+        if excess > 0:
+            raise InputError(
+                weights_path,
+                f"the exported ONNX graph differs from torch by {difference:.3g}",
+                expected=f"at most {EXPORT_ATOL:g} + {EXPORT_RTOL:g}·|torch output|",
             )
         tmp.chmod(0o644)
     if out.resolve() != weights_path.parent.resolve():
@@ -188,8 +193,11 @@ def synthetic_windows(card: dict[str, Any], n: int, seed: int) -> tuple[np.ndarr
     return inputs, present
 
 
-def parity_with_torch(onnx_path: Path, reference: STCNNForecaster, card: dict[str, Any]) -> float:
-    """Largest absolute difference between ONNX Runtime and torch on 512 synthetic windows (top 3).
+def parity_with_torch(
+    onnx_path: Path, reference: STCNNForecaster, card: dict[str, Any]
+) -> tuple[float, float]:
+    """ONNX Runtime against torch on 512 synthetic windows (top 3): (largest absolute difference,
+    largest excess over the tolerance EXPORT_ATOL + EXPORT_RTOL·|torch|; > 0 means out of tolerance).
 
     Raises when the two disagree on a top-3 sequence (beyond near-ties of the probabilities).
     """
@@ -201,7 +209,15 @@ def parity_with_torch(onnx_path: Path, reference: STCNNForecaster, card: dict[st
     if not same.all():
         gaps = np.abs(np.diff(theirs.top_probs, axis=1)).min(axis=1)
         if (gaps[~same] > 1e-5).any():
-            raise RuntimeError(f"{onnx_path}: exported graph ranks maneuver sequences differently from torch")
+            raise InputError(
+                onnx_path,
+                "the exported graph ranks maneuver sequences differently from torch",
+                expected="the same top-3 sequences as torch",
+            )
     pairs = [(ours.top_offsets[same], theirs.top_offsets[same]), (ours.top_probs, theirs.top_probs)]
     pairs.append((ours.probs, theirs.probs))
-    return float(max(np.abs(np.asarray(a) - np.asarray(b)).max() for a, b in pairs))
+    gaps = [np.abs(np.asarray(a, np.float64) - np.asarray(b, np.float64)) for a, b in pairs]
+    bounds = [EXPORT_ATOL + EXPORT_RTOL * np.abs(np.asarray(b, np.float64)) for _, b in pairs]
+    difference = max(float(g.max(initial=0.0)) for g in gaps)
+    excess = max(float((g - bound).max(initial=-np.inf)) for g, bound in zip(gaps, bounds, strict=True))
+    return difference, excess
