@@ -17,6 +17,7 @@ from typing import Any
 from lanecast.io_adapters import json_fields as jf
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import atomic_path
+from lanecast.models.baselines import RELATIVE_TO
 
 FORMAT = "lanecast-stcnn"
 FORMAT_VERSION = 1
@@ -139,6 +140,9 @@ def check_card_fields(card: dict[str, Any]) -> None:
         raise jf.FieldError(
             "normalisation.future.mean", f"{mean}"[:60], f"{2 * horizon} numbers, {_RANGE['mean']}"
         )
+    relative_to = jf.get(future, "relative_to", "normalisation.future", "str", "none")
+    if relative_to not in RELATIVE_TO:
+        raise jf.FieldError("normalisation.future.relative_to", f"{relative_to!r}", f"one of {RELATIVE_TO}")
     std = jf.get(future, "std", "normalisation.future", "number")
     if not _in_range(std, "std"):
         raise jf.FieldError("normalisation.future.std", f"{std}", _RANGE["std"])
