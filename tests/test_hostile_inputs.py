@@ -668,6 +668,29 @@ def test_ros2_mcap_bags_are_written_with_crcs_and_checked(tmp_path: Path) -> Non
     assert err.value.path == str(storage)
 
 
+def test_damaged_zstd_chunks_of_a_log_are_a_clean_error(tmp_path: Path) -> None:
+    """Flipped bytes inside a zstd-compressed chunk (lanecast's own MCAP logs are zstd) are refused
+    as a LogError naming the file, whether zstd or the chunk CRC notices first."""
+    table = registry.read_any([US101])
+    log = registry.write_any(table, tmp_path / "log.mcap", "mcap")
+    data = log.read_bytes()
+    pos = 8  # after the magic: walk the records (opcode u8, length u64) to the first chunk
+    while data[pos] != 0x06:
+        pos += 9 + struct.unpack_from("<Q", data, pos + 1)[0]
+    (length,) = struct.unpack_from("<Q", data, pos + 1)
+    assert data[pos + 9 + 28 : pos + 9 + 32] == b"\x04\x00\x00\x00"  # the compression string "zstd"
+    assert data[pos + 9 + 32 : pos + 9 + 36] == b"zstd"
+    records_start = pos + 9 + 36 + 8
+    for at in np.linspace(records_start + 8, pos + 9 + length - 8, 6).astype(int):
+        bad = bytearray(data)
+        bad[at] ^= 0xFF
+        damaged = tmp_path / f"damaged-{at}.mcap"
+        damaged.write_bytes(bytes(bad))
+        with pytest.raises(LogError) as err:
+            registry.read_any([damaged])
+        assert err.value.path == str(damaged)
+
+
 # ------------------------------------------------------------------------- the output directory
 
 

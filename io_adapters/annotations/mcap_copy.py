@@ -484,7 +484,26 @@ def copy_ros2_bag(
                 writer.close()
     except ReaderError as exc:
         raise LogError(src, f"cannot read the ROS 2 bag: {exc}") from exc
+    compress_bag_storage(dst)
     if progress is not None:
         progress(since, stats.bytes_in)
     stats.bytes_out = sum(p.stat().st_size for p in dst.rglob("*") if p.is_file())
     return stats
+
+
+def compress_bag_storage(bag: Path) -> None:
+    """Rewrite the MCAP files of ROS 2 bag directory ``bag`` chunked, zstd-compressed and with CRCs.
+
+    rosbags' MCAP storage plugin writes uncompressed chunks with every CRC 0: 5 minutes of traffic
+    as TrackedObjects + MarkerArray made a 345 MB bag. The copy keeps every record (schemas,
+    channels, messages, metadata: ``metadata.yaml`` stays valid) and makes it about 50× smaller (6.5 MB) and
+    checkable. Each file is replaced only once its copy is complete.
+    """
+    for item in sorted(Path(bag).glob("*.mcap")):
+        tmp = item.with_name(f".{item.name}.zstd-tmp")
+        try:
+            with open(tmp, "wb") as out:
+                copy_mcap(item, out)
+            os.replace(tmp, item)
+        finally:
+            tmp.unlink(missing_ok=True)

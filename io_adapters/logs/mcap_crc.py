@@ -1,17 +1,15 @@
-"""Fill in the CRCs an MCAP writer left at 0 (:func:`fill_crcs`), and check them (:func:`verify_crcs`).
+"""Check the CRCs of an MCAP file read through another library (:func:`verify_crcs`).
 
-rosbags' MCAP storage plugin writes every CRC as 0 ("not computed"): a flipped byte in a ROS 2 bag
-lanecast writes with ``--to ros2 --storage mcap`` would then pass unnoticed. After writing (before
-the atomic rename) :func:`fill_crcs` computes them in place: each chunk's CRC of its uncompressed
-records, the data section's CRC (DataEnd) and the summary's CRC (Footer). Lengths do not change,
-so every offset in the summary and the indexes stays valid.
+rosbags reads ROS 2 bags in MCAP storage without checking any CRC; lanecast's own such bags are
+rewritten with every CRC (``annotations.mcap_copy.compress_bag_storage``), and this walk checks
+each chunk's CRC of its uncompressed records, the data section's (DataEnd) and the summary's
+(Footer) before rosbags reads them. A CRC of 0 means "not computed" and is not checked.
 """
 
 from __future__ import annotations
 
 import mmap
 import struct
-import zlib
 from pathlib import Path
 
 from lanecast.io_adapters.errors import LogError
@@ -28,30 +26,20 @@ from lanecast.io_adapters.logs.mcap_reader import (
 _FOOTER_SIZE = 9 + 20  # opcode, length, summary_start u64, summary_offset_start u64, summary_crc u32
 
 
-def fill_crcs(path: str | Path) -> None:
-    """Compute and store every CRC of the MCAP at ``path`` that is 0 (chunks, data end, summary)."""
-    _walk_crcs(Path(path), fill=True)
-
-
 def verify_crcs(path: str | Path) -> None:
     """Check every non-zero CRC of the MCAP at ``path``; LogError naming the offset of a mismatch.
 
     For MCAP files read through another library (rosbags' ROS 2 MCAP storage), which does not.
     """
-    _walk_crcs(Path(path), fill=False)
-
-
-def _walk_crcs(path: Path, fill: bool) -> None:
+    path = Path(path)
     try:
-        with open(path, "r+b" if fill else "rb") as f:
-            access = mmap.ACCESS_WRITE if fill else mmap.ACCESS_READ
-            with mmap.mmap(f.fileno(), 0, access=access) as mm:
-                _crcs(path, mm, fill)
+        with open(path, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
+            _crcs(path, mm)
     except (ValueError, struct.error) as exc:
         raise LogError(path, f"damaged MCAP: {exc}", expected="an intact MCAP file") from exc
 
 
-def _crcs(path: Path, mm: mmap.mmap, fill: bool) -> None:
+def _crcs(path: Path, mm: mmap.mmap) -> None:
     size = len(mm)
     if size < 8 + _FOOTER_SIZE + 8 or mm[:8] != MAGIC or mm[size - 8 :] != MAGIC:
         raise LogError(path, "not a complete MCAP file", expected="magic, records, footer, magic")
@@ -62,19 +50,13 @@ def _crcs(path: Path, mm: mmap.mmap, fill: bool) -> None:
         if nxt > size:
             raise LogError(path, "a record runs past the end", offset=pos, expected="a complete MCAP file")
         if op == OP_CHUNK:
-            (crc,) = struct.unpack_from("<I", mm, body + 24)
-            if crc == 0 and fill:
-                struct.pack_into("<I", mm, body + 24, zlib.crc32(_chunk_payload(mm, body, nxt)))
-            elif not fill:
-                try:
-                    _chunk_payload(mm, body, nxt)  # checks a non-zero CRC
-                except ValueError as exc:
-                    raise LogError(
-                        path, f"corrupt chunk: {exc}", offset=pos, expected="an intact chunk"
-                    ) from exc
+            try:
+                _chunk_payload(mm, body, nxt)  # checks a non-zero CRC
+            except ValueError as exc:
+                raise LogError(path, f"corrupt chunk: {exc}", offset=pos, expected="an intact chunk") from exc
         elif op == OP_DATA_END:
             (crc,) = struct.unpack_from("<I", mm, body)
-            _check_or_fill(path, mm, body, crc, _crc32(mm, 0, pos), fill, pos, "data section")
+            _check(path, crc, _crc32(mm, 0, pos), pos, "data section")
             break
         pos = nxt
     footer = size - 8 - _FOOTER_SIZE
@@ -83,18 +65,12 @@ def _crcs(path: Path, mm: mmap.mmap, fill: bool) -> None:
     summary_start, _, crc = struct.unpack_from("<QQI", mm, footer + 9)
     if summary_start and summary_start < footer:
         actual = _crc32(mm, summary_start, footer + 9 + 16)
-        _check_or_fill(path, mm, footer + 9 + 16, crc, actual, fill, footer, "summary")
-    if fill:
-        mm.flush()
+        _check(path, crc, actual, footer, "summary")
 
 
-def _check_or_fill(
-    path: Path, mm: mmap.mmap, at: int, stored: int, actual: int, fill: bool, offset: int, what: str
-) -> None:
-    """Store ``actual`` at ``at`` where ``stored`` is 0 (fill), or refuse a non-zero mismatch (check)."""
-    if fill and stored == 0:
-        struct.pack_into("<I", mm, at, actual)
-    elif not fill and stored and stored != actual:
+def _check(path: Path, stored: int, actual: int, offset: int, what: str) -> None:
+    """Refuse a non-zero stored CRC that differs from the computed one."""
+    if stored and stored != actual:
         raise LogError(
             path,
             f"{what} CRC mismatch (stored {stored:#010x}, computed {actual:#010x})",

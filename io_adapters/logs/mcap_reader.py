@@ -558,11 +558,14 @@ def _chunk_payload(buf: Any, body: int, end: int) -> bytes:
         import zstandard
 
         pieces = []
-        with zstandard.ZstdDecompressor().stream_reader(bytes(raw), read_across_frames=True) as reader:
-            wanted = size + 1
-            while wanted > 0 and (piece := reader.read(wanted)):
-                pieces.append(piece)
-                wanted -= len(piece)
+        try:
+            with zstandard.ZstdDecompressor().stream_reader(bytes(raw), read_across_frames=True) as reader:
+                wanted = size + 1
+                while wanted > 0 and (piece := reader.read(wanted)):
+                    pieces.append(piece)
+                    wanted -= len(piece)
+        except zstandard.ZstdError as exc:  # a damaged frame (flipped or missing bytes)
+            raise ValueError(f"damaged zstd frame: {exc}") from exc
         data = b"".join(pieces)
     elif compression == "lz4":
         import lz4.frame
