@@ -38,16 +38,9 @@ import pyarrow.compute as pc
 import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
-NEIGHBOUR_IDS = (
-    "precedingId",
-    "followingId",
-    "leftPrecedingId",
-    "leftAlongsideId",
-    "leftFollowingId",
-    "rightPrecedingId",
-    "rightAlongsideId",
-    "rightFollowingId",
-)
+from lanecast.io_adapters.datasets import highd
+
+NEIGHBOUR_IDS = tuple(highd.NEIGHBOURS)  # highD's neighbour id columns
 IN_MEMORY_WINDOWS = (
     "import sys; from pathlib import Path; from lanecast.io_adapters import registry; "
     "from lanecast.io_adapters.contracts.windows import save_windows; "

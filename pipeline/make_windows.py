@@ -159,18 +159,7 @@ def make_windows(
     track_ids = np.concatenate([p.track for p in parts]) if parts else np.zeros(0, dtype=np.int64)
     t0_times = np.concatenate([p.t0_ns for p in parts]) if parts else np.zeros(0, dtype=np.int64)
     win_split = window_splits(table, meta, all_names, all_codes, rec_codes, track_ids, split, seed)
-    index = pa.Table.from_arrays(
-        [
-            pa.array(rec_names.astype(object), pa.string()),
-            pa.array(track_ids, pa.int64()),
-            pa.array(t0_times, pa.int64()),
-            pa.array(win_split.astype(object), pa.string()),
-            pa.array(origin[:, 0], pa.float64()),
-            pa.array(origin[:, 1], pa.float64()),
-            pa.array(origin[:, 2], pa.float64()),
-        ],
-        schema=INDEX_SCHEMA,
-    )
+    index = window_index(rec_names, track_ids, t0_times, win_split, origin)
     windows = Windows(inputs, present, future, maneuver, index)
     skipped = {k: v for p in parts for k, v in p.skipped.items()}
     for name in meta.recordings:
@@ -678,18 +667,7 @@ def _index_and_manifest(
     origin = _concat([p.origin for p in parts], (0, 3), np.float64)
     max_of_rec = np.array([max_track[str(n)] for n in names], dtype=np.int64)
     win_split = splits_of_windows(meta, names, max_of_rec, rec_codes, track_ids, options.split, options.seed)
-    index = pa.Table.from_arrays(
-        [
-            pa.array(names[rec_codes].astype(object), pa.string()),
-            pa.array(track_ids, pa.int64()),
-            pa.array(t0_times, pa.int64()),
-            pa.array(win_split.astype(object), pa.string()),
-            pa.array(origin[:, 0], pa.float64()),
-            pa.array(origin[:, 1], pa.float64()),
-            pa.array(origin[:, 2], pa.float64()),
-        ],
-        schema=INDEX_SCHEMA,
-    )
+    index = window_index(names[rec_codes], track_ids, t0_times, win_split, origin)
     skipped = {k: v for p in parts for k, v in p.skipped.items()}
     methods = {k: v for p in parts for k, v in p.methods.items()}
     for name in meta.recordings:
@@ -730,3 +708,22 @@ def _index_and_manifest(
         return doc
 
     return index, manifest
+
+
+def window_index(
+    recordings: np.ndarray, track_ids: np.ndarray, t0_ns: np.ndarray, split: np.ndarray, origin: np.ndarray
+) -> pa.Table:
+    """The windows' index table (INDEX_SCHEMA): recording [N], track_id [N], t0_ns [N], split [N]
+    and origin [N, 3] (x, y, heading of the window frame in the source frame)."""
+    return pa.Table.from_arrays(
+        [
+            pa.array(recordings.astype(object), pa.string()),
+            pa.array(track_ids, pa.int64()),
+            pa.array(t0_ns, pa.int64()),
+            pa.array(split.astype(object), pa.string()),
+            pa.array(origin[:, 0], pa.float64()),
+            pa.array(origin[:, 1], pa.float64()),
+            pa.array(origin[:, 2], pa.float64()),
+        ],
+        schema=INDEX_SCHEMA,
+    )

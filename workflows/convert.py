@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import functools
 import os
 import time
 from pathlib import Path
@@ -121,19 +120,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         with streaming.spill_directory(args.out) as spill:  # NGSIM exports: a spill per recording
             pieces = streaming.plan(args.inputs, fmt=args.format, spill_dir=spill.path, options=options)
-            parallel = args.workers > 1 or args.engine == "ray"
-            ordered_map = (
-                functools.partial(
-                    engines.ordered_map,
-                    workers=args.workers,
-                    engine=args.engine,
-                    address=args.address,
-                    retries=args.retries,
-                    paths=[*(Path(p).resolve() for p in args.inputs), args.out.resolve().parent],
-                )
-                if parallel
-                else None
-            )
+            ordered_map = engines.mapper_from_args(args, args.inputs, args.out)
             rows, tracks = streaming.convert(pieces, args.out, directory=directory, ordered_map=ordered_map)
         path = args.out
     print(f"wrote {path} ({fmt}): {rows:,} rows, {tracks:,} tracks in {time.perf_counter() - started:.1f} s")

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import functools
 import multiprocessing as mp
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
@@ -89,6 +90,23 @@ def ordered_map(
                     yield pending.popleft().result()
             while pending:
                 yield pending.popleft().result()
+
+
+def mapper_from_args(
+    args: argparse.Namespace, inputs: Sequence[Path | str], out: Path
+) -> Callable[..., Iterator[Any]] | None:
+    """``ordered_map`` bound to a command's ``--workers/--engine/--address/--retries`` (the paths
+    the workers must see: ``inputs`` and ``out``'s folder), or None for one local process."""
+    if args.workers <= 1 and args.engine != "ray":
+        return None
+    return functools.partial(
+        ordered_map,
+        workers=args.workers,
+        engine=args.engine,
+        address=args.address,
+        retries=args.retries,
+        paths=[*(Path(p).resolve() for p in inputs), out.resolve().parent],
+    )
 
 
 def _call(fn: Callable[[T], R], item: T) -> R:

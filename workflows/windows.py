@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import functools
 import time
 from pathlib import Path
 
@@ -79,19 +78,7 @@ def run(args: argparse.Namespace) -> int:
     with streaming.spill_directory(args.out) as spill:  # NGSIM exports: a spill per recording
         options = {"location": args.location} if args.location else {}
         pieces = streaming.plan(args.table, fmt=args.format, spill_dir=spill.path, options=options)
-        parallel = args.workers > 1 or args.engine == "ray"
-        ordered_map = (
-            functools.partial(
-                engines.ordered_map,
-                workers=args.workers,
-                engine=args.engine,
-                address=args.address,
-                retries=args.retries,
-                paths=[*(Path(p).resolve() for p in args.table), args.out.resolve().parent],
-            )
-            if parallel
-            else None
-        )
+        ordered_map = engines.mapper_from_args(args, args.table, args.out)
         windows = write_windows(
             pieces,
             args.out,
