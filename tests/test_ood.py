@@ -40,7 +40,8 @@ def test_distribution_and_flags() -> None:
     assert state["speed_mps"].tolist() == [8.300000190734863, 27.0, 27.0, 50.0]
 
 
-def test_flags_reach_the_forecasts_table() -> None:
+def three_forecasts() -> tuple[pa.Table, Predictions]:
+    """A windows index of three targets at one t0 and their predictions, the second flagged."""
     n = 3
     preds = Predictions(
         offsets=np.zeros((n, 5, 2), np.float32),
@@ -61,6 +62,12 @@ def test_flags_reach_the_forecasts_table() -> None:
             "origin_heading": [0.0, 0.0, 0.0],
         }
     )
+    return index, preds
+
+
+def test_flags_reach_the_forecasts_table() -> None:
+    index, preds = three_forecasts()
+    n = index.num_rows
     table = forecasts_table(index, preds)
     assert table.column("out_of_distribution").to_pylist() == [False, True, False]
     preds.out_of_distribution = None  # baselines: unknown
@@ -71,26 +78,7 @@ def test_flags_reach_the_forecasts_table() -> None:
 def test_flags_reach_the_prediction_message() -> None:
     from lanecast.io_adapters.annotations.forecast_messages import frames_from_table, prediction_dict
 
-    n = 3
-    preds = Predictions(
-        offsets=np.zeros((n, 5, 2), np.float32),
-        probs=np.full((n, 5, 3), 1 / 3, np.float32),
-        maneuver=np.zeros((n, 5), np.int64),
-        top_sequences=np.zeros((n, 1, 5), np.int64),
-        top_probs=np.ones((n, 1), np.float32),
-        top_offsets=np.zeros((n, 1, 5, 2), np.float32),
-        out_of_distribution=np.array([False, True, False]),
-    )
-    index = pa.table(
-        {
-            "recording": ["r"] * n,
-            "track_id": pa.array([1, 2, 3], pa.int64()),
-            "t0_ns": pa.array([0, 0, 0], pa.int64()),
-            "origin_x": [0.0, 10.0, 20.0],
-            "origin_y": [0.0, 0.0, 0.0],
-            "origin_heading": [0.0, 0.0, 0.0],
-        }
-    )
+    index, preds = three_forecasts()
     doc = prediction_dict(next(iter(frames_from_table(forecasts_table(index, preds), frame_id="map"))))
     assert [t["out_of_distribution"] for t in doc["targets"]] == [False, True, False]
     preds.out_of_distribution = None  # baselines: unknown
