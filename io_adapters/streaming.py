@@ -4,6 +4,10 @@ or on any machine), and the track table written as the pieces come.
 A :class:`Piece` is whole recordings of one input: a highD recording, a range of rows of a Parquet
 track table (found from its row groups, never by loading it), one log, one NGSIM location and
 period. Memory is set by the largest piece, not by the dataset (docs/design.md, streaming).
+For windows, a recording of a Parquet track table larger than a piece is cut into **chunks** of
+whole tracks (:func:`track_chunks`): each chunk's target tracks, with every other vehicle of the
+recording during their lifetime as context (neighbours), so that the windows of the chunks,
+appended in order, are those of the whole recording.
 
 Outputs: :class:`TrackTableWriter` writes one Parquet file (row groups per piece; the table
 metadata naming every recording is stored when the file is complete) or a dataset directory of
@@ -15,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import itertools
 import shutil
 import tempfile
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -35,6 +40,8 @@ from lanecast.io_adapters.errors import InputError, TrackTableError
 from lanecast.io_adapters.files import atomic_path, check_input
 
 MAX_ROWS = 1_000_000  # input rows per piece where recordings are small enough to group (memory ~ rows)
+CONTEXT_MARGIN_NS = 2_000_000_000  # context beyond the targets' lifetime: the native samples around
+# their first and last 10 Hz frames (resampling interpolates between neighbours' samples)
 ROW_GROUP_ROWS = 1 << 20  # rows per Parquet row group of written track tables
 STREAM_BYTES = 256 << 20  # NGSIM CSV exports from this size on are read incrementally
 
@@ -55,6 +62,7 @@ class Piece:
     rows: int = -1
     options: tuple[tuple[str, Any], ...] = field(default_factory=tuple)
     spilled: str = ""  # NGSIM CSV export: a recording spilled by ngsim_stream (JSON)
+    chunk: Chunk | None = None  # a chunk of whole tracks of one long recording (windows only)
 
     @property
     def label(self) -> str:
@@ -63,6 +71,8 @@ class Piece:
 
             return f"{self.paths[0]} recording {ngsim_stream.SpilledRecording.from_json(self.spilled).name}"
         where = f" rows {self.offset}+{self.rows} of row groups {self.row_groups[0]}…{self.row_groups[-1]}"
+        if self.chunk is not None:
+            where += f" (tracks {self.chunk.targets[0]}…{self.chunk.targets[1]} of {self.chunk.recording})"
         return ", ".join(self.paths) + (where if self.row_groups else "")
 
     def read(self) -> pa.Table:
@@ -82,12 +92,65 @@ class Piece:
                 path, f"not a readable Parquet file: {exc}", expected="a lanecast track table"
             ) from exc
         table = table.slice(self.offset, table.num_rows - self.offset if self.rows < 0 else self.rows)
-        meta = track_table.read_meta(track_table.file_schema(pf))
-        names = track_table.recording_codes(table)[0]
-        meta = track_table.restrict_meta(meta, names.tolist())
-        table = table.replace_schema_metadata({track_table.META_KEY: meta.to_json().encode()})
-        track_table.validate(table, source=path)
-        return table
+        return _with_meta(table, pf, path)
+
+    def read_with_context(self) -> pa.Table:
+        """What windows need of the piece: :meth:`read`, or for a chunk its target tracks with
+        the rows of every other track of the recording within the chunk's context times, one row
+        group in memory at a time (sorted by track as in the file)."""
+        if self.chunk is None:
+            return self.read()
+        chunk, path = self.chunk, Path(self.paths[0])
+        try:
+            pf = pq.ParquetFile(path, page_checksum_verification=True)
+            starts = np.r_[
+                0, np.cumsum([pf.metadata.row_group(i).num_rows for i in range(pf.num_row_groups)])
+            ]
+            kept = []
+            for g in chunk.context_groups:
+                group = pf.read_row_group(g)
+                row = np.arange(starts[g], starts[g + 1])
+                time_ns = group.column("time_ns").to_numpy()
+                track = group.column("track_id").to_numpy()
+                keep = (row >= chunk.rows[0]) & (row < chunk.rows[1])
+                keep &= ((track >= chunk.targets[0]) & (track <= chunk.targets[1])) | (
+                    (time_ns >= chunk.context_ns[0]) & (time_ns <= chunk.context_ns[1])
+                )
+                kept.append(group.filter(pa.array(keep)))
+            table = pa.concat_tables(kept).combine_chunks()
+        except (OSError, pa.ArrowException) as exc:
+            raise InputError(
+                path, f"not a readable Parquet file: {exc}", expected="a lanecast track table"
+            ) from exc
+        return _with_meta(table, pf, path)
+
+
+@dataclass(frozen=True)
+class Chunk:
+    """Whole tracks ``targets`` (first, last track id) of the long recording ``recording`` (rows
+    ``rows`` [first, end) of its file) and the context windows need: the rows of every other of its
+    tracks at times ``context_ns`` [first, last] (the targets' lifetime and a margin), found in
+    row groups ``context_groups``. ``neighbours``: the recording's neighbour method (``auto``
+    decides it over the whole recording, not over a chunk)."""
+
+    recording: str
+    rows: tuple[int, int]
+    targets: tuple[int, int]
+    context_ns: tuple[int, int]
+    context_groups: tuple[int, ...]
+    ids_given: tuple[str, ...]  # neighbour id columns with an id somewhere in the recording
+    lanes_everywhere: bool  # every row of the recording has a lane id
+
+
+def _with_meta(table: pa.Table, pf: pq.ParquetFile, path: Path) -> pa.Table:
+    """``table`` (rows of the Parquet track table ``pf``) validated, with the metadata of its
+    recordings only."""
+    meta = track_table.read_meta(track_table.file_schema(pf))
+    names = track_table.recording_codes(table)[0]
+    meta = track_table.restrict_meta(meta, names.tolist())
+    table = table.replace_schema_metadata({track_table.META_KEY: meta.to_json().encode()})
+    track_table.validate(table, source=path)
+    return table
 
 
 def plan(
@@ -98,9 +161,12 @@ def plan(
     spill_dir: Path | None = None,
     stream_bytes: int | None = None,
     options: Mapping[str, Any] | None = None,
+    chunks: bool = False,
 ) -> list[Piece]:
     """The pieces of ``paths`` (formats detected per path unless ``fmt``; ``options`` for the
-    readers, e.g. ``location``), in dataset order.
+    readers, e.g. ``location``), in dataset order. ``chunks``: a recording of a Parquet track
+    table larger than ``max_rows`` becomes chunks of whole tracks with context (for windows:
+    :meth:`Piece.read_with_context`), not one piece.
 
     With ``spill_dir`` (storage every worker sees, removed by the caller), NGSIM CSV exports of at
     least ``stream_bytes`` (default STREAM_BYTES) are read incrementally into one spill per
@@ -116,7 +182,7 @@ def plan(
     for name, group in groups.items():
         if name == parquet_format.FORMAT:
             for file in parquet_format.files(group):
-                pieces.extend(parquet_pieces(file, max_rows))
+                pieces.extend(parquet_pieces(file, max_rows, chunks=chunks))
         elif name == highd.FORMAT:
             pieces.extend(
                 Piece(name, (str(rec.path("tracks")),), options=opts) for rec in highd.recordings(group)
@@ -196,9 +262,10 @@ def recording_runs(path: Path) -> tuple[list[str], np.ndarray, np.ndarray]:
     return names, first, np.r_[first[1:], offset].astype(np.int64)
 
 
-def parquet_pieces(path: Path, max_rows: int = MAX_ROWS) -> list[Piece]:
+def parquet_pieces(path: Path, max_rows: int = MAX_ROWS, *, chunks: bool = False) -> list[Piece]:
     """Pieces of whole recordings of one Parquet track table, each at most ``max_rows`` rows unless
-    one recording alone is larger, each reading only the row groups that hold its rows."""
+    one recording alone is larger (then, with ``chunks``, :func:`track_chunks` of it), each
+    reading only the row groups that hold its rows."""
     try:
         pf = pq.ParquetFile(path, page_checksum_verification=True)
         names, first, end = recording_runs(path)
@@ -217,19 +284,103 @@ def parquet_pieces(path: Path, max_rows: int = MAX_ROWS) -> list[Piece]:
         while j < len(names) and end[j] - first[i] <= max_rows:
             j += 1
         lo, hi = int(first[i]), int(end[j - 1])
-        g0 = int(np.searchsorted(group_start, lo, side="right") - 1)
-        g1 = int(np.searchsorted(group_start, hi, side="left"))
-        pieces.append(
-            Piece(
-                parquet_format.FORMAT,
-                (str(path),),
-                row_groups=tuple(range(g0, g1)),
-                offset=lo - int(group_start[g0]),
-                rows=hi - lo,
-            )
-        )
+        if chunks and hi - lo > max_rows:  # one recording (j == i + 1), larger than a piece
+            pieces.extend(track_chunks(path, pf, names[i], (lo, hi), group_start, max_rows))
+        else:
+            pieces.append(_row_range(path, group_start, lo, hi))
         i = j
     return pieces
+
+
+def _row_range(path: Path, group_start: np.ndarray, lo: int, hi: int, chunk: Chunk | None = None) -> Piece:
+    """The piece of rows [lo, hi) of a Parquet file whose row groups start at ``group_start``."""
+    g0 = int(np.searchsorted(group_start, lo, side="right") - 1)
+    g1 = int(np.searchsorted(group_start, hi, side="left"))
+    return Piece(
+        parquet_format.FORMAT,
+        (str(path),),
+        row_groups=tuple(range(g0, g1)),
+        offset=lo - int(group_start[g0]),
+        rows=hi - lo,
+        chunk=chunk,
+    )
+
+
+def track_chunks(
+    path: Path,
+    pf: pq.ParquetFile,
+    recording: str,
+    rows: tuple[int, int],
+    group_start: np.ndarray,
+    max_rows: int = MAX_ROWS,
+) -> list[Piece]:
+    """Chunks of the long recording ``recording`` (rows [first, end) of ``path``): consecutive
+    whole tracks of about ``max_rows`` rows each (one track alone may be larger), each with the
+    rows of every other track alive during its tracks' lifetime (± CONTEXT_MARGIN_NS) as context.
+
+    A time cut would lose what windows take from a track's past and future (the run a window's
+    stride counts from, labels and the window frame's chord, seconds away); whole tracks keep
+    them, and their windows come in the order of the whole recording. Memory: the targets and the
+    traffic during their lifetime (highway vehicles stay minutes; a vehicle present for hours
+    brings those hours). Reads ``track_id``, ``time_ns``, ``lane_id`` and the neighbour id
+    columns of the recording, one row group at a time.
+    """
+    lo, hi = rows
+    g0 = int(np.searchsorted(group_start, lo, side="right") - 1)
+    g1 = int(np.searchsorted(group_start, hi, side="left"))
+    given = [c for c in track_table.NEIGHBOUR_COLUMNS if c in pf.schema_arrow.names]
+    track_parts, time_parts = [], []
+    ids_given: set[str] = set()
+    lanes_everywhere = True
+    for g in range(g0, g1):
+        a, b = max(lo, int(group_start[g])), min(hi, int(group_start[g + 1]))
+        part = pf.read_row_group(g, columns=["track_id", "time_ns", "lane_id", *given])
+        part = part.slice(a - int(group_start[g]), b - a)
+        track_parts.append(part.column("track_id").to_numpy())
+        time_parts.append(part.column("time_ns").to_numpy())
+        lanes_everywhere &= part.column("lane_id").null_count == 0
+        ids_given.update(c for c in given if part.column(c).null_count < part.num_rows)
+    track = np.concatenate(track_parts)
+    time_ns = np.concatenate(time_parts)
+    del track_parts, time_parts
+    first = np.r_[0, np.flatnonzero(track[1:] != track[:-1]) + 1]  # each track's first row
+    last = np.r_[first[1:], track.size] - 1
+    t_first, t_last, ids = time_ns[first], time_ns[last], track[first]
+    # consecutive tracks of about max_rows rows each
+    cum = np.r_[first, track.size]
+    bounds = [0]
+    while bounds[-1] < first.size:
+        k = int(np.searchsorted(cum, cum[bounds[-1]] + max_rows, side="right")) - 1
+        bounds.append(min(max(k, bounds[-1] + 1), first.size))
+    pieces = []
+    for a, b in itertools.pairwise(bounds):
+        t0 = int(t_first[a:b].min()) - CONTEXT_MARGIN_NS
+        t1 = int(t_last[a:b].max()) + CONTEXT_MARGIN_NS
+        alive = np.flatnonzero((t_last >= t0) & (t_first <= t1))
+        chunk = Chunk(
+            recording=recording,
+            rows=(lo, hi),
+            targets=(int(ids[a]), int(ids[b - 1])),
+            context_ns=(t0, t1),
+            context_groups=tuple(int(g) for g in _groups_of(alive, first, last, lo, group_start)),
+            ids_given=tuple(sorted(ids_given)),
+            lanes_everywhere=bool(lanes_everywhere),
+        )
+        row_end = int(last[b - 1]) + 1 + lo
+        pieces.append(_row_range(path, group_start, int(first[a]) + lo, row_end, chunk))
+    return pieces
+
+
+def _groups_of(
+    tracks: np.ndarray, first: np.ndarray, last: np.ndarray, offset: int, group_start: np.ndarray
+) -> np.ndarray:
+    """The row groups holding any row of ``tracks`` (indices into ``first``/``last``, rows
+    relative to ``offset``), sorted: every group from each track's first to its last row."""
+    g_first = np.searchsorted(group_start, first[tracks] + offset, side="right") - 1
+    g_last = np.searchsorted(group_start, last[tracks] + offset, side="right") - 1
+    spans = g_last - g_first + 1
+    within = np.arange(spans.sum()) - np.repeat(np.cumsum(spans) - spans, spans)
+    return np.unique(np.repeat(g_first, spans) + within)
 
 
 def iter_tables(pieces: Sequence[Piece]) -> Iterator[pa.Table]:

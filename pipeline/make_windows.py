@@ -38,7 +38,7 @@ from lanecast.io_adapters.contracts.windows import (
     save_shard,
 )
 from lanecast.io_adapters.errors import InputError
-from lanecast.io_adapters.streaming import Piece
+from lanecast.io_adapters.streaming import Chunk, Piece
 from lanecast.pipeline import labels as labels_mod
 from lanecast.pipeline import neighbours as nb_mod
 from lanecast.pipeline import window_tensors as wt
@@ -249,8 +249,10 @@ def _prepare(
     neighbours: str,
     lane_width: float,
     neighbour_range: float,
+    targets: tuple[int, int] | None = None,
 ) -> _Prep:
-    """resample -> neighbours -> labels -> window rows for one group of recordings."""
+    """resample -> neighbours -> labels -> window rows for one group of recordings (``targets``:
+    only the windows of track ids first…last, the other tracks being their context)."""
     timings: dict[str, float] = {}
     t = time.perf_counter()
     table10, physics = resample_with_physics(table, RATE_HZ, GAP_FACTOR, meta=meta)
@@ -268,6 +270,10 @@ def _prepare(
     t0_rows = wt.window_rows(
         cols, stride=stride, require_future=require_future, t0_frames=t0_frames, back=back, fwd=fwd
     )
+    if targets is not None:
+        is_target = (cols.track >= targets[0]) & (cols.track <= targets[1])
+        t0_rows = t0_rows[is_target[t0_rows]]
+        back = np.where(is_target, back, 0)  # context tracks are cut: not the recording's longest
     timings["windows_s"] = time.perf_counter() - t
     skipped = _skipped(cols, t0_rows, back, require_future)
     return _Prep(cols, nb.rows, row_labels, t0_rows, fwd, nb.methods, skipped, timings)
@@ -530,6 +536,7 @@ class PieceWindows:
     timings: dict[str, float]
     arrays: dict[str, np.ndarray] | None = None
     shard: str | None = None
+    chunk_of: str = ""  # the recording a chunk piece is part of (its metadata is given once)
 
 
 class _Buffers:
@@ -547,9 +554,12 @@ class _Buffers:
         return self.inputs[:n], self.present[:n]
 
 
-def piece_windows(table: pa.Table, options: WindowOptions, buffers: _Buffers | None = None) -> PieceWindows:
-    """Every window of one piece (a validated track table of whole recordings); inputs and
-    presence go into ``buffers`` when given (valid until their next use)."""
+def piece_windows(
+    table: pa.Table, options: WindowOptions, buffers: _Buffers | None = None, chunk: Chunk | None = None
+) -> PieceWindows:
+    """Every window of one piece (a validated track table of whole recordings, or a ``chunk``'s
+    target tracks and their context); inputs and presence go into ``buffers`` when given (valid
+    until their next use)."""
     meta = track_table.read_meta(table)
     prep = _prepare(
         table,
@@ -557,9 +567,10 @@ def piece_windows(table: pa.Table, options: WindowOptions, buffers: _Buffers | N
         options.stride,
         options.require_future,
         None,
-        options.neighbours,
+        options.neighbours if chunk is None else chunk_method(chunk, meta, options.neighbours),
         options.lane_width,
         options.neighbour_range,
+        None if chunk is None else chunk.targets,
     )
     n = prep.t0_rows.size
     out = (buffers or _Buffers()).take(n)
@@ -581,6 +592,7 @@ def piece_windows(table: pa.Table, options: WindowOptions, buffers: _Buffers | N
         methods=prep.methods,
         skipped=prep.skipped,
         timings=prep.timings,
+        chunk_of="" if chunk is None else chunk.recording,
         arrays={
             "inputs": arrays.inputs,
             "present": arrays.present,
@@ -590,10 +602,22 @@ def piece_windows(table: pa.Table, options: WindowOptions, buffers: _Buffers | N
     )
 
 
+def chunk_method(chunk: Chunk, meta: track_table.TableMeta, method: str) -> str:
+    """The neighbour method of a chunk's recording: ``auto`` decided over the whole recording
+    (docs/design.md §2: the source's ids where it gives all seven, else lanes in a road frame where
+    every row has a lane id, else bands), as the unchunked recording decides it."""
+    if method != "auto":
+        return method
+    if set(nb_mod.SOURCE_COLUMNS.values()) <= set(chunk.ids_given):
+        return "source"
+    road = meta.recordings[chunk.recording].coordinate_frame == "road"
+    return "lanes" if chunk.lanes_everywhere and road else "bands"
+
+
 def piece_shard(piece: Piece, options: WindowOptions, shard_root: str, number: int) -> PieceWindows:
     """A worker's task: read ``piece``, cut its windows, write their arrays as shard ``number``
     under ``shard_root`` (storage the driver names) and return the rest (small)."""
-    result = piece_windows(piece.read(), options)
+    result = piece_windows(piece.read_with_context(), options, chunk=piece.chunk)
     assert result.arrays is not None
     shard = save_shard(Path(shard_root) / f"{number:06d}", result.arrays)
     result.arrays, result.shard = None, str(shard)
@@ -629,7 +653,7 @@ def write_windows(
         if ordered_map is None:
             buffers = _Buffers()
             for piece in pieces:
-                part = piece_windows(piece.read(), options, buffers)
+                part = piece_windows(piece.read_with_context(), options, buffers, piece.chunk)
                 assert part.arrays is not None
                 writer.append(part.arrays)
                 part.arrays = None
@@ -654,8 +678,17 @@ def _index_and_manifest(
     parts: list[PieceWindows], options: WindowOptions, allow_empty: bool, sources: dict[str, Any] | None
 ) -> tuple[pa.Table, Callable[[Windows], dict[str, Any]]]:
     """The index of all windows (splits need every piece) and the manifest builder."""
-    meta = track_table.merge_meta(track_table.TableMeta.from_json(p.meta_json) for p in parts)
-    max_track = {k: v for p in parts for k, v in p.max_track.items()}
+    # a recording cut in chunks gives its metadata once (another repeat is an input given twice)
+    first_chunks = {p.chunk_of: id(p) for p in reversed(parts) if p.chunk_of}
+    meta = track_table.merge_meta(
+        track_table.TableMeta.from_json(p.meta_json)
+        for p in parts
+        if not p.chunk_of or first_chunks[p.chunk_of] == id(p)
+    )
+    max_track: dict[str, int] = {}
+    for p in parts:  # chunks of one recording each saw part of its tracks
+        for name, largest in p.max_track.items():
+            max_track[name] = max(largest, max_track.get(name, largest))
     names = np.array(sorted(max_track), dtype=str)
     rec_codes = (
         np.concatenate([np.searchsorted(names, np.array(p.names, dtype=str))[p.rec_code] for p in parts])
@@ -668,7 +701,8 @@ def _index_and_manifest(
     max_of_rec = np.array([max_track[str(n)] for n in names], dtype=np.int64)
     win_split = splits_of_windows(meta, names, max_of_rec, rec_codes, track_ids, options.split, options.seed)
     index = window_index(names[rec_codes], track_ids, t0_times, win_split, origin)
-    skipped = {k: v for p in parts for k, v in p.skipped.items()}
+    with_windows = {p.names[c] for p in parts for c in np.unique(p.rec_code).tolist()}
+    skipped = {k: v for p in parts for k, v in p.skipped.items() if k not in with_windows}
     methods = {k: v for p in parts for k, v in p.methods.items()}
     for name in meta.recordings:
         if name not in methods:

@@ -17,7 +17,7 @@ from lanecast.io_adapters import registry, streaming
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.contracts.windows import NpyAppender, Windows, compute_stats, load_windows
 from lanecast.io_adapters.datasets import ngsim, ngsim_stream
-from lanecast.io_adapters.errors import InputError
+from lanecast.io_adapters.errors import InputError, TrackTableError
 from lanecast.pipeline.make_windows import WindowOptions, make_windows, write_windows
 from lanecast.workflows.cli import main
 
@@ -79,6 +79,60 @@ def test_windows_streamed_in_pieces_equal_the_in_memory_result(dataset: Path, tm
     assert sorted(p.name for p in (tmp_path / "w").iterdir()) == sorted(
         ["inputs.npy", "present.npy", "future.npy", "maneuver.npy", "windows.parquet", "manifest.json"]
     )
+
+
+@pytest.mark.parametrize(
+    "options",
+    [WindowOptions(), WindowOptions(neighbours="lanes", stride=3, require_future=False, split="hash")],
+    ids=["default", "lanes-stride3-nofuture"],
+)
+def test_a_long_recording_windowed_in_chunks_equals_the_one_call_result(
+    sim_recording_dir: Path, tmp_path: Path, options: WindowOptions
+) -> None:
+    table = registry.read_any([sim_recording_dir])
+    expected = make_windows(
+        table,
+        stride=options.stride,
+        require_future=options.require_future,
+        split=options.split,
+        neighbours=options.neighbours,
+    )
+    path = tmp_path / "one.parquet"
+    pq.write_table(table, path, row_group_size=7_000)  # chunks' context spans row groups
+    per_recording = max(table.num_rows // 10, 1)
+    pieces = streaming.plan([path], max_rows=per_recording, chunks=True)
+    assert len(pieces) > 2 * 4 and all(p.chunk is not None for p in pieces)
+    targets = [p.chunk.targets for p in pieces if p.chunk is not None]
+    assert all(a <= b for a, b in targets)
+    for piece in pieces:  # context: other tracks, cut to the targets' lifetime
+        assert piece.chunk is not None
+        context = piece.read_with_context()
+        assert context.num_rows > piece.read().num_rows
+        t = context.column("time_ns").to_numpy()
+        lo, hi = piece.chunk.context_ns
+        track = context.column("track_id").to_numpy()
+        other = (track < piece.chunk.targets[0]) | (track > piece.chunk.targets[1])
+        assert ((t[other] >= lo) & (t[other] <= hi)).all()
+    streamed = write_windows(pieces, tmp_path / "w", options)
+    _assert_same_windows(expected, streamed)  # arrays, index (order included), manifest
+    assert [p.chunk.recording for p in pieces if p.chunk] == sorted(
+        p.chunk.recording for p in pieces if p.chunk
+    )
+
+
+def test_a_failing_piece_leaves_no_half_written_dataset(dataset: Path, tmp_path: Path) -> None:
+    good = registry.read_any([dataset])
+    bad = tmp_path / "bad.parquet"  # structurally fine, one NaN position deep inside
+    x = good.column("x").to_numpy().copy()
+    x[len(x) // 2] = np.nan
+    pq.write_table(good.set_column(good.schema.get_field_index("x"), "x", pa.array(x)), bad)
+    good_path = tmp_path / "good.parquet"
+    pq.write_table(good, good_path)
+    pieces = streaming.plan([good_path]) + streaming.plan([bad])
+    with pytest.raises((InputError, TrackTableError)) as info:
+        write_windows(pieces, tmp_path / "w")
+    assert "bad.parquet" in str(info.value)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.parquet", "good.parquet"]
 
 
 def test_hash_split_and_no_future_stream_the_same(dataset: Path, tmp_path: Path) -> None:
