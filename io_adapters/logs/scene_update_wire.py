@@ -260,21 +260,23 @@ def _f64(buf: np.ndarray, pos: np.ndarray) -> np.ndarray:
 
 
 def _double_messages(
-    buf: np.ndarray, kinds: list[tuple[_Fields, np.ndarray, int]], n: int
+    buf: np.ndarray, kinds: list[tuple[np.ndarray, np.ndarray, np.ndarray, int]], n: int
 ) -> list[np.ndarray]:
-    """float64 [k, n] per kind (f, sel, k): double fields 1..k of the messages at indices sel of f
-    (Vector3, Point, Quaternion), column = owner; 0 where absent. All kinds in one pass.
+    """float64 [k, n] per kind (start, end, owner, k): double fields 1..k of the messages
+    buf[start[i]:end[i]] (Vector3, Point, Quaternion), column = owner[i]; 0 where absent. All kinds
+    in one pass.
 
-    Such a message is a run of 9-byte fields (tag, 8 bytes), any of them omitted when zero: read at
-    a fixed stride; other layouts go through the general scan.
+    Such a message is a run of 9-byte fields (tag, 8 bytes), any of them omitted when zero: read
+    slot by slot at a fixed stride; other layouts go through the general scan.
     """
-    ks = [k for _, _, k in kinds]
+    ks = [k for *_, k in kinds]
+    width = max(ks)
     out = np.zeros((sum(ks), n))
     flat = out.reshape(-1)
-    start = np.concatenate([f.start[sel] for f, sel, _ in kinds])
-    end = np.concatenate([f.end[sel] for f, sel, _ in kinds])
-    owner = np.concatenate([f.owner[sel] for f, sel, _ in kinds])
-    sizes = [sel.size for _, sel, _ in kinds]
+    start = np.concatenate([s for s, *_ in kinds])
+    end = np.concatenate([e for _, e, *_ in kinds])
+    owner = np.concatenate([o for _, _, o, _ in kinds])
+    sizes = [s.size for s, *_ in kinds]
     k_row = np.repeat(ks, sizes)
     # Flat index of each message's field 1 in out (its kind's first row, its owner's column).
     cell = np.repeat(np.cumsum([0, *ks[:-1]]) * n, sizes) + owner
@@ -282,7 +284,7 @@ def _double_messages(
     slots = length // 9
     ok = (length % 9 == 0) & (slots <= k_row)
     rows = np.flatnonzero(ok)
-    for slot in range(max(ks)):
+    for slot in range(width):
         if slot:
             rows = rows[slots[rows] > slot]
         if not rows.size:
@@ -302,6 +304,55 @@ def _double_messages(
         m = (wire == 1) & (field_no >= 1) & (field_no <= k_row[g.owner])
         flat[cell[g.owner[m]] + (field_no[m] - 1) * n] = _f64(buf, g.start[m])
     return np.split(out, np.cumsum(ks)[:-1])
+
+
+def _cube_parts(
+    buf: np.ndarray, starts: np.ndarray, ends: np.ndarray, owners: np.ndarray
+) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, int]]:
+    """The (start, end, owner, k) spans of the position (k=3), orientation (4) and size (3)
+    messages of the CubePrimitives buf[starts[i]:ends[i]] [m], for :func:`_double_messages`.
+
+    The layout serialisers write, ``pose {position, orientation} size [color]`` with one-byte
+    lengths, is matched byte by byte at fixed offsets, all cubes at once (the whole cube is walked
+    and checked, as the general scan would); any other cube goes through the general scan.
+    """
+    s = starts
+    pose_len = buf[s + 1].astype(np.int64)
+    pos_len = buf[s + 3].astype(np.int64)
+    q = s + 4 + pos_len  # orientation tag
+    q_len = buf[q + 1].astype(np.int64)
+    z = s + 2 + pose_len  # size tag
+    z_len = buf[z + 1].astype(np.int64)
+    c = z + 2 + z_len  # color tag, or the cube's end
+    c_len = buf[c + 1].astype(np.int64)
+    fast = (
+        (buf[s] == 0x0A)
+        & (pose_len < 0x80)
+        & (buf[s + 2] == 0x0A)
+        & (pos_len < 0x80)
+        & (buf[q] == 0x12)
+        & (q_len < 0x80)
+        & (q + 2 + q_len == z)
+        & (buf[z] == 0x12)
+        & (z_len < 0x80)
+        & ((c == ends) | ((buf[c] == 0x1A) & (c_len < 0x80) & (c + 2 + c_len == ends)))
+    )
+    if fast.all():
+        return [(s + 4, q, owners, 3), (q + 2, z, owners, 4), (z + 2, c, owners, 3)]
+    slow = ~fast
+    cube = _scan(buf, starts[slow], ends[slow], owners[slow])
+    pose = _sub(buf, cube, cube.pick(1, 2))
+    general = [(pose, pose.pick(1, 2)), (pose, pose.pick(2, 2)), (cube, cube.pick(2, 2))]
+    fixed = [(s + 4, q), (q + 2, z), (z + 2, c)]
+    return [
+        (
+            np.concatenate([a[fast], g.start[sel]]),
+            np.concatenate([b[fast], g.end[sel]]),
+            np.concatenate([owners[fast], g.owner[sel]]),
+            k,
+        )
+        for (a, b), (g, sel), k in zip(fixed, general, (3, 4, 3), strict=True)
+    ]
 
 
 def _windows(buf: np.ndarray, starts: np.ndarray, width: int) -> np.ndarray:
@@ -440,21 +491,14 @@ def _short_codes(buf: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> np.nd
     return np.where(short, code, np.uint64(0))
 
 
-def _key_signatures(buf: np.ndarray, ks: np.ndarray, ke: np.ndarray) -> np.ndarray:
-    """int64 [n]: length and first two bytes of each key buf[ks:ke] (what tells lanecast's keys apart)."""
-    length = ke - ks
-    b0 = np.where(length > 0, buf[ks], 0).astype(np.int64)
-    b1 = np.where(length > 1, buf[ks + 1], 0).astype(np.int64)
-    return (length << 16) | (b0 << 8) | b1
-
-
-def _key_is(buf: np.ndarray, sig: np.ndarray, ks: np.ndarray, key: bytes) -> np.ndarray:
-    """Indices of the keys (signatures ``sig``, starts ``ks``) equal to ``key``."""
-    k = key + b"\0\0"
-    cand = np.flatnonzero(sig == (len(key) << 16) | (k[0] << 8) | k[1])
-    for j in range(2, len(key)):
-        cand = cand[buf[ks[cand] + j] == key[j]]
-    return cand
+def _key_slots(buf: np.ndarray, ks: np.ndarray, ke: np.ndarray, keys: list[bytes]) -> np.ndarray:
+    """int64 [n]: the index in ``keys`` (each at most 7 bytes) of each key buf[ks[i]:ke[i]], -1 for
+    any other key. One packed-code lookup for all keys (see :func:`_short_codes`)."""
+    known = np.array([int.from_bytes(k, "little") | (len(k) << 56) for k in keys], dtype=np.uint64)
+    order = np.argsort(known)
+    code = _short_codes(buf, ks, ke)
+    at = np.minimum(np.searchsorted(known[order], code), len(keys) - 1)
+    return np.where(known[order][at] == code, order[at], -1)
 
 
 def _factorize(codes: np.ndarray, limit: int = 16) -> tuple[np.ndarray, np.ndarray]:
@@ -591,10 +635,8 @@ def _entity_columns(
     if has_cube.size < cube_sel.size:  # some entity has several: the first in the scan's order
         _, first = np.unique(f.owner[cube_sel], return_index=True)
         cube_sel = cube_sel[first]
-    c = _scan(buf, f.start[cube_sel], f.end[cube_sel], f.owner[cube_sel])
-    pose = _sub(buf, c, c.pick(1, 2))
     position, quaternion, size = _double_messages(
-        buf, [(pose, pose.pick(1, 2), 3), (pose, pose.pick(2, 2), 4), (c, c.pick(2, 2), 3)], n
+        buf, _cube_parts(buf, f.start[cube_sel], f.end[cube_sel], f.owner[cube_sel]), n
     )
     vals = {
         "x": position[0],
@@ -605,16 +647,13 @@ def _entity_columns(
     }
     # Metadata: class, lane_id and the kinematics lanecast writes.
     kv_entity, ks, ke, vs, ve = _key_value_spans(buf, f)
-    sig = _key_signatures(buf, ks, ke)
-    slot = np.full(sig.size, -1, dtype=np.int64)
-    for j, text in enumerate(_NUMERIC_KEYS.values()):
-        slot[_key_is(buf, sig, ks, text)] = j
+    slot = _key_slots(buf, ks, ke, [*_NUMERIC_KEYS.values(), b"class"])
     numeric = np.full((len(_NUMERIC_KEYS), n), NAN)
-    sel = np.flatnonzero(slot >= 0)
+    sel = np.flatnonzero((slot >= 0) & (slot < len(_NUMERIC_KEYS)))
     numeric[slot[sel], kv_entity[sel]] = parse_floats(buf, vs[sel], ve[sel])
     vals.update(zip(_NUMERIC_KEYS, numeric, strict=True))
     cls_s, cls_e = np.zeros(n, np.int64), np.zeros(n, np.int64)
-    m = _key_is(buf, sig, ks, b"class")
+    m = np.flatnonzero(slot == len(_NUMERIC_KEYS))
     cls_s[kv_entity[m]], cls_e[kv_entity[m]] = vs[m], ve[m]
     # Ids and frame ids (absent = empty string).
     spans = {}

@@ -659,7 +659,7 @@ def _row_order(track: np.ndarray, frame: np.ndarray, time_ns: np.ndarray) -> np.
         frames = int(frame.max()) - f0 + 1
         if (int(track.max()) - t0 + 1) * frames < 2**62:
             key = (track - t0) * frames + (frame - f0)
-            order = np.argsort(key)
+            order = np.argsort(key, kind="stable")  # rows come in message order: runs a merge sort uses
             ordered = key[order]
             if not (ordered[1:] == ordered[:-1]).any():
                 return order
