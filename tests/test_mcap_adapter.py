@@ -581,6 +581,72 @@ def test_vectorised_decoder_matches_protobuf_library_on_odd_layouts() -> None:
     assert np.isnan(block["lane"]).all() and np.isnan(block["ax"]).all()
 
 
+def test_cube_layouts_off_the_fixed_offsets_match_protobuf_library() -> None:
+    """Cubes the fixed-offset match refuses (size before pose, no position, a 2-byte length, an
+    unknown field, a trailing field after the colour) decode like the usual ones, mixed in one block."""
+    from foxglove_schemas_protobuf.CubePrimitive_pb2 import CubePrimitive
+    from foxglove_schemas_protobuf.SceneEntity_pb2 import SceneEntity
+
+    def cube(i: int) -> bytes:
+        c = CubePrimitive()
+        if i % 6 != 1:  # i % 6 == 1: no position at all
+            c.pose.position.x, c.pose.position.y = 10.0 + i, -2.5 * i
+        c.pose.orientation.z, c.pose.orientation.w = math.sin(0.2 * i), math.cos(0.2 * i)
+        c.size.x, c.size.y, c.size.z = 4.0 + i, 1.5 + 0.1 * i, 1.5
+        c.color.r = 0.5
+        pose, size, color = (getattr(c, name).SerializeToString() for name in ("pose", "size", "color"))
+        fields = {
+            "pose": b"\x0a" + _varint(len(pose)) + pose,
+            "size": b"\x12" + _varint(len(size)) + size,
+            "color": b"\x1a" + _varint(len(color)) + color,
+        }
+        if i % 6 == 2:  # size first
+            return fields["size"] + fields["pose"] + fields["color"]
+        if i % 6 == 3:  # an unknown length-delimited field of 200 bytes: 2-byte length of the cube
+            return fields["pose"] + fields["size"] + b"\x7a" + _varint(200) + bytes(200)
+        if i % 6 == 4:  # something after the colour
+            return fields["pose"] + fields["size"] + fields["color"] + b"\x20\x01"
+        return c.SerializeToString()  # the usual layout (i % 6 in (0, 5), and 1 without position)
+
+    entities = []
+    for i in range(24):
+        head = SceneEntity(id=str(i), frame_id="map")
+        head.timestamp.seconds = 100 + i
+        raw = head.SerializeToString() + b"\x42" + _varint(len(cube(i))) + cube(i)
+        entities.append(raw)
+    messages = [b"".join(b"\x12" + _varint(len(e)) + e for e in entities[k : k + 4]) for k in range(0, 24, 4)]
+    buf = np.frombuffer(b"".join(messages), dtype=np.uint8)
+    ends = np.cumsum([len(m) for m in messages])
+    starts = ends - [len(m) for m in messages]
+    block = wire.scene_update_block(buf, starts, ends, np.zeros(len(messages), dtype=np.int64))
+
+    got = sorted(
+        zip(
+            block["track_id"].tolist(),
+            block["x"],
+            block["y"],
+            block["yaw"],
+            block["length"],
+            block["width"],
+            strict=True,
+        )
+    )
+    assert [g[0] for g in got] == list(range(24))
+    for i, row in enumerate(got):
+        c = CubePrimitive()
+        c.ParseFromString(cube(i))
+        q = c.pose.orientation
+        want = (
+            c.pose.position.x,
+            c.pose.position.y,
+            math.atan2(2 * q.w * q.z, 1 - 2 * q.z * q.z),
+            c.size.x,
+            c.size.y,
+        )
+        np.testing.assert_allclose(row[1:], want, rtol=1e-12, atol=1e-12)
+    assert got[1][1:3] == (0.0, 0.0)
+
+
 def _varint(value: int) -> bytes:
     out = bytearray()
     while True:
