@@ -34,7 +34,8 @@ import pyarrow as pa
 
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.errors import LogError
-from lanecast.io_adapters.logs import ros_types
+from lanecast.io_adapters.logs import frame_transforms, log_assembly, ros_types
+from lanecast.io_adapters.logs import log_conventions as conv
 from lanecast.io_adapters.logs import scene_update_wire as wire
 from lanecast.io_adapters.logs import tracked_objects as to
 
@@ -69,7 +70,7 @@ _LEN = struct.Struct("<Q")
 
 
 # Topics lanecast writes into annotated logs (forecasts); never read back as tracked objects.
-OWN_TOPIC_PREFIX = to.OWN_TOPIC_PREFIX
+OWN_TOPIC_PREFIX = conv.OWN_TOPIC_PREFIX
 
 
 def sniff(path: str | Path) -> bool:
@@ -227,8 +228,8 @@ class _LogDecoder:
         self.schemas: dict[int, _Schema] = {}
         self.channels: dict[int, _Channel] = {}
         self.handlers: dict[int, Callable[[Any, int], None] | None] = {}
-        self.topics: dict[str, to.TopicData] = {}
-        self.transforms = to.Transforms()
+        self.topics: dict[str, log_assembly.TopicData] = {}
+        self.transforms = frame_transforms.Transforms()
         self.log_meta: dict[str, Any] | None = None
         self.stats = ReadStats()
         self.offset = 0  # offset of the record being decoded (for errors)
@@ -267,8 +268,8 @@ class _LogDecoder:
         """A Metadata record whose body is buf[pos:end]."""
         name, pos = _string(buf, pos, end)
         values, _ = _string_map(buf, pos, end)
-        if name == to.META_NAME and to.META_NAME in values:
-            self.log_meta = to.parse_log_metadata(self.path, values[to.META_NAME])
+        if name == conv.META_NAME and conv.META_NAME in values:
+            self.log_meta = conv.parse_log_metadata(self.path, values[conv.META_NAME])
 
     # -- message dispatch
     def handler(self, cid: int) -> Callable[[Any, int], None] | None:
@@ -322,7 +323,7 @@ class _LogDecoder:
             if (
                 self.topic is not None
                 and ch.topic != self.topic
-                and not ch.topic == self.topic + to.MARKER_SUFFIX
+                and not ch.topic == self.topic + conv.MARKER_SUFFIX
             ):
                 return None
             add = to.add_tracked_objects if name == ros_types.TRACKED_OBJECTS else to.add_marker_array
@@ -337,10 +338,10 @@ class _LogDecoder:
             return lambda data, _t: transforms.add_tf(deserialize(data, name), ch.topic)
         if name == ros_types.ODOMETRY:
             return lambda data, _t: transforms.add_odometry(deserialize(data, name), ch.topic)
-        if name == ros_types.STRING and ch.topic == to.META_TOPIC:
+        if name == ros_types.STRING and ch.topic == conv.META_TOPIC:
 
             def meta(data: Any, _t: int) -> None:
-                self.log_meta = to.parse_log_metadata(self.path, deserialize(data, name).data)
+                self.log_meta = conv.parse_log_metadata(self.path, deserialize(data, name).data)
 
             return meta
         return None
@@ -348,7 +349,7 @@ class _LogDecoder:
     def _columns(self, topic: str, msgtype: str) -> to.ObjectColumns:
         data = self.topics.get(topic)
         if data is None:
-            data = self.topics[topic] = to.TopicData(topic, msgtype)
+            data = self.topics[topic] = log_assembly.TopicData(topic, msgtype)
         return data.columns
 
     def _frame_transforms(self, ch: _Channel, name: str) -> Callable[[Any, int], None] | None:
@@ -851,14 +852,14 @@ def _table(path: Path, dec: _LogDecoder, topic: str | None, fixed_frames: Sequen
             "messages_lost": dec.stats.messages_lost,
             "damage": dec.stats.damage,
         }
-    return to.assemble(
+    return log_assembly.assemble(
         path,
         found,
         dec.transforms,
         dec.log_meta,
         source_format=FORMAT,
         topic=topic,
-        fixed_frames=fixed_frames or to.FIXED_FRAMES,
+        fixed_frames=fixed_frames or conv.FIXED_FRAMES,
         extra=extra,
     )
 

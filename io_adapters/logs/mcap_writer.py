@@ -25,6 +25,7 @@ import pyarrow as pa
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import atomic_path, bar
+from lanecast.io_adapters.logs import log_conventions as conv
 from lanecast.io_adapters.logs import tracked_objects as to
 
 LIBRARY = "lanecast"
@@ -43,7 +44,7 @@ class RowStrings:
     """Per-row values of a table prepared once, vectorised, for message building."""
 
     def __init__(self, table: pa.Table) -> None:
-        c = to.table_columns(table)
+        c = conv.table_columns(table)
         self.recording = c["recording"]
         self.track_id = c["track_id"]
         self.frame = c["frame"]
@@ -91,7 +92,7 @@ def _pb_encoder(frame_id: str, rs: RowStrings) -> Callable[[np.ndarray], bytes]:
             c.pose.orientation.w = rs.qw[r]
             c.size.x = rs.length[r]
             c.size.y = rs.width[r]
-            c.size.z = to.BOX_HEIGHT
+            c.size.z = conv.BOX_HEIGHT
             c.color.r, c.color.g, c.color.b, c.color.a = _colour(rs.cls[r])
             md = e.metadata
             md.add(key="class", value=rs.cls[r])
@@ -127,7 +128,7 @@ def _json_encoder(frame_id: str, rs: RowStrings) -> Callable[[np.ndarray], bytes
                         "position": {"x": rs.x[r], "y": rs.y[r], "z": 0.0},
                         "orientation": {"x": 0.0, "y": 0.0, "z": rs.qz[r], "w": rs.qw[r]},
                     },
-                    "size": {"x": rs.length[r], "y": rs.width[r], "z": to.BOX_HEIGHT},
+                    "size": {"x": rs.length[r], "y": rs.width[r], "z": conv.BOX_HEIGHT},
                     "color": {"r": cr, "g": cg, "b": cb, "a": ca},
                 }
             ],
@@ -149,7 +150,7 @@ def _json_encoder(frame_id: str, rs: RowStrings) -> Callable[[np.ndarray], bytes
 def metadata_record(doc: dict[str, Any]) -> dict[str, str]:
     """The key/value map of the ``lanecast`` metadata record (all strings)."""
     return {
-        to.META_NAME: json.dumps(doc, sort_keys=True),
+        conv.META_NAME: json.dumps(doc, sort_keys=True),
         "source": str(doc["source_format"]),
         "source_files": json.dumps(doc["source_files"]),
         "frame_rate": "" if doc["frame_rate"] is None else repr(doc["frame_rate"]),
@@ -176,14 +177,14 @@ def write(
     out = Path(out)
     meta = track_table.read_meta(table)
     names = sorted(meta.recordings)
-    topics = to.recording_topics(names)
+    topics = conv.recording_topics(names)
     rs = RowStrings(table)
-    groups, plan = to.message_plan(rs.recording, rs.frame, rs.track_id, rs.time_ns, names)
-    doc = to.log_metadata(table, topics, groups)
+    groups, plan = conv.message_plan(rs.recording, rs.frame, rs.track_id, rs.time_ns, names)
+    doc = conv.log_metadata(table, topics, groups)
     with atomic_path(out) as tmp, tmp.open("wb") as f:
         w = Writer(f, chunk_size=chunk_size, compression=CompressionType.ZSTD, enable_data_crcs=True)
         w.start(profile="", library=LIBRARY)
-        w.add_metadata(to.META_NAME, metadata_record(doc))
+        w.add_metadata(conv.META_NAME, metadata_record(doc))
         if encoding == "protobuf":
             from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
             from mcap_protobuf.schema import build_file_descriptor_set

@@ -17,7 +17,8 @@ import pyarrow as pa
 
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.errors import LogError
-from lanecast.io_adapters.logs import ros_types
+from lanecast.io_adapters.logs import frame_transforms, log_assembly, ros_types
+from lanecast.io_adapters.logs import log_conventions as conv
 from lanecast.io_adapters.logs import tracked_objects as to
 from lanecast.io_adapters.logs.mcap_crc import verify_crcs
 
@@ -69,8 +70,8 @@ def read_log(
     if target.is_dir():  # rosbags does not check MCAP CRCs: check them first (sqlite3 has none)
         for storage_file in sorted(target.glob("*.mcap")):
             verify_crcs(storage_file)
-    topics: dict[str, to.TopicData] = {}
-    transforms = to.Transforms()
+    topics: dict[str, log_assembly.TopicData] = {}
+    transforms = frame_transforms.Transforms()
     log_meta: dict[str, Any] | None = None
     try:
         with AnyReader([target], default_typestore=ros_types.typestore(1 if ros1 else 2)) as reader:
@@ -90,21 +91,21 @@ def read_log(
                 )
             # A bag lanecast wrote (it has the metadata topic) is read whole, so that every message
             # counts towards the payload checksum its metadata states.
-            own = any(c.topic == to.META_TOPIC for c in reader.connections)
+            own = any(c.topic == conv.META_TOPIC for c in reader.connections)
             wanted = [c for c in reader.connections if own or c.id in handlers]
-            digest = to.PayloadDigest()
+            digest = conv.PayloadDigest()
             for conn, timestamp, raw in reader.messages(connections=wanted):
-                if conn.topic == to.META_TOPIC and conn.msgtype == ros_types.STRING:
+                if conn.topic == conv.META_TOPIC and conn.msgtype == ros_types.STRING:
                     meta_msg: Any = reader.deserialize(raw, conn.msgtype)
-                    log_meta = to.parse_log_metadata(path, meta_msg.data)
+                    log_meta = conv.parse_log_metadata(path, meta_msg.data)
                     continue
-                if own and not conn.topic.startswith(to.OWN_TOPIC_PREFIX):  # not forecasts added later
+                if own and not conn.topic.startswith(conv.OWN_TOPIC_PREFIX):  # not forecasts added later
                     digest.add(conn.topic, timestamp, raw)
                 handler = handlers.get(conn.id)
                 if handler is not None:
                     handler(reader.deserialize(raw, conn.msgtype), timestamp)
             if own:
-                to.check_payload_digest(path, log_meta, digest)
+                conv.check_payload_digest(path, log_meta, digest)
     except LogError:
         raise
     except Exception as exc:  # rosbags reader/serde errors: damaged or unreadable bag
@@ -114,14 +115,14 @@ def read_log(
     found = {t: d for t, d in topics.items() if len(d.columns)}
     if not found:
         raise LogError(path, "the supported topics hold no objects", expected=f"messages of type {SUPPORTED}")
-    return to.assemble(
+    return log_assembly.assemble(
         path,
         found,
         transforms,
         log_meta,
         source_format="ros1" if ros1 else "ros2",
         topic=topic,
-        fixed_frames=fixed_frames or to.FIXED_FRAMES,
+        fixed_frames=fixed_frames or conv.FIXED_FRAMES,
     )
 
 
@@ -130,13 +131,13 @@ def _handler(
     conn_topic: str,
     msgtype: str,
     topic: str | None,
-    topics: dict[str, to.TopicData],
-    transforms: to.Transforms,
+    topics: dict[str, log_assembly.TopicData],
+    transforms: frame_transforms.Transforms,
 ) -> Callable[[Any, int], None] | None:
     if msgtype in OBJECT_TYPES:
-        if topic is not None and conn_topic not in (topic, topic + to.MARKER_SUFFIX):
+        if topic is not None and conn_topic not in (topic, topic + conv.MARKER_SUFFIX):
             return None
-        data = topics.setdefault(conn_topic, to.TopicData(conn_topic, msgtype))
+        data = topics.setdefault(conn_topic, log_assembly.TopicData(conn_topic, msgtype))
         add = to.add_tracked_objects if msgtype == ros_types.TRACKED_OBJECTS else to.add_marker_array
         cols = data.columns
         return lambda msg, t: add(cols, msg, t)

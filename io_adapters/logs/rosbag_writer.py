@@ -22,6 +22,7 @@ from lanecast.io_adapters.annotations.mcap_copy import compress_bag_storage
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import atomic_path, bar
+from lanecast.io_adapters.logs import log_conventions as conv
 from lanecast.io_adapters.logs import ros_types
 from lanecast.io_adapters.logs import tracked_objects as to
 
@@ -34,7 +35,7 @@ class _Builder:
     def __init__(self, table: pa.Table, ros_version: int) -> None:
         self.store = ros_types.typestore(ros_version)
         self.ros_version = ros_version
-        c = to.table_columns(table)
+        c = conv.table_columns(table)
         self.c = c
         qz, qw = to.quat_of_yaw(c["heading"].astype(np.float64))
         heading = c["heading"].astype(np.float64)
@@ -125,7 +126,7 @@ class _Builder:
                     classification=[
                         m(
                             "autoware_perception_msgs/msg/ObjectClassification",
-                            label=to.LABEL_OF_CLASS.get(rows["cls"][r], 0),
+                            label=conv.LABEL_OF_CLASS.get(rows["cls"][r], 0),
                             probability=1.0,
                         )
                     ],
@@ -133,7 +134,7 @@ class _Builder:
                     shape=m(
                         "autoware_perception_msgs/msg/Shape",
                         type=0,
-                        dimensions=self.vec(rows["length"][r], rows["width"][r], to.BOX_HEIGHT),
+                        dimensions=self.vec(rows["length"][r], rows["width"][r], conv.BOX_HEIGHT),
                     ),
                 )
             )
@@ -152,7 +153,7 @@ class _Builder:
                 type=1,
                 action=0,
                 pose=self.pose(r),
-                scale=self.vec(rows["length"][r], rows["width"][r], to.BOX_HEIGHT),
+                scale=self.vec(rows["length"][r], rows["width"][r], conv.BOX_HEIGHT),
                 color=m("std_msgs/msg/ColorRGBA", r=0.2, g=0.5, b=0.9, a=0.6),
                 text=rows["lane"][r],
             )
@@ -187,18 +188,18 @@ def write(table: pa.Table, out: Path, fmt: str = "ros2", *, storage: str = "mcap
         )
     meta = track_table.read_meta(table)
     names = sorted(meta.recordings)
-    topics = to.recording_topics(names)
+    topics = conv.recording_topics(names)
     builder = _Builder(table, 1 if fmt == "ros1" else 2)
     c = builder.c
-    groups, plan = to.message_plan(c["recording"], c["frame"], c["track_id"], c["time_ns"], names)
-    meta_doc = to.log_metadata(table, topics, groups)
+    groups, plan = conv.message_plan(c["recording"], c["frame"], c["track_id"], c["time_ns"], names)
+    meta_doc = conv.log_metadata(table, topics, groups)
     doc = json.dumps(meta_doc, sort_keys=True)
     frames = [meta.recordings[n].coordinate_frame for n in names]
     first = int(plan[0, 0]) if plan.shape[0] else 0
 
     def emit(writer: Any, conns: dict[str, Any]) -> None:
         group_list = [groups[n] for n in names]
-        digest = to.PayloadDigest()
+        digest = conv.PayloadDigest()
         with bar(desc=f"writing {out.name}", total=int(plan.shape[0]), unit="msg") as progress:
             for stamp, rec, gi in plan.tolist():
                 g = group_list[rec]
@@ -206,7 +207,7 @@ def write(table: pa.Table, out: Path, fmt: str = "ros2", *, storage: str = "mcap
                 topic = topics[names[rec]]
                 for name, payload in (
                     (topic, builder.tracked_objects(rows, stamp, frames[rec])),
-                    (topic + to.MARKER_SUFFIX, builder.markers(rows, stamp, frames[rec])),
+                    (topic + conv.MARKER_SUFFIX, builder.markers(rows, stamp, frames[rec])),
                 ):
                     writer.write(conns[name], stamp, payload)
                     digest.add(name, stamp, payload)
@@ -214,13 +215,13 @@ def write(table: pa.Table, out: Path, fmt: str = "ros2", *, storage: str = "mcap
         # Written last (at the first stamp, so that readers meet it first): the metadata carries
         # the checksum of every message, which ROS 1 and sqlite3 bags otherwise lack.
         checked = {**meta_doc, "payload_digest": digest.hexdigest(), "payload_messages": digest.count}
-        writer.write(conns[to.META_TOPIC], first, builder.string(json.dumps(checked, sort_keys=True)))
+        writer.write(conns[conv.META_TOPIC], first, builder.string(json.dumps(checked, sort_keys=True)))
 
-    connections = [(to.META_TOPIC, ros_types.STRING)]
+    connections = [(conv.META_TOPIC, ros_types.STRING)]
     for n in names:
         connections += [
             (topics[n], ros_types.TRACKED_OBJECTS),
-            (topics[n] + to.MARKER_SUFFIX, ros_types.MARKER_ARRAY),
+            (topics[n] + conv.MARKER_SUFFIX, ros_types.MARKER_ARRAY),
         ]
     if fmt == "ros1":
         from rosbags.rosbag1 import Writer as Writer1
@@ -240,7 +241,7 @@ def write(table: pa.Table, out: Path, fmt: str = "ros2", *, storage: str = "mcap
     with atomic_path(out, directory=True) as tmp:
         inner = tmp / out.name
         w2 = Writer2(inner, version=Writer2.VERSION_LATEST, storage_plugin=plugin)
-        w2.set_custom_data(to.META_NAME, doc)
+        w2.set_custom_data(conv.META_NAME, doc)
         with w2:
             conns = {t: w2.add_connection(t, ty, typestore=builder.store) for t, ty in connections}
             emit(w2, conns)

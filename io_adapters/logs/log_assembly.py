@@ -1,0 +1,329 @@
+"""Decoded objects of one drive log → one validated track table.
+
+:func:`assemble` takes what the MCAP and ROS bag decoders collected per topic
+(:class:`TopicData`), moves objects in moving frames into the fixed frame their transform chain
+reaches (map, odom, world, road, or a frame named in lanecast's metadata), orders rows by (track,
+frame) dropping repeated (track, frame) rows, and fills heading from the quaternion yaw (from the
+velocity where there is no orientation), velocities and accelerations from the message where it
+has them, else from differences (positions, then velocities). Frame indices lie on the topic's
+timeline at its nominal rate (median message interval, snapped to a whole rate within 1 %).
+Recordings: one per object topic, named after the file stem (``<stem>-<topic>`` when a log has
+several), or the names stored in lanecast's metadata.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+
+from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.contracts.track_runs import (
+    along_track_derivative,
+    row_extent,
+    run_starts,
+)
+from lanecast.io_adapters.errors import FrameError
+from lanecast.io_adapters.logs.frame_transforms import Transforms
+from lanecast.io_adapters.logs.log_conventions import FIXED_FRAMES, KNOWN_CLASSES, MARKER_SUFFIX
+from lanecast.io_adapters.logs.tracked_objects import Categorical, ObjectColumns, rotate
+
+
+@dataclass
+class TopicData:
+    """What was decoded from one topic."""
+
+    topic: str
+    msgtype: str
+    columns: ObjectColumns = field(default_factory=ObjectColumns)
+
+
+def nominal_rate(msg_times: np.ndarray) -> float:
+    """The nominal rate (Hz) of a topic from its distinct message stamps [n] (median interval)."""
+    stamps = np.unique(msg_times)
+    if stamps.size < 2:
+        return 10.0
+    interval = float(np.median(np.diff(stamps)))
+    rate = 1e9 / interval
+    # Snap to a round rate where the log is within 1 % of one (25 Hz, 10 Hz, …).
+    rounded = round(rate)
+    return float(rounded) if rounded > 0 and abs(rate - rounded) < 0.01 * rate else rate
+
+
+def frames_of(msg_times: np.ndarray, spec: Mapping[str, Any] | None) -> tuple[np.ndarray, float]:
+    """Frame indices [n] of rows from their message stamps [n], and the frame rate.
+
+    ``spec`` (from lanecast's metadata) gives ``frame_rate`` with ``frame0``/``time0_ns`` or an
+    explicit ``frames`` list (one per distinct stamp); without it the rate is estimated and frame 0
+    is the first message.
+    """
+    if spec is not None and "frames" in spec:
+        stamps, inverse = np.unique(msg_times, return_inverse=True)
+        listed = np.asarray(spec["frames"], dtype=np.int64)
+        if listed.size == stamps.size:
+            return listed[inverse], float(spec["frame_rate"])
+    if spec is not None and "frame0" in spec:
+        rate = float(spec["frame_rate"])
+        t0, f0 = int(spec["time0_ns"]), int(spec["frame0"])
+    else:
+        rate = nominal_rate(msg_times)
+        t0, f0 = (int(msg_times.min()) if msg_times.size else 0), 0
+    frames = f0 + np.rint((msg_times - t0).astype(np.float64) * rate / 1e9).astype(np.int64)
+    return frames, rate
+
+
+def _merge_markers(main: dict[str, np.ndarray], classes: Categorical, markers: ObjectColumns) -> Categorical:
+    """Take lane ids and class strings from a lanecast marker companion, matched on (stamp, id)."""
+    if len(markers) == 0:
+        return classes
+    m, m_cls, _ = markers.arrays()
+    n_main = main["msg_time"].size
+    # Dense ranks of (stamp, id) over both sides make one sortable int64 key per row.
+    _, rt = np.unique(np.concatenate([main["msg_time"], m["msg_time"]]), return_inverse=True)
+    ids, ri = np.unique(np.concatenate([main["track_id"], m["track_id"]]), return_inverse=True)
+    key = rt.astype(np.int64) * ids.size + ri
+    q, mk = key[:n_main], key[n_main:]
+    order = np.argsort(mk, kind="stable")
+    mk_sorted = mk[order]
+    idx = np.minimum(np.searchsorted(mk_sorted, q), max(order.size - 1, 0))
+    hit = mk_sorted[idx] == q
+    src = order[idx]
+    main["lane"] = np.where(hit, m["lane"][src], main["lane"])
+    return classes.where(hit, m_cls.take(src))
+
+
+def assemble(
+    path: Path,
+    topics: Mapping[str, TopicData],
+    transforms: Transforms,
+    log_meta: Mapping[str, Any] | None,
+    *,
+    source_format: str,
+    topic: str | None = None,
+    fixed_frames: Iterable[str] = FIXED_FRAMES,
+    extra: Mapping[str, Any] | None = None,
+) -> pa.Table:
+    """One track table from the decoded topics of one log (validated).
+
+    With lanecast's metadata the recordings and their topics come from it (marker companions fill
+    lanes and classes); otherwise every supported topic with objects is one recording, named after
+    the file's stem (``<stem>-<topic>`` when there are several).
+    """
+    fixed = set(fixed_frames)
+    recordings_meta = (log_meta or {}).get("recordings") or {}
+    if recordings_meta:
+        fixed |= {str(r.get("coordinate_frame")) for r in recordings_meta.values()}
+    plan: list[tuple[str, str | None]]
+    if topic is not None:
+        plan = [(topic, None)]
+        for name, spec in recordings_meta.items():
+            if spec.get("topic") == topic:
+                plan = [(topic, name)]
+    elif recordings_meta:
+        plan = [
+            (spec["topic"], name) for name, spec in recordings_meta.items() if spec.get("topic") in topics
+        ]
+        # The metadata is the log's word, not the truth: a topic with objects that it does not name
+        # (a renamed topic, an edited document) is read as a recording of its own, never dropped.
+        claimed = {t for t, _ in plan}
+        claimed |= {t + MARKER_SUFFIX for t in claimed}
+        for t in sorted(set(topics) - claimed):
+            if len(topics[t].columns):
+                name = _fallback_name(path, t, set(recordings_meta))
+                print(
+                    f"lanecast: {path}: topic {t!r} has objects but no entry in the log's lanecast "
+                    f"metadata; read as recording {name!r}",
+                    file=sys.stderr,
+                )
+                plan.append((t, name))
+    else:
+        marker_topics = {t + MARKER_SUFFIX for t in topics}
+        plan = [(t, None) for t in sorted(topics) if t not in marker_topics or len(topics) == 1]
+    stem = path.stem if path.suffix else path.name
+    multi = len(plan) > 1
+    pieces: list[dict[str, np.ndarray]] = []
+    piece_classes: list[Categorical] = []
+    rec_names: list[str] = []
+    recordings: dict[str, track_table.RecordingMeta] = {}
+    for tp, name in plan:
+        data = topics[tp]
+        spec = recordings_meta.get(name) if name else None
+        rec_name = name or (f"{stem}-{tp.strip('/').replace('/', '-')}" if multi else stem)
+        cols, classes, frame_ids = data.columns.arrays()
+        marker = topics.get(tp + MARKER_SUFFIX)
+        if spec is not None and marker is not None and marker is not data:
+            classes = _merge_markers(cols, classes, marker.columns)
+        elif data.msgtype.endswith("MarkerArray"):
+            known = np.asarray([n in KNOWN_CLASSES for n in classes.names] + [True], dtype=bool)
+            unknown = ~known[classes.codes]
+            classes = classes.where(unknown, Categorical(np.zeros(unknown.size, np.int32), ["unknown"]))
+        frame_name = _to_fixed_frame(
+            path, tp, cols, frame_ids, transforms, fixed, data.columns.velocity_in_body
+        )
+        frames, rate = frames_of(cols["msg_time"], spec)
+        piece, order, dropped = _derive(cols, frames, data.columns.velocity_in_body)
+        pieces.append(piece)
+        piece_classes.append(classes.take(order))
+        rec_names.append(rec_name)
+        rec_extra: dict[str, Any] = dict(spec.get("extra", {})) if spec else {}
+        rec_extra.update({"topic": tp, "message_type": data.msgtype, "messages": data.columns.messages})
+        if dropped:
+            rec_extra["duplicates_dropped"] = dropped
+            print(
+                f"lanecast: {path}: topic {tp!r}: {dropped:,} rows repeat a (track, frame) of an earlier "
+                "row; kept the earliest by log time",
+                file=sys.stderr,
+            )
+        if extra:
+            rec_extra.update(extra)
+        recordings[rec_name] = track_table.RecordingMeta(
+            frame_rate=float(spec["frame_rate"]) if spec else rate,
+            coordinate_frame=frame_name,
+            source_files=list(spec.get("source_files", [])) if spec else [str(path)],
+            extra=rec_extra,
+        )
+    columns: dict[str, Any] = (
+        dict(pieces[0])
+        if len(pieces) == 1
+        else {k: np.concatenate([p[k] for p in pieces]) for k in pieces[0]}
+    )
+    columns["object_class"] = Categorical.concat(piece_classes).to_arrow()
+    sizes = [p["track_id"].size for p in pieces]
+    columns["recording"] = Categorical(np.repeat(np.arange(len(sizes)), sizes), rec_names).to_arrow()
+    meta = track_table.TableMeta(
+        source_format=str((log_meta or {}).get("source_format") or source_format),
+        recordings=recordings,
+        source_files=[str(path)],
+    )
+    table = track_table.build_table(columns, meta)
+    track_table.validate(table, source=path)
+    return table
+
+
+def _fallback_name(path: Path, topic: str, taken: set[str]) -> str:
+    """A recording name for a topic the log's metadata does not name, distinct from ``taken``."""
+    stem = path.stem if path.suffix else path.name
+    name = f"{stem}-{topic.strip('/').replace('/', '-')}"
+    while name in taken:
+        name += "-unlisted"
+    return name
+
+
+def _to_fixed_frame(
+    path: Path,
+    topic: str,
+    cols: dict[str, np.ndarray],
+    frame_ids: Categorical,
+    transforms: Transforms,
+    fixed: set[str],
+    body: bool,
+) -> str:
+    """Move rows in moving frames into a fixed frame (in place); return the fixed frame's name.
+
+    Velocities and accelerations given in the message frame's axes are rotated with it; body-frame
+    ones (``body``) stay as they are (they turn with the heading later).
+    """
+    present = np.bincount(frame_ids.codes, minlength=len(frame_ids.names)) > 0
+    distinct = sorted({frame_ids.names[i].lstrip("/") for i in np.flatnonzero(present)})
+    names = [n.lstrip("/") for n in frame_ids.names]
+    target: str | None = next((f for f in distinct if f in fixed), None)
+    for frame in distinct:
+        if frame in fixed:
+            if target is not None and frame != target:
+                raise FrameError(
+                    f"{path}: topic {topic!r} mixes the fixed frames {target!r} and {frame!r}; "
+                    "expected one fixed frame per topic"
+                )
+            continue
+        chain = transforms.chain(frame, [target] if target else fixed)
+        if chain is None:
+            have = ", ".join(sorted(transforms.sources)) or "none"
+            raise FrameError(
+                f"{path}: topic {topic!r} has objects in frame {frame!r}, which is not a fixed frame "
+                f"({', '.join(sorted(fixed))}), and the log has no transform from it to one "
+                f"(transform topics found: {have}); expected /tf (tf2_msgs/msg/TFMessage or "
+                f"foxglove.FrameTransform(s)) or an odometry topic (nav_msgs/msg/Odometry) linking "
+                f"{frame!r} to a fixed frame"
+            )
+        target = chain[-1]
+        rows = np.isin(frame_ids.codes, [i for i, n in enumerate(names) if n == frame])
+        x, y, dyaw = transforms.to_fixed(chain, cols["msg_time"][rows], cols["x"][rows], cols["y"][rows])
+        cols["x"][rows], cols["y"][rows] = x, y
+        cols["yaw"][rows] += dyaw
+        for a, b in () if body else (("vx", "vy"), ("ax", "ay")):
+            va, vb = rotate(cols[a][rows], cols[b][rows], dyaw)
+            cols[a][rows], cols[b][rows] = va, vb
+    return target or "map"
+
+
+def _row_order(track: np.ndarray, frame: np.ndarray, time_ns: np.ndarray) -> np.ndarray:
+    """The order [n] sorting rows by (track, frame, time): one argsort of a combined integer key
+    where (track, frame) pairs are distinct and the key fits, else a lexsort (a third of the speed)."""
+    if track.size:
+        t0, f0 = int(track.min()), int(frame.min())
+        frames = int(frame.max()) - f0 + 1
+        if (int(track.max()) - t0 + 1) * frames < 2**62:
+            key = (track - t0) * frames + (frame - f0)
+            order = np.argsort(key, kind="stable")  # rows come in message order: runs a merge sort uses
+            ordered = key[order]
+            if not (ordered[1:] == ordered[:-1]).any():
+                return order
+    return np.lexsort((time_ns, frame, track))
+
+
+def _derive(
+    cols: dict[str, np.ndarray], frames: np.ndarray, body: bool
+) -> tuple[dict[str, np.ndarray], np.ndarray, int]:
+    """Sort by (track, frame), drop duplicate (track, frame), derive heading, velocity, acceleration.
+
+    Returns the columns, the row order applied (for the categoricals) and the duplicates dropped.
+    """
+    order = _row_order(cols["track_id"], frames, cols["time_ns"])
+    track, frame = cols["track_id"][order], frames[order]
+    keep = run_starts(track, frame)
+    order = order[keep]
+    dropped = int((~keep).sum())
+    c = {k: v[order] for k, v in cols.items() if k != "msg_time"}
+    track, frame = c["track_id"], frames[order]
+    heading = c["yaw"]
+    t = c["time_ns"]
+    vx, vy = c["vx"], c["vy"]
+    if body:
+        vx, vy = rotate(vx, vy, np.nan_to_num(heading))
+        ax, ay = rotate(c["ax"], c["ay"], np.nan_to_num(heading))
+    else:
+        ax, ay = c["ax"], c["ay"]
+    first, last = row_extent(run_starts(track))
+
+    def derivative(values: np.ndarray) -> np.ndarray:
+        return along_track_derivative(values, t, first, last, t_unit=1e-9)
+
+    missing_v = np.isnan(vx) | np.isnan(vy)
+    if missing_v.any():
+        vx = np.where(np.isnan(vx), derivative(c["x"]), vx)
+        vy = np.where(np.isnan(vy), derivative(c["y"]), vy)
+    if (np.isnan(ax) | np.isnan(ay)).any():
+        ax = np.where(np.isnan(ax), derivative(vx), ax)
+        ay = np.where(np.isnan(ay), derivative(vy), ay)
+    no_yaw = np.isnan(heading)
+    out = {
+        "track_id": track,
+        "frame": frame,
+        "time_ns": t,
+        "x": c["x"],
+        "y": c["y"],
+        "heading": np.where(no_yaw, np.arctan2(vy, vx), heading) if no_yaw.any() else heading,
+        "vx": vx,
+        "vy": vy,
+        "ax": ax,
+        "ay": ay,
+        "length": c["length"],
+        "width": c["width"],
+        "lane_id": c["lane"],
+    }
+    return out, order, dropped
