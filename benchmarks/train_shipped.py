@@ -6,6 +6,10 @@
 2. Windows: training recordings split by track with the seeded hash split (train/val used; their
    test share is reported as ``test_same_recordings``), at most --max-windows per recording
    (congested recordings hold many more windows per minute than free flow); test recordings held out.
+   Every training recording also gets a *measured* copy (recording id + 20): the same traffic with
+   tracker-like errors on the positions and speeds and accelerations re-derived from them
+   (lanecast.io_adapters.sim.tracking_errors), at levels cycling through --tracking-error-levels, so
+   that the model meets noisy derivative inputs like real datasets' and learns when to trust them.
 3. Train the ST-CNN (both networks) and the regression-only ablation with the same config, with
    tracker-like position noise on the training inputs (--position-noise).
 4. Evaluate on the held-out recordings, overall and per scenario: ST-CNN, constant velocity,
@@ -48,6 +52,7 @@ MIX: dict[str, tuple[float, int]] = {
 }
 TEST_MINUTES = 3.0
 TEST_SEED_OFFSET = 800  # held-out seed = training seed + 800
+MEASURED_ID_OFFSET = 20  # recording id of a training recording's measured copy
 PEACHTREE = ROOT / "tests" / "data" / "ngsim" / "peachtree_sample.csv"
 
 
@@ -70,6 +75,16 @@ def simulate_one(work: Path, scenario: str, rec_id: int, seed: int, minutes: flo
         sumo_highway.simulate(
             out, minutes=minutes, seed=seed, recording_id=rec_id, config=cfg, show_progress=False
         )
+    return out
+
+
+def measured_copy(work: Path, sim_dir: Path, scenario: str, rec_id: int, seed: int, level: float) -> Path:
+    """The measured copy (recording id + 20) of a simulated recording, errors of ``level`` m."""
+    from lanecast.io_adapters.sim.tracking_errors import write_measured_copy
+
+    out = work / "sim" / f"{rec_id + MEASURED_ID_OFFSET:02d}-{scenario}-measured-{level:g}m"
+    if not (out / f"{rec_id + MEASURED_ID_OFFSET:02d}_tracks.csv").is_file():
+        write_measured_copy(sim_dir, rec_id, out, rec_id + MEASURED_ID_OFFSET, level, seed)
     return out
 
 
@@ -139,7 +154,7 @@ def direction_agreement(windows: Any) -> float:
     return float(np.mean((d > 0) == (label[sel] == 1))) if sel.any() else float("nan")
 
 
-def deviations(config: Any) -> list[str]:
+def deviations(config: Any, levels: list[float]) -> list[str]:
     """What the shipped training does beyond the paper (for the card)."""
     out = [
         f"optimiser: Adam lr {config.lr:g}, batch {config.batch_size}, {config.epochs} epochs "
@@ -164,6 +179,13 @@ def deviations(config: Any) -> list[str]:
             f"augmentation: Gaussian noise on the inputs of training batches (std {config.position_noise_m:g} m "
             f"on x, y; {config.speed_noise_mps:g} m/s on speed; {config.acc_noise_mps2:g} m/s² on acceleration), "
             "like a real tracker's jitter and noisy derivatives (targets clean)"
+        )
+    if levels:
+        out.append(
+            "training data: every simulated recording also as a measured copy with tracker-like errors "
+            f"(levels {', '.join(f'{v:g}' for v in levels)} m; speeds and accelerations re-derived from the "
+            "erroneous positions, as real datasets' are), so that the network learns how far to trust "
+            "noisy speed and acceleration inputs"
         )
     if config.lr_schedule != "constant":
         out.append(f"learning-rate schedule: {config.lr_schedule} decay to 0 over the run, both networks")
@@ -193,7 +215,14 @@ def main() -> int:
         default="cv",
         help="regress offsets relative to the constant-velocity extrapolation (cv) or absolute (none, the paper)",
     )
-    ap.add_argument("--max-windows", type=int, default=15000, help="per training recording")
+    ap.add_argument("--max-windows", type=int, default=10000, help="per training recording")
+    ap.add_argument(
+        "--tracking-error-levels",
+        type=float,
+        nargs="*",
+        default=[0.1, 0.2, 0.3, 0.4],
+        help="m; a measured copy of every training recording at these levels in turn (none: no copies)",
+    )
     ap.add_argument("--max-test-windows", type=int, default=6000, help="per held-out recording")
     ap.add_argument("--jobs", type=int, default=2, help="simulations in parallel")
     args = ap.parse_args()
@@ -223,8 +252,18 @@ def main() -> int:
         stats = {r[0]: traffic_statistics(highd.read([sims[r]])) for r in train_recs}
         stats_path.write_text(json.dumps(stats, indent=1))
     traffic = json.loads(stats_path.read_text())
+    levels = list(args.tracking_error_levels)
+    measured = [
+        measured_copy(args.work, sims[r], r[0], r[1], r[2], levels[i % len(levels)])
+        for i, r in enumerate(train_recs)
+        if levels
+    ]
     train_dir = windows_for(
-        [sims[r] for r in train_recs], args.work / "windows-train", "hash", args.max_windows
+        [sims[r] for r in train_recs] + measured, args.work / "windows-train", "hash", args.max_windows
+    )
+    test_measured = [measured_copy(args.work, sims[r], r[0], r[1], r[2], 0.3) for r in test_recs]
+    measured_dir = windows_for(
+        test_measured, args.work / "windows-test-measured", "none", args.max_test_windows
     )
     test_dir = windows_for(
         [sims[r] for r in test_recs], args.work / "windows-test", "none", args.max_test_windows
@@ -262,6 +301,12 @@ def main() -> int:
         ],
         "traffic_statistics": traffic,
         "max_windows_per_recording": args.max_windows,
+        "measured_copies": {
+            "recording_id_offset": MEASURED_ID_OFFSET,
+            "tracking_error_levels_m": levels,
+            "what": "each training recording again with tracker-like errors on positions, speeds and "
+            "accelerations re-derived from them (lanecast.io_adapters.sim.tracking_errors)",
+        },
         "split": "seeded hash split by track (seed 0) within the training recordings: train/val",
         "test_recordings": [
             dict(zip(("scenario", "recording_id", "seed", "minutes"), r, strict=True)) for r in test_recs
@@ -294,6 +339,7 @@ def main() -> int:
     val = evaluate(windows, [stcnn], splits=("val",), top_k=3)[0]["stcnn"]
     same = evaluate(windows, [stcnn], splits=("test",), top_k=3)[0]["stcnn"]
     reference = always_straight(held_out, idx)
+    measured_test = evaluate(load_windows(measured_dir), models, splits=("none",), top_k=3)[0]
     real = peachtree_check(models, args.work)
     card = {
         **result.card,
@@ -317,9 +363,13 @@ def main() -> int:
                 }
                 for name, m in per_scenario.items()
             },
+            "test_measured": {
+                "data": "the held-out recordings with tracking errors of level 0.3 m",
+                **{k: {"rmse": v["rmse"], "n_windows": v["n_windows"]} for k, v in measured_test.items()},
+            },
             "real_ngsim_peachtree_sample": real,
         },
-        "beyond_the_paper": deviations(config),
+        "beyond_the_paper": deviations(config, levels),
         "reproduce": "python benchmarks/train_shipped.py " + " ".join(sys.argv[1:]),
     }
     card_path = save_checkpoint(result.model, card, args.out, SHIPPED_STEM)
@@ -338,9 +388,10 @@ def main() -> int:
 
     def line(name: str, m: dict[str, Any]) -> str:
         f1 = m.get("maneuver_macro_f1")
-        lc = m.get("rmse_lane_change") or [float("nan")] * 5
+        lc = m.get("rmse_lane_change") or [None] * 5
+        lc5 = "-" if lc[-1] is None else f"{lc[-1]:.2f}"
         return (
-            f"  {name:<24}{' '.join(f'{v:.2f}' for v in m['rmse'])}   LC@5s {lc[-1]:.2f}   "
+            f"  {name:<24}{' '.join(f'{v:.2f}' for v in m['rmse'])}   LC@5s {lc5}   "
             f"F1 {'-' if f1 is None else f'{f1:.3f}'}"
         )
 
@@ -354,6 +405,9 @@ def main() -> int:
         print(f" {scenario} ({metrics['stcnn']['n_windows']:,} windows; ST-CNN/CV at 5 s {ratio:.2f}):")
         for name, m in metrics.items():
             print(line(name, m))
+    print("held-out recordings with tracking errors (0.3 m), RMSE 1-5 s:")
+    for name, m in measured_test.items():
+        print(f"  {name:<24}{' '.join(f'{v:.2f}' for v in m['rmse'])}")
     if real:
         print("real NGSIM Peachtree sample (never trained on), RMSE 1-5 s:")
         for name, m in real.items():

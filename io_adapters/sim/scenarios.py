@@ -7,7 +7,8 @@ beyond a bottleneck's capacity (an on-ramp merge, a lane drop, a slow zone, a tr
 downstream of the filmed section so that its queue grows back into it), trucks 10-25 %, and
 mixed drivers (three car styles: IDM and Krauss with imperfection, headways 0.8-1.6 s, desired
 speeds spread ±10 % around 0.9-1.1 × the limit). Lane changes last 4 s and their lateral motion is
-smoothed into an S-curve (peak lateral acceleration ≈ 0.6 m/s²).
+smoothed into an S-curve (peak lateral acceleration ≈ 0.6 m/s²); between lane changes drivers
+weave slowly inside their lane (std 0.15 m, periods 6-40 s) instead of holding its centre exactly.
 
 The training mix of the shipped model (``benchmarks/train_shipped.py``) uses every scenario.
 """
@@ -21,13 +22,14 @@ from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.sim.sumo_highway import HighwayConfig
 
 #: Shared by every scenario: a 600 m filmed section (highD films ~420 m; longer gives more windows
-#: per vehicle), 4 s lane changes smoothed by a 3 s kernel, mixed drivers.
+#: per vehicle), 4 s lane changes smoothed by a 3 s kernel, in-lane weave, mixed drivers.
 COMMON: dict[str, Any] = {
     "section_length_m": 600.0,
     "approach_length_m": 800.0,
     "frame_rate": 10.0,
     "lane_change_duration_s": 4.0,
     "lateral_smoothing_s": 3.0,
+    "lateral_wander_m": 0.15,
     "drivers": "mixed",
 }
 

@@ -1,0 +1,115 @@
+"""Measurement errors of a video tracker, added to a simulated highD recording (training data).
+
+Real trajectory datasets are measured, not simulated: positions carry slow errors (a box that drifts
+along the vehicle over seconds) and frame-to-frame jitter, and their speeds and accelerations are
+differentiated from those positions, so the derivative columns are far noisier than the positions
+(NGSIM's accelerations swing by metres per second squared). A model trained only on SUMO's exact
+states learns to trust speed and acceleration inputs that real data does not support. This module
+makes a measured copy of a simulated recording: the same traffic, with errors on the box positions
+and every velocity and acceleration column re-derived from the erroneous positions, as a tracker's
+post-processing does.
+
+Error model, per track (``level`` in metres):
+
+* longitudinal: a slow error, a sum of three sinusoids with periods 2-10 s and random phases, std
+  ``level``, plus white jitter of std ``level / 4``;
+* lateral: the same with std ``level / 3`` each;
+* velocities: the central difference of the positions over ±``DIFF_SPAN_S``; accelerations: the
+  central difference of those velocities; both clipped to each track.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.csv as pacsv
+
+from lanecast.io_adapters.contracts.track_runs import row_extent, run_starts
+from lanecast.io_adapters.sim.sumo_highway import file_names, write_highd
+
+SLOW_PERIODS_S = (2.0, 10.0)
+DIFF_SPAN_S = 0.2  # half-width of the difference that gives velocities and accelerations
+
+
+def slow_error(
+    track_index: np.ndarray, time_s: np.ndarray, std: float, rng: np.random.Generator
+) -> np.ndarray:
+    """A smooth error per track, float64 [n]: three sinusoids of periods log-uniform in
+    ``SLOW_PERIODS_S`` and random phases, total std ``std``. ``track_index`` int [n] in 0 … T-1."""
+    n_tracks = int(track_index.max()) + 1 if track_index.size else 0
+    lo, hi = np.log(SLOW_PERIODS_S[0]), np.log(SLOW_PERIODS_S[1])
+    periods = np.exp(rng.uniform(lo, hi, size=(n_tracks, 3)))
+    phases = rng.uniform(0.0, 2 * np.pi, size=(n_tracks, 3))
+    out = np.zeros(time_s.size)
+    for k in range(3):
+        out += np.sin(2 * np.pi * time_s / periods[track_index, k] + phases[track_index, k])
+    return std * np.sqrt(2.0 / 3.0) * out
+
+
+def central_difference(
+    values: np.ndarray, first: np.ndarray, last: np.ndarray, span: int, dt_s: float
+) -> np.ndarray:
+    """(values[i+span] - values[i-span]) / time, the rows clipped to [first, last] of row i's
+    track; 0 on a one-row track. float64 [n]."""
+    idx = np.arange(values.size)
+    lo, hi = np.maximum(idx - span, first), np.minimum(idx + span, last)
+    steps = np.maximum(hi - lo, 1)
+    return np.where(hi > lo, (values[hi] - values[lo]) / (steps * dt_s), 0.0)
+
+
+def add_tracking_errors(tracks: pa.Table, frame_rate: float, level_m: float, seed: int) -> pa.Table:
+    """A highD ``tracks`` table (rows sorted by id, then frame) with tracker-like errors of ``level_m``
+    on ``x``, ``y`` and velocities and accelerations re-derived from them (module docstring).
+
+    The lane, neighbour and headway columns keep their true values (a dataset's lane assignment
+    comes from its own, smoothed processing)."""
+    if level_m < 0:
+        raise ValueError(f"level_m must be >= 0, not {level_m}")
+    ids = tracks.column("id").to_numpy()
+    frames = tracks.column("frame").to_numpy()
+    first, last = row_extent(run_starts(ids))
+    track_index = np.cumsum(run_starts(ids)) - 1
+    time_s = frames / frame_rate
+    rng = np.random.default_rng([int(seed), 0x7E5])
+    x = tracks.column("x").to_numpy().astype(np.float64)
+    y = tracks.column("y").to_numpy().astype(np.float64)
+    # highD's x runs along the road and y across it, whichever the direction.
+    x = x + slow_error(track_index, time_s, level_m, rng) + rng.normal(0.0, level_m / 4, x.size)
+    y = y + slow_error(track_index, time_s, level_m / 3, rng) + rng.normal(0.0, level_m / 3, y.size)
+    span = max(round(DIFF_SPAN_S * frame_rate), 1)
+    dt = 1.0 / frame_rate
+    vx = central_difference(x, first, last, span, dt)
+    vy = central_difference(y, first, last, span, dt)
+    ax = central_difference(vx, first, last, span, dt)
+    ay = central_difference(vy, first, last, span, dt)
+    replaced = {
+        "x": np.round(x, 2),
+        "y": np.round(y, 2),
+        "xVelocity": np.round(vx, 2),
+        "yVelocity": np.round(vy, 2),
+        "xAcceleration": np.round(ax, 4),
+        "yAcceleration": np.round(ay, 4),
+    }
+    for name, values in replaced.items():
+        i = tracks.schema.get_field_index(name)
+        tracks = tracks.set_column(i, name, pa.array(values + 0.0, type=tracks.schema.field(i).type))
+    return tracks
+
+
+def write_measured_copy(
+    src_dir: Path, recording_id: int, out_dir: Path, new_id: int, level_m: float, seed: int
+) -> Path:
+    """Write recording ``recording_id`` of ``src_dir`` (highD CSVs) as recording ``new_id`` in
+    ``out_dir`` with tracking errors of ``level_m`` (:func:`add_tracking_errors`); atomic."""
+    names = file_names(recording_id)
+    tables = {kind: pacsv.read_csv(Path(src_dir) / name) for kind, name in names.items()}
+    rate = float(tables["recordingMeta"].column("frameRate")[0].as_py())
+    tables["tracks"] = add_tracking_errors(tables["tracks"], rate, level_m, seed)
+    meta = tables["recordingMeta"]
+    i = meta.schema.get_field_index("id")
+    tables["recordingMeta"] = meta.set_column(
+        i, "id", pa.array([new_id] * meta.num_rows, meta.schema.field(i).type)
+    )
+    return write_highd(tables, out_dir, new_id, overwrite=True)

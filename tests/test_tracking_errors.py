@@ -1,0 +1,123 @@
+"""Realism of simulated training data: drivers' in-lane weave, and the measured copy of a recording
+(tracker-like position errors, speeds and accelerations re-derived from them)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pytest
+
+from lanecast.io_adapters.datasets import highd
+from lanecast.io_adapters.sim import sumo_highway
+from lanecast.io_adapters.sim.tracking_errors import (
+    add_tracking_errors,
+    central_difference,
+    write_measured_copy,
+)
+
+
+def test_in_lane_weave_has_its_std_is_smooth_and_deterministic() -> None:
+    """Over 20 vehicles × 10 min the weave's std is the stated one, its lateral acceleration stays
+    below a lane change's peak (0.6 m/s²) and within its bound, it depends on (vehicle, time) only,
+    and on the seed."""
+    rate = 10.0
+    vehicle = np.repeat(np.arange(20), 6000)
+    t = np.tile(np.arange(6000) / rate, 20)
+    w = sumo_highway.lateral_wander(vehicle, t, 0.15, seed=3)
+    assert w.std() == pytest.approx(0.15, rel=0.15)
+    acc = np.diff(w.reshape(20, -1), 2, axis=1) * rate**2
+    bound = 3 * 0.15 * np.sqrt(2 / 3) * (2 * np.pi / 6.0) ** 2
+    assert np.abs(acc).max() < bound < 0.6
+    assert np.percentile(np.abs(acc), 50) < 0.1
+    shuffled = np.random.default_rng(0).permutation(vehicle.size)
+    np.testing.assert_array_equal(
+        sumo_highway.lateral_wander(vehicle[shuffled], t[shuffled], 0.15, 3), w[shuffled]
+    )
+    assert not np.allclose(sumo_highway.lateral_wander(vehicle, t, 0.15, seed=4), w)
+    assert (
+        sumo_highway.HighwayConfig(minutes=1, seed=1).lateral_wander_m == 0.0
+    )  # plain simulate: exact centre
+
+
+def _tracks(n: int = 2500, rate: float = 25.0) -> pa.Table:
+    """Two highD tracks: one at a constant 30 m/s, one braking at 1 m/s² from 20 m/s."""
+    t = np.arange(n) / rate
+    x = np.concatenate([10 + 30 * t, 5 + 20 * t - 0.5 * t**2])
+    vx = np.concatenate([np.full(n, 30.0), 20 - t])
+    ax = np.concatenate([np.zeros(n), np.full(n, -1.0)])
+    return pa.table(
+        {
+            "frame": np.tile(np.arange(1, n + 1), 2),
+            "id": np.repeat([1, 2], n),
+            "x": x,
+            "y": np.full(2 * n, 12.0),
+            "xVelocity": vx,
+            "yVelocity": np.zeros(2 * n),
+            "xAcceleration": ax,
+            "yAcceleration": np.zeros(2 * n),
+            "laneId": np.repeat([2, 3], n).astype(np.int64),
+        }
+    )
+
+
+def test_measured_copy_errors_have_the_level_and_derivatives_follow_positions() -> None:
+    tracks = _tracks()
+    clean = add_tracking_errors(tracks, 25.0, 0.0, seed=1)
+    # level 0: positions kept, derivatives re-derived exactly (a line and a parabola)
+    np.testing.assert_allclose(clean.column("x").to_numpy(), np.round(tracks.column("x").to_numpy(), 2))
+    inner = np.r_[10:2490, 2510:4990]
+    np.testing.assert_allclose(
+        clean.column("xVelocity").to_numpy()[inner], tracks.column("xVelocity").to_numpy()[inner], atol=0.01
+    )
+    np.testing.assert_allclose(
+        clean.column("xAcceleration").to_numpy()[inner],
+        tracks.column("xAcceleration").to_numpy()[inner],
+        atol=0.01,
+    )
+
+    noisy = add_tracking_errors(tracks, 25.0, 0.3, seed=1)
+    err_x = noisy.column("x").to_numpy() - tracks.column("x").to_numpy()
+    err_y = noisy.column("y").to_numpy() - tracks.column("y").to_numpy()
+    assert np.hypot(0.3, 0.3 / 4) * 0.7 < err_x.std() < np.hypot(0.3, 0.3 / 4) * 1.3
+    assert 0.1 * 0.7 * np.sqrt(2) < err_y.std() < 0.1 * 1.3 * np.sqrt(2)
+    # velocities are the central difference of the erroneous positions over ±0.2 s, per track
+    x = noisy.column("x").to_numpy()
+    first = np.repeat([0, 2500], 2500)
+    last = np.repeat([2499, 4999], 2500)
+    np.testing.assert_allclose(
+        noisy.column("xVelocity").to_numpy(),
+        np.round(central_difference(x, first, last, 5, 0.04), 2),
+        atol=0.04,
+    )
+    # accelerations are much noisier than positions (as real datasets' are), lanes kept
+    acc_err = (
+        noisy.column("xAcceleration").to_numpy()[inner] - tracks.column("xAcceleration").to_numpy()[inner]
+    )
+    assert acc_err.std() > 1.0
+    assert noisy.column("laneId").equals(tracks.column("laneId"))
+    assert not np.allclose(add_tracking_errors(tracks, 25.0, 0.3, seed=2).column("x").to_numpy(), x)
+    with pytest.raises(ValueError, match="level_m"):
+        add_tracking_errors(tracks, 25.0, -0.1, seed=1)
+
+
+def test_measured_copy_of_a_simulated_recording_reads_back(tmp_path: Path) -> None:
+    """SUMO → highD files → measured copy as another recording id: the highD reader reads both, same
+    vehicles and rows, positions moved by about the level, speeds still near the true ones."""
+    sim = sumo_highway.simulate(tmp_path / "sim", minutes=0.5, seed=3, show_progress=False)
+    out = write_measured_copy(sim, 1, tmp_path / "measured", 21, 0.2, seed=5)
+    assert sorted(p.name for p in out.iterdir()) == [
+        "21_recordingMeta.csv",
+        "21_tracks.csv",
+        "21_tracksMeta.csv",
+    ]
+    a, b = highd.read([sim]), highd.read([out])
+    assert b.num_rows == a.num_rows
+    assert set(b.column("recording").to_pylist()) == {
+        r.replace("-01-", "-21-") for r in set(a.column("recording").to_pylist())
+    }
+    dx = b.column("x").to_numpy() - a.column("x").to_numpy()
+    assert 0.1 < dx.std() < 0.35
+    dv = b.column("vx").to_numpy() - a.column("vx").to_numpy()
+    assert 0.1 < np.median(np.abs(dv)) < 2.0
