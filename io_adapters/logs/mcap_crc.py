@@ -13,14 +13,14 @@ import struct
 from pathlib import Path
 
 from lanecast.io_adapters.errors import LogError
-from lanecast.io_adapters.logs.mcap_reader import (
-    _REC_HEAD,
+from lanecast.io_adapters.logs.mcap_walk import (
     MAGIC,
     OP_CHUNK,
     OP_DATA_END,
     OP_FOOTER,
-    _chunk_payload,
-    _crc32,
+    REC_HEAD,
+    chunk_payload,
+    crc32_of,
 )
 
 _FOOTER_SIZE = 9 + 20  # opcode, length, summary_start u64, summary_offset_start u64, summary_crc u32
@@ -45,18 +45,18 @@ def _crcs(path: Path, mm: mmap.mmap) -> None:
         raise LogError(path, "not a complete MCAP file", expected="magic, records, footer, magic")
     pos = 8
     while pos + 9 <= size:
-        op, length = _REC_HEAD.unpack_from(mm, pos)
+        op, length = REC_HEAD.unpack_from(mm, pos)
         body, nxt = pos + 9, pos + 9 + length
         if nxt > size:
             raise LogError(path, "a record runs past the end", offset=pos, expected="a complete MCAP file")
         if op == OP_CHUNK:
             try:
-                _chunk_payload(mm, body, nxt)  # checks a non-zero CRC
+                chunk_payload(mm, body, nxt)  # checks a non-zero CRC
             except ValueError as exc:
                 raise LogError(path, f"corrupt chunk: {exc}", offset=pos, expected="an intact chunk") from exc
         elif op == OP_DATA_END:
             (crc,) = struct.unpack_from("<I", mm, body)
-            _check(path, crc, _crc32(mm, 0, pos), pos, "data section")
+            _check(path, crc, crc32_of(mm, 0, pos), pos, "data section")
             break
         pos = nxt
     footer = size - 8 - _FOOTER_SIZE
@@ -64,7 +64,7 @@ def _crcs(path: Path, mm: mmap.mmap) -> None:
         raise LogError(path, "no footer before the closing magic", offset=footer, expected="a Footer record")
     summary_start, _, crc = struct.unpack_from("<QQI", mm, footer + 9)
     if summary_start and summary_start < footer:
-        actual = _crc32(mm, summary_start, footer + 9 + 16)
+        actual = crc32_of(mm, summary_start, footer + 9 + 16)
         _check(path, crc, actual, footer, "summary")
 
 

@@ -1,0 +1,408 @@
+"""The record walk of an MCAP file: every record checked, chunks decompressed, damage located.
+
+:func:`walk` goes through the top-level records of a whole file (an mmap) with every CRC checked
+(chunks, data section, summary) and hands Schema, Channel, Message and Metadata records, and the
+decompressed records of each chunk, to a :class:`RecordSink` (the decoder of
+:mod:`lanecast.io_adapters.logs.mcap_reader`). A truncated file, a corrupt chunk or a bad record
+raises :class:`LogError` with the byte offset; with ``salvage`` damaged chunks are skipped
+(resynchronising on the next intact chunk) and the loss is counted in :class:`ReadStats`. Chunk
+sizes are bounded before any allocation, so a chunk that lies about its size costs no more memory
+than it declares.
+"""
+
+from __future__ import annotations
+
+import struct
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+from lanecast.io_adapters.errors import LogError
+
+MAGIC = b"\x89MCAP0\r\n"
+
+
+OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06
+
+
+OP_MESSAGE_INDEX, OP_STATISTICS, OP_METADATA, OP_DATA_END = 0x07, 0x0B, 0x0C, 0x0F
+
+
+_MAX_OP = 0x10
+
+
+_OP_NAMES = {OP_SCHEMA: "Schema", OP_CHANNEL: "Channel", OP_MESSAGE: "Message", OP_METADATA: "Metadata"}
+
+
+# Records read with fixed-size fields: the least length their fields take.
+_FIXED_SIZE = {OP_DATA_END: 4, OP_STATISTICS: 8, OP_FOOTER: 20, OP_CHUNK: 28}
+
+
+MSG_HEAD = struct.Struct("<HIQQ")
+
+
+REC_HEAD = struct.Struct("<BQ")
+
+
+LEN = struct.Struct("<Q")
+
+
+@dataclass
+class ReadStats:
+    """What a read saw and, with salvage, what it lost."""
+
+    chunks: int = 0
+    chunks_lost: int = 0
+    messages: int = 0
+    messages_lost: int | None = 0
+    damage: list[str] = field(default_factory=list)
+
+    def summary(self) -> str:
+        lost = "an unknown number of" if self.messages_lost is None else f"{self.messages_lost:,}"
+        return (
+            f"salvaged {self.messages:,} messages from {self.chunks - self.chunks_lost:,} intact chunks; "
+            f"lost {self.chunks_lost:,} chunks with {lost} messages"
+            + (f" ({'; '.join(self.damage)})" if self.damage else "")
+        )
+
+
+class LogDamage(Exception):
+    """A damaged record (internal): offset and message, turned into LogError or salvaged."""
+
+    def __init__(self, offset: int, message: str, expected: str, resync: bool) -> None:
+        super().__init__(message)
+        self.offset, self.message, self.expected, self.resync = offset, message, expected, resync
+
+
+def read_string(buf: Any, pos: int, end: int) -> tuple[str, int]:
+    """The length-prefixed UTF-8 string at buf[pos] that must end by ``end`` (its record's end)."""
+    if pos + 4 > end:
+        raise ValueError("a string length runs past the record")
+    (n,) = struct.unpack_from("<I", buf, pos)
+    stop = pos + 4 + n
+    if stop > end:
+        raise ValueError(f"a string of {n} bytes runs past the record")
+    try:
+        return bytes(buf[pos + 4 : stop]).decode(), stop
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"a string that is not UTF-8 ({exc.reason} at byte {exc.start})") from exc
+
+
+def read_string_map(buf: Any, pos: int, end: int) -> tuple[dict[str, str], int]:
+    if pos + 4 > end:
+        raise ValueError("a map length runs past the record")
+    (n,) = struct.unpack_from("<I", buf, pos)
+    stop = pos + 4 + n
+    if stop > end:
+        raise ValueError(f"a map of {n} bytes runs past the record")
+    pos += 4
+    out = {}
+    while pos < stop:
+        k, pos = read_string(buf, pos, stop)
+        v, pos = read_string(buf, pos, stop)
+        out[k] = v
+    return out, stop
+
+
+def read_ints(raw: np.ndarray, at: np.ndarray, dtype: str) -> np.ndarray:
+    """Little-endian integers of type ``dtype`` at byte offsets at [n] of raw (uint8 [N]) → [n]."""
+    size = np.dtype(dtype).itemsize
+    every = np.ndarray((raw.size - size + 1,), dtype=dtype, buffer=raw, strides=(1,))
+    return every[at]
+
+
+#: Largest chunk (uncompressed) read: a chunk's declared size is checked against it before any
+#: allocation (MCAP writers make chunks of a few MB).
+MAX_CHUNK_BYTES = 1 << 30
+
+
+def chunk_payload(buf: Any, body: int, end: int) -> bytes:
+    """The decompressed, CRC-checked records of a Chunk record whose body is buf[body:end].
+
+    The declared uncompressed size is bounded (:data:`MAX_CHUNK_BYTES`) and decompression stops
+    one byte past it, so a chunk or an LZ4/zstd frame that lies about its size costs no more memory
+    than the size the chunk declares.
+    """
+    if body + 28 > end:
+        raise ValueError("a Chunk record too short for its header")
+    _t0, _t1, size, crc = struct.unpack_from("<QQQI", buf, body)
+    if size > MAX_CHUNK_BYTES:
+        raise ValueError(
+            f"the chunk declares {size:,} uncompressed bytes, more than the {MAX_CHUNK_BYTES:,} accepted"
+        )
+    compression, pos = read_string(buf, body + 28, end)
+    if pos + 8 > end:
+        raise ValueError("the chunk's records length runs past the chunk")
+    (n,) = struct.unpack_from("<Q", buf, pos)
+    if pos + 8 + n > end:
+        raise ValueError(f"chunk records ({n} bytes) run past the chunk")
+    raw = buf[pos + 8 : pos + 8 + n]
+    if compression == "zstd":
+        import zstandard
+
+        pieces = []
+        try:
+            with zstandard.ZstdDecompressor().stream_reader(bytes(raw), read_across_frames=True) as reader:
+                wanted = size + 1
+                while wanted > 0 and (piece := reader.read(wanted)):
+                    pieces.append(piece)
+                    wanted -= len(piece)
+        except zstandard.ZstdError as exc:  # a damaged frame (flipped or missing bytes)
+            raise ValueError(f"damaged zstd frame: {exc}") from exc
+        data = b"".join(pieces)
+    elif compression == "lz4":
+        import lz4.frame
+
+        try:
+            data = lz4.frame.LZ4FrameDecompressor().decompress(bytes(raw), max_length=size + 1)
+        except RuntimeError as exc:  # lz4 reports a damaged frame as RuntimeError
+            raise ValueError(f"damaged LZ4 frame: {exc}") from exc
+    elif compression == "":
+        data = bytes(raw)
+    else:
+        raise ValueError(f"unknown compression {compression!r}")
+    if len(data) != size:
+        said = "more than" if len(data) > size else f"{len(data)} bytes,"
+        raise ValueError(f"decompressed to {said} the {size} bytes the chunk says")
+    if crc and zlib.crc32(data) != crc:
+        raise ValueError(f"CRC mismatch (stored {crc:#010x}, computed {zlib.crc32(data):#010x})")
+    return data
+
+
+def index_offsets(buf: Any, pos: int, size: int) -> np.ndarray | None:
+    """Message offsets [n] (int64) listed by the MessageIndex records starting at pos, or None."""
+    parts = []
+    while pos + 15 <= size:
+        op, length = REC_HEAD.unpack_from(buf, pos)
+        if op != OP_MESSAGE_INDEX or pos + 9 + length > size:
+            break
+        (n,) = struct.unpack_from("<I", buf, pos + 11)
+        if n % 16 or 6 + n > length:
+            return None
+        pairs = np.frombuffer(buf, dtype="<u8", count=n // 8, offset=pos + 15)
+        parts.append(pairs[1::2].astype(np.int64))
+        del pairs  # no view of the mmap may outlive the read
+        pos += 9 + length
+    return np.concatenate(parts) if parts else None
+
+
+def verified_offsets(raw: np.ndarray, end: int, hint: np.ndarray) -> np.ndarray | None:
+    """The sorted offsets ``hint`` if they are exactly the chain of records of raw[:end] (each record
+    ends where the next starts, the first at 0, the last at end), else None."""
+    if not hint.size:
+        return None
+    at = np.sort(hint)
+    if at[0] != 0 or at[-1] + 9 > end:
+        return None
+    lengths = read_ints(raw, at + 1, "<u8")
+    if (lengths > np.uint64(end)).any():
+        return None
+    if not (at + 9 + lengths.astype(np.int64) == np.append(at[1:], end)).all():
+        return None
+    return at
+
+
+def _index_count(buf: Any, pos: int, size: int) -> tuple[int, int]:
+    """Messages listed by the MessageIndex records starting at pos; returns (count, end)."""
+    count = 0
+    while pos + 9 <= size:
+        op, length = REC_HEAD.unpack_from(buf, pos)
+        if op != OP_MESSAGE_INDEX or pos + 9 + length > size:
+            break
+        (n,) = struct.unpack_from("<I", buf, pos + 11)
+        count += n // 16
+        pos += 9 + length
+    return count, pos
+
+
+def _resync(buf: Any, start: int, size: int) -> int | None:
+    """The offset of the next intact Chunk record at or after start, else None."""
+    pos = start
+    while True:
+        pos = buf.find(bytes([OP_CHUNK]), pos, size)
+        if pos < 0 or pos + 9 > size:
+            return None
+        (length,) = struct.unpack_from("<Q", buf, pos + 1)
+        end = pos + 9 + length
+        if 40 <= length and end <= size and (end == size or 0 < buf[end] < _MAX_OP):
+            try:
+                chunk_payload(buf, pos + 9, end)
+                return pos
+            except Exception:
+                pass
+        pos += 1
+
+
+class RecordSink(Protocol):
+    """What :func:`walk` hands the records it reads to (the MCAP decoder)."""
+
+    offset: int  # file offset of the top-level record being handed over (for errors)
+    stats: ReadStats
+
+    def records(self, buf: Any, start: int, end: int, in_chunk: bool, hint: np.ndarray | None = None) -> int:
+        """Schema/Channel/Message records in buf[start:end] (a chunk's records when ``in_chunk``;
+        ``hint``: the record offsets its MessageIndex lists); returns the messages seen."""
+        ...
+
+    def metadata(self, buf: Any, pos: int, end: int) -> None:
+        """A Metadata record whose body is buf[pos:end]."""
+        ...
+
+
+def walk(buf: Any, path: Path, dec: RecordSink, salvage: bool) -> None:
+    """Walk the top-level records of buf (the whole file), decoding into dec.
+
+    Damage raises LogError, or with ``salvage`` is recorded in ``dec.stats`` and skipped: a damaged
+    chunk by resynchronising on the next intact chunk, a damaged index/summary by going on.
+    """
+    size = len(buf)
+    stats = dec.stats
+    if size == 0:
+        raise LogError(path, "the file is empty", offset=0, expected="an MCAP file")
+    if size < 8 and MAGIC.startswith(bytes(buf[:size])):
+        raise LogError(
+            path,
+            f"the file is truncated: {size} bytes, inside the magic",
+            offset=size,
+            expected="an MCAP file",
+        )
+    if size < 8 or bytes(buf[:8]) != MAGIC:
+        raise LogError(
+            path, f"not an MCAP file (starts with {bytes(buf[:8])!r})", offset=0, expected="the MCAP magic"
+        )
+    ends_with_magic = size >= 16 and bytes(buf[size - 8 :]) == MAGIC
+    complete = "a complete MCAP file ending with a footer and the magic"
+    pos = 8
+    footer_seen = data_end_seen = False
+    total_expected: int | None = None
+    while pos < size:
+        dec.offset = pos
+        skip_to: int | None = None
+        try:
+            if pos + 9 > size:
+                raise LogDamage(pos, "the file is truncated inside a record header", complete, True)
+            op, length = REC_HEAD.unpack_from(buf, pos)
+            body, nxt = pos + 9, pos + 9 + length
+            if op == 0 or (_MAX_OP <= op < 0x80):
+                raise LogDamage(pos, f"invalid record opcode {op:#04x}", "an MCAP record", True)
+            if nxt > size:
+                if ends_with_magic:
+                    raise LogDamage(
+                        pos,
+                        f"corrupt record: opcode {op:#04x} declares {length} bytes, past the end",
+                        "a valid record length",
+                        True,
+                    )
+                raise LogDamage(
+                    pos,
+                    f"the file is truncated: a record (opcode {op:#04x}) declares {length} bytes but the file "
+                    f"ends {size - body} bytes later",
+                    complete,
+                    True,
+                )
+            if op == OP_CHUNK:
+                stats.chunks += 1
+                try:
+                    data = chunk_payload(buf, body, nxt)
+                    hint = index_offsets(buf, nxt, size)
+                    stats.messages += dec.records(memoryview(data), 0, len(data), True, hint)
+                except (ValueError, struct.error, zlib.error) as exc:
+                    raise LogDamage(
+                        pos, f"corrupt chunk: {exc}", "an intact zstd/lz4 chunk with a matching CRC", True
+                    ) from exc
+                except Exception as exc:
+                    if type(exc).__module__.startswith(("zstandard", "lz4")):
+                        raise LogDamage(
+                            pos, f"corrupt chunk: {exc}", "an intact zstd/lz4 chunk", True
+                        ) from exc
+                    raise
+            elif op in _FIXED_SIZE and length < _FIXED_SIZE[op]:
+                raise LogDamage(
+                    pos,
+                    f"corrupt record: opcode {op:#04x} declares {length} bytes, fewer than its fields",
+                    f"at least {_FIXED_SIZE[op]} bytes",
+                    False,
+                )
+            elif op in (OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_METADATA):
+                try:
+                    if op == OP_METADATA:
+                        dec.metadata(buf, body, nxt)
+                    else:
+                        stats.messages += dec.records(buf, pos, nxt, False)
+                except (ValueError, struct.error) as exc:
+                    raise LogDamage(
+                        pos, f"corrupt {_OP_NAMES[op]} record: {exc}", f"a valid {_OP_NAMES[op]} record", True
+                    ) from exc
+            elif op == OP_DATA_END:
+                data_end_seen = True
+                (crc,) = struct.unpack_from("<I", buf, body)
+                if crc and crc32_of(buf, 0, pos) != crc:
+                    skip_to = nxt
+                    raise LogDamage(pos, "data section CRC mismatch", "an undamaged data section", False)
+            elif op == OP_STATISTICS:
+                (total_expected,) = struct.unpack_from("<Q", buf, body)
+            elif op == OP_FOOTER:
+                footer_seen = True
+                summary_start, _, summary_crc = struct.unpack_from("<QQI", buf, body)
+                if summary_crc and summary_start and crc32_of(buf, summary_start, body + 16) != summary_crc:
+                    total_expected = None
+                    raise LogDamage(pos, "summary CRC mismatch", "an undamaged summary section", False)
+                if bytes(buf[nxt : nxt + 8]) != MAGIC:
+                    raise LogDamage(
+                        nxt, "the file does not end with the MCAP magic", "the closing magic", False
+                    )
+                break
+            pos = nxt
+        except LogDamage as dmg:
+            if not salvage:
+                raise LogError(path, dmg.message, offset=dmg.offset, expected=dmg.expected) from dmg
+            stats.damage.append(f"offset {dmg.offset}: {dmg.message}")
+            if not dmg.resync:
+                if skip_to is None:
+                    break
+                pos = skip_to
+                continue
+            if "corrupt chunk" in dmg.message:
+                stats.chunks_lost += 1
+                (length,) = struct.unpack_from("<Q", buf, pos + 1)
+                lost, _ = _index_count(buf, pos + 9 + length, size)
+                if stats.messages_lost is not None:
+                    stats.messages_lost = stats.messages_lost + lost if lost else None
+            elif not data_end_seen:
+                if pos + 9 <= size and buf[pos] == OP_CHUNK:
+                    stats.chunks += 1
+                    stats.chunks_lost += 1
+                stats.messages_lost = None
+            resume = _resync(buf, pos + 1, size)
+            if resume is None:
+                break
+            pos = resume
+    if not footer_seen:
+        if not salvage:
+            raise LogError(
+                path,
+                f"the file is truncated: it ends at {size} bytes without a footer",
+                offset=size,
+                expected=complete,
+            )
+        if not data_end_seen:
+            stats.messages_lost = None
+        if not any("truncated" in d for d in stats.damage):
+            stats.damage.append(f"offset {size}: the file ends without a footer (truncated)")
+    if salvage and total_expected is not None and footer_seen:
+        stats.messages_lost = max(total_expected - stats.messages, 0)
+
+
+def crc32_of(buf: Any, start: int, end: int, block: int = 1 << 24) -> int:
+    """CRC-32 of ``buf[start:end]`` in blocks of views: slicing an mmap would copy the whole range."""
+    crc = 0
+    view = memoryview(buf)
+    try:
+        for lo in range(start, end, block):
+            crc = zlib.crc32(view[lo : min(lo + block, end)], crc)
+    finally:
+        view.release()
+    return crc
