@@ -46,7 +46,7 @@ def main() -> int:
     frames = list(batch.frames())
     print(f"{table.num_rows:,} forecasts (3 alternatives each) in {len(frames):,} frames")
     print(machine_line("before"))
-    drawing = fm._drawing(batch)
+    drawing = fm.drawing_of(batch)
 
     def old_prediction() -> None:
         for f in frames:
@@ -55,13 +55,13 @@ def main() -> int:
     fns: dict[str, Callable[[], object]] = {
         "bulk: /lanecast/prediction JSON": lambda: fm.prediction_texts(batch),
         "per object: /lanecast/prediction JSON": old_prediction,
-        "bulk: SceneUpdate protobuf": lambda: fm.scene_update_protobuf(batch, fm._drawing(batch)),
+        "bulk: SceneUpdate protobuf": lambda: fm.scene_update_protobuf(batch, fm.drawing_of(batch)),
         "per object: SceneUpdate protobuf": lambda: [oracle.scene_update_protobuf(f) for f in frames],
         "bulk: SceneUpdate JSON": lambda: fm.scene_update_json(batch, drawing),
         "per object: SceneUpdate JSON": lambda: [
             json.dumps(oracle.scene_update_dict(f), separators=(",", ":")) for f in frames
         ],
-        "bulk: SceneUpdate CDR": lambda: fm.scene_update_cdr(batch, fm._drawing(batch)),
+        "bulk: SceneUpdate CDR": lambda: fm.scene_update_cdr(batch, fm.drawing_of(batch)),
         "per object: SceneUpdate CDR": lambda: [oracle.scene_update_cdr(f) for f in frames],
     }
     for fn in fns.values():

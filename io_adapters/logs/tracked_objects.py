@@ -264,9 +264,3 @@ def add_marker_array(cols: ObjectColumns, msg: Any, log_time: int) -> None:
         floats.append(parse_marker_text(m.text))
         classes.append(m.ns)
         frames.append(m.header.frame_id)
-
-
-# ------------------------------------------------------------------------------------ assembling
-
-
-# ------------------------------------------------------------------------------------- writing
