@@ -88,7 +88,7 @@ def build_log(path: Path, size_mb: float, frame_kb: float, vehicles: int) -> flo
     """Write the benchmark log; return its duration (s)."""
     from lanecast.io_adapters import registry
     from lanecast.io_adapters.annotations.forecast_messages import ChannelSpec
-    from lanecast.io_adapters.annotations.mcap_copy import copy_mcap
+    from lanecast.io_adapters.annotations.mcap_copy import Merge, copy_mcap
 
     frames = int(size_mb * 1024 / frame_kb)
     duration = frames / 10.0
@@ -102,7 +102,7 @@ def build_log(path: Path, size_mb: float, frame_kb: float, vehicles: int) -> flo
             yield i * S // 10 + 3_000_000, 0, rng.bytes(int(frame_kb * 1024))
 
     with open(path, "wb") as f:
-        copy_mcap(base, f, channels=[camera], extra=frames_iter())
+        copy_mcap(base, f, Merge(channels=[camera], extra=frames_iter()))
     base.unlink()
     return duration
 

@@ -29,8 +29,8 @@ from rosbags.rosbag1 import Reader as Reader1
 from rosbags.rosbag2 import Reader as Reader2
 
 from lanecast.io_adapters import registry
+from lanecast.io_adapters.annotations import bag_copy, mcap_copy
 from lanecast.io_adapters.annotations import forecast_messages as fm
-from lanecast.io_adapters.annotations import mcap_copy
 from lanecast.io_adapters.contracts.track_table import read_meta
 from lanecast.io_adapters.errors import InputError, LogError
 from lanecast.io_adapters.files import atomic_path, check_input, checksum
@@ -261,14 +261,15 @@ def annotate_log(
         """Forecasts and what-ifs merged in log-time order (the forecast of a time before its what-ifs)."""
         yield from heapq.merge(forecast_messages(), explain_messages(), key=lambda m: (m[0], m[1]))
 
+    def merge() -> mcap_copy.Merge:
+        return mcap_copy.Merge(channels=specs, extra=extra(), progress=progress)
+
     write_started = time.perf_counter()
     digest = hashlib.sha256()
     if kind == "ros2":
         with atomic_path(out, directory=True) as tmp:
             inner = tmp / out.name  # rosbags creates the bag directory and names its files after it
-            stats = mcap_copy.copy_ros2_bag(
-                src, inner, channels=specs, extra=extra(), typestore=fm.ros2_typestore(), progress=progress
-            )
+            stats = bag_copy.copy_ros2_bag(src, inner, merge(), typestore=fm.ros2_typestore())
             for part in inner.iterdir():  # relative paths in metadata.yaml stay valid one level up
                 part.rename(tmp / part.name)
                 _readable(tmp / part.name)
@@ -279,11 +280,9 @@ def annotate_log(
     else:
         with atomic_path(out) as tmp, open(tmp, "wb") as f:
             if kind == "mcap":
-                stats = mcap_copy.copy_mcap(
-                    src, f, channels=specs, extra=extra(), progress=progress, info=info, digest=digest
-                )
+                stats = mcap_copy.copy_mcap(src, f, merge=merge(), info=info, digest=digest)
             else:
-                stats = mcap_copy.copy_ros1_to_mcap(src, f, channels=specs, extra=extra(), progress=progress)
+                stats = bag_copy.copy_ros1_to_mcap(src, f, merge())
             f.flush()
             os.fsync(f.fileno())
             _readable(tmp)

@@ -1,17 +1,13 @@
-"""Copy a drive log record for record into a new log while merging extra messages in log-time order.
+"""Copy an MCAP drive log record for record into a new one while merging extra messages in log-time order.
 
-- MCAP → MCAP: every schema, channel (with its original id), message (original bytes, log and
-  publish time, sequence), attachment and metadata record is streamed through ``mcap``'s low-level
-  reader (CRCs validated) into a chunked zstd MCAP with a summary and indexes; the header's profile
-  is kept. Only the index/summary records are regenerated.
-- ROS 2 bag directory → ROS 2 bag (rosbags): every connection (type, definition, hash, QoS) and
-  message (bytes and time) plus the extra topics.
-- ROS 1 bag → MCAP: every connection becomes a ``ros1msg`` schema and ``ros1`` channel, every
-  message keeps its bytes and time.
-
-Extra messages are ``(log_time_ns, extra channel index, payload)`` sorted by time; each is written
-just before the first original message with a later log time, so the output stays in log-time order
-wherever the input was. Memory is bounded: one chunk in and one chunk out at a time.
+Every schema, channel (with its original id), message (original bytes, log and publish time,
+sequence), attachment and metadata record is streamed through ``mcap``'s low-level reader (CRCs
+validated) into a chunked zstd MCAP with a summary and indexes; the header's profile is kept. Only
+the index/summary records are regenerated. What to add is a :class:`Merge`: extra channels and
+their messages ``(log_time_ns, extra channel index, payload)`` sorted by time; each is written just
+before the first original message with a later log time (:class:`MergedCopy`, shared with the ROS
+bag copies of :mod:`lanecast.io_adapters.annotations.bag_copy`), so the output stays in log-time
+order wherever the input was. Memory is bounded: one chunk in and one chunk out at a time.
 """
 
 from __future__ import annotations
@@ -19,7 +15,7 @@ from __future__ import annotations
 import io
 import os
 import struct
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, BinaryIO
@@ -169,7 +165,7 @@ def summary_info(path: Path) -> McapSummaryInfo:
     )
 
 
-def _check_new_topics(path: Path, existing: Iterable[str], channels: Sequence[ChannelSpec]) -> None:
+def check_new_topics(path: Path, existing: Iterable[str], channels: Sequence[ChannelSpec]) -> None:
     """A log that already has one of the topics to add (an annotated log) is refused."""
     clash = sorted({spec.topic for spec in channels} & set(existing))
     if clash:
@@ -178,17 +174,64 @@ def _check_new_topics(path: Path, existing: Iterable[str], channels: Sequence[Ch
         )
 
 
-def _merge_before(
-    extras: Iterator[ExtraMessage],
-    pending: ExtraMessage | None,
-    log_time: int | None,
-    emit: Callable[[ExtraMessage], None],
-) -> ExtraMessage | None:
-    """Emit extra messages with time < ``log_time`` (all when None); return the next pending one."""
-    while pending is not None and (log_time is None or pending[0] < log_time):
-        emit(pending)
-        pending = next(extras, None)
-    return pending
+@dataclass(frozen=True)
+class Merge:
+    """What a copy adds to the log, and whom it tells how far it is (the options every copy takes).
+
+    ``channels``: the extra channels; ``extra``: their messages ``(log_time_ns, channel index,
+    payload)`` sorted by time; ``progress``: called with (messages, input bytes) since its last call.
+    """
+
+    channels: Sequence[ChannelSpec] = ()
+    extra: Iterable[ExtraMessage] = ()
+    progress: Progress | None = None
+
+
+class MergedCopy:
+    """The bookkeeping every copy shares: extra messages written just before the first original
+    message with a later log time, counts in :class:`CopyStats`, progress every few thousand
+    messages."""
+
+    def __init__(self, merge: Merge, stats: CopyStats, write_extra: Callable[[ExtraMessage], None]) -> None:
+        self.extras = iter(merge.extra)
+        self.pending = next(self.extras, None)
+        self.progress = merge.progress
+        self.stats = stats
+        self.write_extra = write_extra
+        self.since_messages = 0
+        self.since_bytes_at = 0
+
+    def before(self, log_time: int | None) -> None:
+        """Write the extra messages logged before ``log_time`` (all that are left when None)."""
+        while self.pending is not None and (log_time is None or self.pending[0] < log_time):
+            self.write_extra(self.pending)
+            self.stats.added += 1
+            self.pending = next(self.extras, None)
+
+    def copied(self, position: Callable[[], int] | None = None) -> None:
+        """Count one original message copied; ``position``: the input's byte offset, if known."""
+        self.stats.messages += 1
+        self.since_messages += 1
+        if self.progress is not None and self.since_messages >= _PROGRESS_EVERY:
+            at = position() if position is not None else self.since_bytes_at
+            self.progress(self.since_messages, at - self.since_bytes_at)
+            self.since_messages, self.since_bytes_at = 0, at
+
+    def done(self) -> None:
+        """Report the rest of the progress (up to the whole input)."""
+        if self.progress is not None:
+            self.progress(self.since_messages, self.stats.bytes_in - self.since_bytes_at)
+
+
+def zstd_writer(out: BinaryIO, chunk_size: int = CHUNK_SIZE) -> _IdWriter:
+    """An MCAP writer keeping record ids: zstd chunks of ``chunk_size``, every index, data CRCs."""
+    return _IdWriter(
+        out,
+        chunk_size=chunk_size,
+        compression=CompressionType.ZSTD,
+        index_types=IndexType.ALL,
+        enable_data_crcs=True,
+    )
 
 
 class _HashingRaw(io.RawIOBase):
@@ -215,15 +258,13 @@ class _HashingRaw(io.RawIOBase):
 def copy_mcap(
     src: Path,
     out: BinaryIO,
+    merge: Merge | None = None,
     *,
-    channels: Sequence[ChannelSpec] = (),
-    extra: Iterable[ExtraMessage] = (),
-    progress: Progress | None = None,
     chunk_size: int = CHUNK_SIZE,
     info: McapSummaryInfo | None = None,
     digest: Any = None,
 ) -> CopyStats:
-    """Stream every record of MCAP ``src`` into ``out`` (an open binary file), merging ``extra``.
+    """Stream every record of MCAP ``src`` into ``out`` (an open binary file), merging ``merge``'s messages.
 
     The extra channels get schema and channel ids above the log's own (from its summary; without a
     summary, ids counted down from 65535, and a clash with a later original id is an error).
@@ -231,8 +272,10 @@ def copy_mcap(
     object) is fed every byte of ``src`` as it is copied, so that a checksum costs no second read.
     """
     src = Path(src)
+    merge = merge or Merge()
+    channels = merge.channels
     info = info or summary_info(src)
-    _check_new_topics(src, info.topics, channels)
+    check_new_topics(src, info.topics, channels)
     stats = CopyStats(profile=info.profile)
     if info.has_summary:
         schema_ids = [info.max_schema_id + 1 + i for i in range(len(channels))]
@@ -242,22 +285,10 @@ def copy_mcap(
         channel_ids = [0xFFFF - i for i in range(len(channels))]
     stats.extra_channel_ids = channel_ids
     reserved_schemas, reserved_channels = set(schema_ids), set(channel_ids)
-    writer = _IdWriter(
-        out,
-        chunk_size=chunk_size,
-        compression=CompressionType.ZSTD,
-        index_types=IndexType.ALL,
-        enable_data_crcs=True,
+    writer = zstd_writer(out, chunk_size)
+    copying = MergedCopy(
+        merge, stats, lambda item: writer.add_message(channel_ids[item[1]], item[0], item[2], item[0], 0)
     )
-    extras = iter(extra)
-    pending = next(extras, None)
-
-    def emit(item: ExtraMessage) -> None:
-        writer.add_message(channel_ids[item[1]], item[0], item[2], item[0], 0)
-        stats.added += 1
-
-    since_msgs = 0
-    since_bytes_pos = 0
     with open(src, "rb", buffering=0) as raw:
         stats.bytes_in = os.fstat(raw.fileno()).st_size
         hashing = _HashingRaw(raw, digest) if digest is not None else None
@@ -265,16 +296,11 @@ def copy_mcap(
         try:
             for record in StreamReader(f, validate_crcs=True).records:
                 if isinstance(record, Message):
-                    pending = _merge_before(extras, pending, record.log_time, emit)
+                    copying.before(record.log_time)
                     writer.add_message(
                         record.channel_id, record.log_time, record.data, record.publish_time, record.sequence
                     )
-                    stats.messages += 1
-                    since_msgs += 1
-                    if progress is not None and since_msgs >= _PROGRESS_EVERY:
-                        pos = f.tell()
-                        progress(since_msgs, pos - since_bytes_pos)
-                        since_msgs, since_bytes_pos = 0, pos
+                    copying.copied(f.tell)
                 elif isinstance(record, Header):
                     writer.start(profile=record.profile, library=LIBRARY)
                     writer.put_extra(channels, schema_ids, channel_ids)
@@ -285,7 +311,7 @@ def copy_mcap(
                 elif isinstance(record, Channel):
                     if record.id in reserved_channels:
                         raise ValueError(f"channel id {record.id} clashes with a forecast channel id")
-                    _check_new_topics(src, [record.topic], channels)
+                    check_new_topics(src, [record.topic], channels)
                     stats.channels += writer.put_channel(record)
                 elif isinstance(record, Attachment):
                     writer.add_attachment(
@@ -302,208 +328,8 @@ def copy_mcap(
         if hashing is not None:
             while f.read(1 << 20):  # the trailing magic the record stream leaves unread
                 pass
-        pending = _merge_before(extras, pending, None, emit)
+        copying.before(None)
         writer.finish()
-        if progress is not None:
-            progress(since_msgs, stats.bytes_in - since_bytes_pos)
+        copying.done()
     stats.bytes_out = out.tell()
     return stats
-
-
-def copy_ros1_to_mcap(
-    src: Path,
-    out: BinaryIO,
-    *,
-    channels: Sequence[ChannelSpec] = (),
-    extra: Iterable[ExtraMessage] = (),
-    progress: Progress | None = None,
-    chunk_size: int = CHUNK_SIZE,
-) -> CopyStats:
-    """Every connection and message of ROS 1 bag ``src`` into an MCAP (no profile: the extra
-    channels may use other encodings), merging ``extra`` in log-time order."""
-    from rosbags.rosbag1 import Reader
-    from rosbags.rosbag1.reader import ReaderError
-
-    src = Path(src)
-    stats = CopyStats(profile="")
-    writer = _IdWriter(
-        out,
-        chunk_size=chunk_size,
-        compression=CompressionType.ZSTD,
-        index_types=IndexType.ALL,
-        enable_data_crcs=True,
-    )
-    writer.start(profile="", library=LIBRARY)
-    extras = iter(extra)
-    pending = next(extras, None)
-    try:
-        with Reader(src) as reader:
-            stats.bytes_in = src.stat().st_size
-            _check_new_topics(src, [c.topic for c in reader.connections], channels)
-            schema_of: dict[tuple[str, str], int] = {}
-            channel_of: dict[int, int] = {}
-            for conn in reader.connections:
-                msgtype = conn.msgtype.replace("/msg/", "/")
-                key = (msgtype, conn.msgdef.data)
-                if key not in schema_of:
-                    schema_of[key] = len(schema_of) + 1
-                    writer.put_schema(
-                        Schema(
-                            id=schema_of[key],
-                            name=msgtype,
-                            encoding="ros1msg",
-                            data=conn.msgdef.data.encode(),
-                        )
-                    )
-                    stats.schemas += 1
-                meta = {"md5sum": conn.digest}
-                ext = conn.ext
-                if getattr(ext, "callerid", None):
-                    meta["callerid"] = str(ext.callerid)  # type: ignore[union-attr]
-                if getattr(ext, "latching", None):
-                    meta["latching"] = str(ext.latching)  # type: ignore[union-attr]
-                cid = len(channel_of) + 1
-                channel_of[conn.id] = cid
-                writer.put_channel(
-                    Channel(
-                        id=cid,
-                        topic=conn.topic,
-                        message_encoding="ros1",
-                        schema_id=schema_of[key],
-                        metadata=meta,
-                    )
-                )
-                stats.channels += 1
-            base_schema, base_channel = len(schema_of), len(channel_of)
-            channel_ids = [base_channel + 1 + i for i in range(len(channels))]
-            stats.extra_channel_ids = channel_ids
-            writer.put_extra(channels, [base_schema + 1 + i for i in range(len(channels))], channel_ids)
-
-            def emit(item: ExtraMessage) -> None:
-                writer.add_message(channel_ids[item[1]], item[0], item[2], item[0], 0)
-                stats.added += 1
-
-            since = 0
-            for conn, timestamp, data in reader.messages():
-                pending = _merge_before(extras, pending, timestamp, emit)
-                writer.add_message(channel_of[conn.id], timestamp, bytes(data), timestamp, 0)
-                stats.messages += 1
-                since += 1
-                if progress is not None and since >= _PROGRESS_EVERY:
-                    progress(since, 0)
-                    since = 0
-            pending = _merge_before(extras, pending, None, emit)
-    except ReaderError as exc:
-        raise LogError(src, f"cannot read the ROS 1 bag: {exc}") from exc
-    writer.finish()
-    if progress is not None:
-        progress(since, stats.bytes_in)
-    stats.bytes_out = out.tell()
-    return stats
-
-
-def ros2_custom_data(bag: Path) -> dict[str, str]:
-    """The ``custom_data`` of a ROS 2 bag's metadata.yaml (string keys and values; empty if none)."""
-    from ruamel.yaml import YAML  # rosbags' own YAML library
-
-    try:
-        doc = YAML(typ="safe").load((Path(bag) / "metadata.yaml").read_text())
-        custom = doc["rosbag2_bagfile_information"].get("custom_data") or {}
-    except Exception as exc:  # any YAML or shape problem: rosbags' reader reports it first anyway
-        raise LogError(bag, f"cannot read metadata.yaml's custom_data: {exc}") from exc
-    if not isinstance(custom, dict):
-        raise LogError(bag, "metadata.yaml's custom_data is not a mapping", expected="key: value strings")
-    return {str(k): str(v) for k, v in custom.items()}
-
-
-def copy_ros2_bag(
-    src: Path,
-    dst: Path,
-    *,
-    channels: Sequence[ChannelSpec] = (),
-    extra: Iterable[ExtraMessage] = (),
-    typestore: Any = None,
-    progress: Progress | None = None,
-) -> CopyStats:
-    """Every connection and message of ROS 2 bag directory ``src`` into a new bag ``dst`` (which must
-    not exist; same storage plugin, the same ``custom_data`` in metadata.yaml), merging ``extra`` on
-    CDR topics registered from ``typestore``."""
-    from rosbags.rosbag2 import Reader, Writer
-    from rosbags.rosbag2.errors import ReaderError
-    from rosbags.rosbag2.writer import StoragePlugin
-
-    src = Path(src)
-    stats = CopyStats(profile="ros2")
-    try:
-        with Reader(src) as reader:
-            stats.bytes_in = sum(p.stat().st_size for p in src.rglob("*") if p.is_file())
-            _check_new_topics(src, [c.topic for c in reader.connections], channels)
-            plugin = StoragePlugin.MCAP if any(src.glob("*.mcap")) else StoragePlugin.SQLITE3
-            writer = Writer(dst, version=9, storage_plugin=plugin)
-            for key, value in ros2_custom_data(src).items():
-                writer.set_custom_data(key, value)
-            writer.open()
-            try:
-                out_conn = {}
-                for conn in reader.connections:
-                    ext = conn.ext
-                    out_conn[conn.id] = writer.add_connection(
-                        conn.topic,
-                        conn.msgtype,
-                        msgdef=conn.msgdef.data,
-                        rihs01=conn.digest,
-                        serialization_format=ext.serialization_format,  # type: ignore[union-attr]
-                        offered_qos_profiles=ext.offered_qos_profiles,  # type: ignore[union-attr]
-                    )
-                    stats.channels += 1
-                extra_conns = [
-                    writer.add_connection(
-                        spec.topic, spec.ros_msgtype or spec.schema_name, typestore=typestore
-                    )
-                    for spec in channels
-                ]
-                stats.extra_channel_ids = [c.id for c in extra_conns]
-
-                def emit(item: ExtraMessage) -> None:
-                    writer.write(extra_conns[item[1]], item[0], item[2])
-                    stats.added += 1
-
-                extras = iter(extra)
-                pending = next(extras, None)
-                since = 0
-                for conn, timestamp, data in reader.messages():
-                    pending = _merge_before(extras, pending, timestamp, emit)
-                    writer.write(out_conn[conn.id], timestamp, data)
-                    stats.messages += 1
-                    since += 1
-                    if progress is not None and since >= _PROGRESS_EVERY:
-                        progress(since, 0)
-                        since = 0
-                pending = _merge_before(extras, pending, None, emit)
-            finally:
-                writer.close()
-    except ReaderError as exc:
-        raise LogError(src, f"cannot read the ROS 2 bag: {exc}") from exc
-    compress_bag_storage(dst)
-    if progress is not None:
-        progress(since, stats.bytes_in)
-    stats.bytes_out = sum(p.stat().st_size for p in dst.rglob("*") if p.is_file())
-    return stats
-
-
-def compress_bag_storage(bag: Path) -> None:
-    """Rewrite the MCAP files of ROS 2 bag directory ``bag`` chunked, zstd-compressed and with CRCs.
-
-    rosbags' MCAP storage plugin writes uncompressed chunks with every CRC 0: 5 minutes of traffic
-    as TrackedObjects + MarkerArray made a 345 MB bag. The copy keeps every record (schemas,
-    channels, messages, metadata: ``metadata.yaml`` stays valid) and makes it about 50× smaller (6.5 MB) and
-    checkable. Each file is replaced only once its copy is complete.
-    """
-    for item in sorted(Path(bag).glob("*.mcap")):
-        tmp = item.with_name(f".{item.name}.zstd-tmp")
-        try:
-            with open(tmp, "wb") as out:
-                copy_mcap(item, out)
-            os.replace(tmp, item)
-        finally:
-            tmp.unlink(missing_ok=True)

@@ -1,7 +1,7 @@
 """Check the CRCs of an MCAP file read through another library (:func:`verify_crcs`).
 
 rosbags reads ROS 2 bags in MCAP storage without checking any CRC; lanecast's own such bags are
-rewritten with every CRC (``annotations.mcap_copy.compress_bag_storage``), and this walk checks
+rewritten with every CRC (``annotations.bag_copy.compress_bag_storage``), and this walk checks
 each chunk's CRC of its uncompressed records, the data section's (DataEnd) and the summary's
 (Footer) before rosbags reads them. A CRC of 0 means "not computed" and is not checked.
 """

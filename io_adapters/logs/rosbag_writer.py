@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from lanecast.io_adapters.annotations.mcap_copy import compress_bag_storage
+from lanecast.io_adapters.annotations.bag_copy import compress_bag_storage
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import atomic_path, bar
