@@ -25,7 +25,8 @@ from mcap.writer import CompressionType, Writer
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import checksum
 from lanecast.workflows.annotate_log import AnnotateOptions
-from lanecast.workflows.bulk import clean_temporaries, discover, plan_outputs, run_bulk
+from lanecast.workflows.bulk import clean_temporaries, run_bulk
+from lanecast.workflows.log_discovery import discover, plan_outputs
 from lanecast.workflows.log_report import annotated_logs
 from lanecast.workflows.manifest import Manifest
 

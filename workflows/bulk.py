@@ -17,41 +17,34 @@ Engines: ``local`` runs the per-log task in-process (1 worker) or in a ``Process
 ``ray`` submits the same task (``num_cpus=1``, retried when its worker dies) to a cluster
 (``lanecast.workflows.ray_engine``). Every path a worker gets is absolute.
 
-Size: one bulk run from inputs to manifest entries (finding and naming logs, planning, output-
-directory safety, the three engines); the manifest format and the Ray connection are modules of
-their own. The next cut, if it grows: finding and naming logs (``discover`` … ``plan_outputs``).
+Finding and naming the logs is :mod:`lanecast.workflows.log_discovery`, running the per-log task
+:mod:`lanecast.workflows.bulk_engines`; this module plans a run against the manifest, keeps OUT_DIR
+safe (lock, leftovers, foreign files) and records what the engines return.
 """
 
 from __future__ import annotations
 
 import contextlib
-import datetime as dt
 import fcntl
 import hashlib
-import multiprocessing as mp
 import os
-import queue as queue_mod
 import shutil
-import time
-import traceback
-from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
-from concurrent.futures.process import BrokenProcessPool
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from lanecast import __version__
-from lanecast.io_adapters.errors import InputError, LanecastError
-from lanecast.io_adapters.files import bar, check_input, checksum
+from lanecast.io_adapters.errors import InputError
+from lanecast.io_adapters.files import bar, checksum
 from lanecast.models.card import resolve
 from lanecast.workflows import ray_engine
 from lanecast.workflows.annotate_log import (
     AnnotateOptions,
-    annotate_log,
-    output_name,
     precomputed_forecasts_path,
 )
+from lanecast.workflows.bulk_engines import run_inline, run_pool, run_ray
+from lanecast.workflows.log_discovery import Task, common_root, discover, name_candidates
 from lanecast.workflows.manifest import (
     MANIFEST,
     Manifest,
@@ -63,17 +56,6 @@ from lanecast.workflows.manifest import (
 )
 
 LOCK = ".lanecast-annotate.lock"
-LOG_SUFFIXES = (".mcap", ".bag")
-
-
-@dataclass(frozen=True)
-class Task:
-    """One log to annotate: absolute paths, the options that will have made the output, and why."""
-
-    input: Path
-    output: Path
-    options: dict[str, Any] = field(default_factory=dict)
-    reason: str = "new"
 
 
 @dataclass
@@ -115,85 +97,6 @@ class BulkResult:
         return "\n".join(lines)
 
 
-# ----------------------------------------------------------------------------------------- inputs
-
-
-def is_ros2_bag(path: Path) -> bool:
-    return path.is_dir() and (path / "metadata.yaml").is_file()
-
-
-def discover(paths: Sequence[Path], exclude: Path | None = None) -> list[Path]:
-    """The logs named by ``paths``: files as given; directories searched recursively for ``*.mcap``,
-    ``*.bag`` and ROS 2 bag directories (not descended into), skipping ``exclude`` (OUT_DIR)."""
-    found: list[Path] = []
-    excluded = os.path.realpath(exclude) if exclude is not None else None
-
-    def walk(folder: Path) -> Iterator[Path]:
-        for entry in sorted(folder.iterdir()):
-            if excluded is not None and os.path.realpath(entry) == excluded:
-                continue
-            if entry.name.startswith("."):
-                continue
-            if is_ros2_bag(entry):
-                yield entry
-            elif entry.is_dir():
-                yield from walk(entry)
-            elif entry.suffix.lower() in LOG_SUFFIXES:
-                yield entry
-
-    for p in map(Path, paths):
-        check_input(p)
-        if p.is_dir() and not is_ros2_bag(p):
-            found.extend(walk(p))
-        else:
-            found.append(p)
-    unique: dict[Path, Path] = {}
-    for p in found:
-        unique.setdefault(Path(os.path.realpath(p)), p)
-    return list(unique)
-
-
-def argument_root(path: Path) -> Path:
-    """The folder an argument's logs are named relative to: a directory itself, a file's parent."""
-    path = absolute(path)
-    return path if path.is_dir() and not is_ros2_bag(path) else path.parent
-
-
-def common_root(paths: Sequence[Path]) -> Path:
-    """The deepest folder holding every argument: outputs mirror the input tree below it."""
-    return Path(os.path.commonpath([str(argument_root(p)) for p in paths]))
-
-
-def name_candidates(src: Path, root: Path) -> Iterator[str]:
-    """Output names for ``src`` (absolute, under ``root``), most readable first: its path below
-    ``root``; then with more and more of its parent folders in front; last, a hash of its path."""
-    rel = src.relative_to(root).parent / output_name(src)
-    yield rel.as_posix()
-    folders = src.parent.parts  # ("/", "data", ..., its folder)
-    for k in range(len(rel.parts), len(folders)):
-        yield Path(*folders[len(folders) - k :], output_name(src)).as_posix()
-    name = output_name(src)
-    stem, dot, suffix = name.rpartition(".") if not src.is_dir() else (name, "", "")
-    yield (rel.parent / f"{stem}-{hashlib.sha1(str(src).encode()).hexdigest()[:8]}{dot}{suffix}").as_posix()
-
-
-def plan_outputs(inputs: Sequence[Path], out_dir: Path, *, root: Path | None = None) -> list[Task]:
-    """One task per input, outputs mirroring the tree below ``root`` (default: the inputs' common
-    folder), each name held by one input only (see ``name_candidates``)."""
-    inputs = [absolute(p) for p in inputs]
-    root = root if root is not None else common_root(inputs)
-    taken: set[str] = set()
-    tasks = []
-    for src in inputs:
-        name = next(n for n in name_candidates(src, root) if n not in taken)
-        taken.add(name)
-        tasks.append(Task(src, out_dir / name))
-    return tasks
-
-
-# --------------------------------------------------------------------------- output directory
-
-
 def clean_temporaries(out_dir: Path) -> list[Path]:
     """Remove the ``.<name>.tmp-*`` files and directories a killed run left anywhere in ``out_dir``."""
     removed = []
@@ -230,56 +133,6 @@ def locked(out_dir: Path) -> Iterator[None]:
             yield
         finally:
             fcntl.flock(f, fcntl.LOCK_UN)
-
-
-# -------------------------------------------------------------------------------------- the task
-
-
-_QUEUE: Any = None  # progress queue of a local worker process
-
-
-def _init_worker(q: Any) -> None:
-    global _QUEUE
-    _QUEUE = q
-
-
-def annotate_task(task: Task, options: AnnotateOptions, catch_all: bool = True) -> dict[str, Any]:
-    """Annotate one log and return its manifest entry (never raises for a bad log).
-
-    With ``catch_all=False`` (Ray) only lanecast's own errors become ``failed`` entries; anything
-    else propagates so that Ray retries the task.
-    """
-    started = time.perf_counter()
-    entry: dict[str, Any] = {"input": str(task.input.resolve()), "output": str(task.output), "sha256": None}
-
-    def progress(messages: int, nbytes: int) -> None:
-        if _QUEUE is not None:
-            _QUEUE.put(messages)
-
-    try:
-        entry["stat"] = stat_signature(task.input)
-        counts = annotate_log(task.input, task.output, options, progress=progress)
-        entry["sha256"] = counts.pop("sha256")  # of the bytes read: the log is read once (the copy)
-        entry["output_sha256"] = checksum(task.output)  # what a resumed run trusts (see own_output)
-        entry.update(status="done", counts=counts, error=None)
-    except LanecastError as exc:
-        entry.update(status="failed", counts=None, error=str(exc))
-    except Exception as exc:
-        if not catch_all:
-            raise
-        entry.update(
-            status="failed",
-            counts=None,
-            error=f"{type(exc).__name__}: {exc}",
-            traceback=traceback.format_exc(limit=8),
-        )
-    entry["duration_s"] = round(time.perf_counter() - started, 3)
-    entry["finished_at"] = dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds")
-    entry["host"] = os.uname().nodename
-    return entry
-
-
-# ------------------------------------------------------------------------------------------ runner
 
 
 def model_identity(model_dir: Path | None) -> dict[str, str]:
@@ -502,119 +355,11 @@ def _run_bulk(
             if not tasks:
                 pass
             elif engine == "ray":
-                _run_ray(tasks, options, on_entry, on_messages, out_dir=out_dir, retries=retries)
+                run_ray(tasks, options, on_entry, on_messages, out_dir=out_dir, retries=retries)
             elif workers == 1:
-                _run_inline(tasks, options, on_entry, on_messages)
+                run_inline(tasks, options, on_entry, on_messages)
             else:
-                _run_pool(tasks, options, on_entry, on_messages, workers=workers)
+                run_pool(tasks, options, on_entry, on_messages, workers=workers)
         finally:
             progress.close()
     return result
-
-
-class _Direct:
-    """A stand-in for the workers' progress queue that reports at once."""
-
-    def __init__(self, report: Callable[[int], None]) -> None:
-        self.put = report
-
-
-def _run_inline(
-    tasks: Sequence[Task],
-    options: AnnotateOptions,
-    on_entry: Callable[[Task, dict[str, Any]], None],
-    on_messages: Callable[[int], None],
-) -> None:
-    global _QUEUE
-    _QUEUE = _Direct(on_messages)  # in-process: the bar moves while a log is copied
-    try:
-        for task in tasks:
-            on_entry(task, annotate_task(task, options))
-    finally:
-        _QUEUE = None
-
-
-def _run_pool(
-    tasks: Sequence[Task],
-    options: AnnotateOptions,
-    on_entry: Callable[[Task, dict[str, Any]], None],
-    on_messages: Callable[[int], None],
-    *,
-    workers: int,
-) -> None:
-    """At most ``workers`` logs in flight; a worker that dies fails its logs and the pool is renewed."""
-    ctx = mp.get_context("spawn")
-    q = ctx.Queue()
-    pending = list(tasks)[::-1]
-
-    def drain() -> None:
-        with contextlib.suppress(queue_mod.Empty):
-            while True:
-                on_messages(q.get_nowait())
-
-    while pending:
-        with ProcessPoolExecutor(
-            max_workers=workers, mp_context=ctx, initializer=_init_worker, initargs=(q,)
-        ) as pool:
-            running: dict[Future[dict[str, Any]], Task] = {}
-            broken = False
-            while (pending or running) and not broken:
-                while pending and len(running) < workers:
-                    task = pending.pop()
-                    running[pool.submit(annotate_task, task, options)] = task
-                done, _ = wait(list(running), timeout=0.25, return_when=FIRST_COMPLETED)
-                drain()
-                for fut in done:
-                    task = running.pop(fut)
-                    try:
-                        on_entry(task, fut.result())
-                    except BrokenProcessPool:
-                        broken = True
-                        on_entry(task, _crashed(task))
-            for task in running.values():  # the pool broke: the others in flight died with it
-                on_entry(task, _crashed(task))
-        drain()
-
-
-def _crashed(
-    task: Task, reason: str = "the worker process died (out of memory or killed?)"
-) -> dict[str, Any]:
-    return {
-        "input": str(task.input.resolve()),
-        "output": str(task.output),
-        "sha256": None,
-        "status": "failed",
-        "counts": None,
-        "error": reason,
-        "duration_s": None,
-        "finished_at": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
-    }
-
-
-def _run_ray(
-    tasks: Sequence[Task],
-    options: AnnotateOptions,
-    on_entry: Callable[[Task, dict[str, Any]], None],
-    on_messages: Callable[[int], None],
-    *,
-    out_dir: Path,
-    retries: int,
-) -> None:
-    """The same task on Ray, one CPU each: retried ``retries`` times when its worker dies or it
-    raises unexpectedly. The workers must see the inputs and OUT_DIR by the same absolute paths."""
-    ray = ray_engine.ray_module()  # connected by run_bulk
-    ray_engine.refuse_unreachable_paths([out_dir, *(t.input for t in tasks)])
-    remote = ray.remote(num_cpus=1, max_retries=retries, retry_exceptions=True)(annotate_task)
-    refs = {remote.remote(task, options, False): task for task in tasks}
-    while refs:
-        done, _ = ray.wait(list(refs), num_returns=1, timeout=1.0)
-        for ref in done:
-            task = refs.pop(ref)
-            try:
-                entry = ray.get(ref)
-            except Exception as exc:  # retries exhausted: the log fails, the run goes on
-                entry = _crashed(
-                    task, f"Ray task failed after {retries} retries: {type(exc).__name__}: {exc}"
-                )
-            on_messages(int((entry.get("counts") or {}).get("messages", 0)))
-            on_entry(task, entry)

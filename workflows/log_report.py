@@ -33,7 +33,7 @@ from lanecast.models.evaluation import write_metrics
 from lanecast.models.metrics import accuracy, confusion_matrix, macro_f1, summary
 from lanecast.models.report import Scene, write_report
 from lanecast.pipeline.make_windows import make_windows
-from lanecast.workflows.bulk import discover
+from lanecast.workflows.log_discovery import discover
 from lanecast.workflows.manifest import MANIFEST, Manifest
 
 STEP_NS = 100_000_000  # windows live on the 10 Hz grid; forecast times are matched on it
