@@ -316,3 +316,14 @@ def test_a_bad_cell_deep_in_a_streamed_export_is_named_by_line(
     with pytest.raises(InputError) as err:
         streaming.plan([bad], spill_dir=tmp_path / "spill", stream_bytes=0)
     assert "line 4001" in str(err.value) and "Local_Y" in str(err.value)
+
+
+def test_freed_memory_is_kept_for_the_next_piece_on_glibc() -> None:
+    import platform
+
+    from lanecast.workflows import heap
+
+    if platform.libc_ver()[0] != "glibc":
+        pytest.skip("mallopt is glibc's")
+    assert heap.keep_freed_memory() is True  # both thresholds accepted
+    assert heap.keep_freed_memory() is True  # once per process, then cached

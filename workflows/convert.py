@@ -12,7 +12,7 @@ from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.errors import InputError, UsageError
 from lanecast.io_adapters.files import check_output
 from lanecast.io_adapters.logs.rosbag_writer import STORAGES
-from lanecast.workflows import engines
+from lanecast.workflows import engines, heap
 from lanecast.workflows.vocabulary import HelpFormatter, add_location_option
 
 _SUFFIX_TO_FORMAT = {".parquet": "parquet", ".pq": "parquet", ".mcap": "mcap", ".bag": "ros1"}
@@ -111,6 +111,7 @@ def run(args: argparse.Namespace) -> int:
     if os.path.realpath(args.out) in {os.path.realpath(p) for p in args.inputs}:
         raise InputError(args.out, "the output would overwrite an input", expected="a new output path")
     engines.check(args.workers, args.engine)
+    heap.keep_freed_memory()  # pieces reuse what the previous one freed
     if fmt != "parquet":  # drive logs are written from the whole table
         table = registry.read_any(args.inputs, fmt=args.format, **options)
         path = registry.write_any(

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from lanecast.io_adapters.errors import InputError, LanecastError
-from lanecast.workflows import ray_engine
+from lanecast.workflows import heap, ray_engine
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -82,7 +82,9 @@ def ordered_map(
         for item in items:
             yield fn(item)
     else:
-        with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as pool:
+        with ProcessPoolExecutor(
+            max_workers=workers, mp_context=mp.get_context("spawn"), initializer=heap.keep_freed_memory
+        ) as pool:
             pending: deque[Future[R]] = deque()
             for item in items:
                 pending.append(pool.submit(fn, item))
@@ -110,6 +112,7 @@ def mapper_from_args(
 
 
 def _call(fn: Callable[[T], R], item: T) -> R:
+    heap.keep_freed_memory()  # once per Ray worker process
     return fn(item)
 
 

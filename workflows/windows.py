@@ -9,7 +9,7 @@ from pathlib import Path
 from lanecast.io_adapters import registry, streaming
 from lanecast.io_adapters.errors import InputError
 from lanecast.pipeline.make_windows import WindowOptions, write_windows
-from lanecast.workflows import engines
+from lanecast.workflows import engines, heap
 from lanecast.workflows.vocabulary import HelpFormatter, add_location_option
 
 
@@ -75,6 +75,7 @@ def run(args: argparse.Namespace) -> int:
     if args.stride < 1:
         raise InputError(None, f"--stride {args.stride}", expected="at least 1")
     engines.check(args.workers, args.engine)
+    heap.keep_freed_memory()  # pieces reuse what the previous one freed
     with streaming.spill_directory(args.out) as spill:  # NGSIM exports: a spill per recording
         options = {"location": args.location} if args.location else {}
         pieces = streaming.plan(
