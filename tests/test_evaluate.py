@@ -234,3 +234,41 @@ def test_shipped_model_forecast_lands_where_the_target_went(speed: float) -> Non
         miss = np.hypot(np.asarray(row["x"]) - cols["x"][at], np.asarray(row["y"]) - cols["y"][at])
         assert np.all(miss < 1.0), miss  # metres, after 125-165 m of travel (a frame error gives metres+)
         assert row["maneuver"] == [0, 0, 0, 0, 0]
+
+
+def test_evaluate_in_memory_mapped_batches_equals_one_shot(trained: tuple[Path, Path, Path]) -> None:
+    from lanecast.io_adapters.contracts.windows import labelled, load_windows
+    from lanecast.models.baselines import constant_acceleration
+    from lanecast.models.evaluation import evaluate, vehicle_ids
+    from lanecast.models.metrics import summary
+
+    windows_dir, model_dir, _ = trained
+    windows = load_windows(windows_dir)
+    assert isinstance(windows.inputs, np.memmap)
+    forecasters = [STCNNForecaster.load(model_dir, "stcnn"), constant_velocity(), constant_acceleration()]
+    batch = 37  # batches of the memory-mapped arrays, the last one short
+    metrics, preds, idx = evaluate(windows, forecasters, splits=("train", "val", "test"), batch_size=batch)
+    assert np.array_equal(idx, labelled(windows, ("train", "val", "test"))) and len(idx) % batch
+    # one shot: every selected window in memory, each forecaster cutting the same batches itself
+    inputs, present = np.load(windows_dir / "inputs.npy")[idx], np.load(windows_dir / "present.npy")[idx]
+    future, maneuver = np.asarray(windows.future[idx]), np.asarray(windows.maneuver[idx])
+    index = windows.index.take(idx)
+    recording = index.column("recording").to_numpy(zero_copy_only=False).astype(str)
+    for f in forecasters:
+        p = f.predict(inputs, present, top_k=3, batch_size=batch)
+        for field in ("offsets", "probs", "maneuver", "top_sequences", "top_probs", "top_offsets"):
+            a, b = getattr(p, field), getattr(preds[f.name], field)
+            assert (a is None and b is None) or np.array_equal(a, b), (f.name, field)
+        expected = summary(
+            p.offsets,
+            future,
+            maneuver,
+            vehicle_ids(index),
+            candidates=p.top_offsets,
+            predicted_maneuver=p.maneuver,
+            probs=p.probs,
+            recording=recording,
+        )
+        got = {k: v for k, v in metrics[f.name].items() if k != "n_out_of_distribution"}
+        assert json.dumps(got, sort_keys=True) == json.dumps(expected, sort_keys=True), f.name
+    assert metrics["stcnn"]["n_windows"] == len(idx)
