@@ -34,11 +34,12 @@ import pyarrow.parquet as pq
 
 from lanecast.io_adapters import registry
 from lanecast.io_adapters.contracts import track_table
-from lanecast.io_adapters.datasets import highd
+from lanecast.io_adapters.datasets import highd, highd_stream
 from lanecast.io_adapters.datasets import parquet as parquet_format
 from lanecast.io_adapters.errors import InputError, TrackTableError
 from lanecast.io_adapters.files import atomic_path, check_input
 
+LONG = ("whole", "tracks", "context")  # what a recording larger than a piece becomes (plan)
 MAX_ROWS = 1_000_000  # input rows per piece where recordings are small enough to group (memory ~ rows)
 CONTEXT_MARGIN_NS = 2_000_000_000  # context beyond the targets' lifetime: the native samples around
 # their first and last 10 Hz frames (resampling interpolates between neighbours' samples)
@@ -63,6 +64,7 @@ class Piece:
     options: tuple[tuple[str, Any], ...] = field(default_factory=tuple)
     spilled: str = ""  # NGSIM CSV export: a recording spilled by ngsim_stream (JSON)
     chunk: Chunk | None = None  # a chunk of whole tracks of one long recording (windows only)
+    continues: bool = False  # whole tracks of the previous piece's recording (a long one cut)
 
     @property
     def label(self) -> str:
@@ -161,17 +163,21 @@ def plan(
     spill_dir: Path | None = None,
     stream_bytes: int | None = None,
     options: Mapping[str, Any] | None = None,
-    chunks: bool = False,
+    long: str = "whole",
 ) -> list[Piece]:
     """The pieces of ``paths`` (formats detected per path unless ``fmt``; ``options`` for the
-    readers, e.g. ``location``), in dataset order. ``chunks``: a recording of a Parquet track
-    table larger than ``max_rows`` becomes chunks of whole tracks with context (for windows:
-    :meth:`Piece.read_with_context`), not one piece.
+    readers, e.g. ``location``), in dataset order. ``long``: what a recording of a Parquet track
+    table larger than ``max_rows`` becomes: ``whole`` one piece, ``tracks`` pieces of whole tracks
+    (each but the first ``continues`` the recording: for convert), ``context`` chunks of whole
+    tracks with the traffic around them (for windows: :meth:`Piece.read_with_context`).
 
-    With ``spill_dir`` (storage every worker sees, removed by the caller), NGSIM CSV exports of at
-    least ``stream_bytes`` (default STREAM_BYTES) are read incrementally into one spill per
-    recording there.
+    With ``spill_dir`` (storage every worker sees, removed by the caller), NGSIM CSV exports and
+    highD tracks files of at least ``stream_bytes`` (default STREAM_BYTES) are read incrementally
+    into one spill per recording there (a highD spill is a Parquet track table, cut as ``long``
+    says).
     """
+    if long not in LONG:
+        raise ValueError(f"long={long!r}, expected one of {LONG}")
     stream_bytes = STREAM_BYTES if stream_bytes is None else stream_bytes
     options = dict(options or {})
     opts = tuple(sorted(options.items()))
@@ -182,11 +188,16 @@ def plan(
     for name, group in groups.items():
         if name == parquet_format.FORMAT:
             for file in parquet_format.files(group):
-                pieces.extend(parquet_pieces(file, max_rows, chunks=chunks))
+                pieces.extend(parquet_pieces(file, max_rows, long=long))
         elif name == highd.FORMAT:
-            pieces.extend(
-                Piece(name, (str(rec.path("tracks")),), options=opts) for rec in highd.recordings(group)
-            )
+            for rec in highd.recordings(group):
+                tracks = rec.path("tracks")
+                if spill_dir is None or not tracks.is_file() or tracks.stat().st_size < stream_bytes:
+                    pieces.append(Piece(name, (str(tracks),), options=opts))
+                    continue
+                prefix = str(options.get("recording_prefix", "highd"))
+                for spill in highd_stream.split_tracks(rec, Path(spill_dir), prefix):
+                    pieces.extend(parquet_pieces(spill, max_rows, long=long))
         elif name == "ngsim":  # recordings are per file (location, file, period)
             for p in group:
                 pieces.extend(_ngsim_pieces(p, spill_dir, stream_bytes, options))
@@ -262,10 +273,10 @@ def recording_runs(path: Path) -> tuple[list[str], np.ndarray, np.ndarray]:
     return names, first, np.r_[first[1:], offset].astype(np.int64)
 
 
-def parquet_pieces(path: Path, max_rows: int = MAX_ROWS, *, chunks: bool = False) -> list[Piece]:
+def parquet_pieces(path: Path, max_rows: int = MAX_ROWS, *, long: str = "whole") -> list[Piece]:
     """Pieces of whole recordings of one Parquet track table, each at most ``max_rows`` rows unless
-    one recording alone is larger (then, with ``chunks``, :func:`track_chunks` of it), each
-    reading only the row groups that hold its rows."""
+    one recording alone is larger (then cut as ``long`` says, see :func:`plan`), each reading only
+    the row groups that hold its rows."""
     try:
         pf = pq.ParquetFile(path, page_checksum_verification=True)
         names, first, end = recording_runs(path)
@@ -284,15 +295,19 @@ def parquet_pieces(path: Path, max_rows: int = MAX_ROWS, *, chunks: bool = False
         while j < len(names) and end[j] - first[i] <= max_rows:
             j += 1
         lo, hi = int(first[i]), int(end[j - 1])
-        if chunks and hi - lo > max_rows:  # one recording (j == i + 1), larger than a piece
-            pieces.extend(track_chunks(path, pf, names[i], (lo, hi), group_start, max_rows))
+        if long != "whole" and hi - lo > max_rows:  # one recording (j == i + 1), larger than a piece
+            pieces.extend(
+                track_chunks(path, pf, names[i], (lo, hi), group_start, max_rows, context=long == "context")
+            )
         else:
             pieces.append(_row_range(path, group_start, lo, hi))
         i = j
     return pieces
 
 
-def _row_range(path: Path, group_start: np.ndarray, lo: int, hi: int, chunk: Chunk | None = None) -> Piece:
+def _row_range(
+    path: Path, group_start: np.ndarray, lo: int, hi: int, chunk: Chunk | None = None, continues: bool = False
+) -> Piece:
     """The piece of rows [lo, hi) of a Parquet file whose row groups start at ``group_start``."""
     g0 = int(np.searchsorted(group_start, lo, side="right") - 1)
     g1 = int(np.searchsorted(group_start, hi, side="left"))
@@ -303,6 +318,7 @@ def _row_range(path: Path, group_start: np.ndarray, lo: int, hi: int, chunk: Chu
         offset=lo - int(group_start[g0]),
         rows=hi - lo,
         chunk=chunk,
+        continues=continues,
     )
 
 
@@ -313,10 +329,13 @@ def track_chunks(
     rows: tuple[int, int],
     group_start: np.ndarray,
     max_rows: int = MAX_ROWS,
+    *,
+    context: bool = True,
 ) -> list[Piece]:
     """Chunks of the long recording ``recording`` (rows [first, end) of ``path``): consecutive
-    whole tracks of about ``max_rows`` rows each (one track alone may be larger), each with the
-    rows of every other track alive during its tracks' lifetime (± CONTEXT_MARGIN_NS) as context.
+    whole tracks of about ``max_rows`` rows each (one track alone may be larger), each (with
+    ``context``) with the rows of every other track alive during its tracks' lifetime
+    (± CONTEXT_MARGIN_NS) as context; every chunk but the first ``continues`` the recording.
 
     A time cut would lose what windows take from a track's past and future (the run a window's
     stride counts from, labels and the window frame's chord, seconds away); whole tracks keep
@@ -354,6 +373,10 @@ def track_chunks(
         bounds.append(min(max(k, bounds[-1] + 1), first.size))
     pieces = []
     for a, b in itertools.pairwise(bounds):
+        row_end = int(last[b - 1]) + 1 + lo
+        if not context:
+            pieces.append(_row_range(path, group_start, int(first[a]) + lo, row_end, continues=a > 0))
+            continue
         t0 = int(t_first[a:b].min()) - CONTEXT_MARGIN_NS
         t1 = int(t_last[a:b].max()) + CONTEXT_MARGIN_NS
         alive = np.flatnonzero((t_last >= t0) & (t_first <= t1))
@@ -366,8 +389,7 @@ def track_chunks(
             ids_given=tuple(sorted(ids_given)),
             lanes_everywhere=bool(lanes_everywhere),
         )
-        row_end = int(last[b - 1]) + 1 + lo
-        pieces.append(_row_range(path, group_start, int(first[a]) + lo, row_end, chunk))
+        pieces.append(_row_range(path, group_start, int(first[a]) + lo, row_end, chunk, a > 0))
     return pieces
 
 
@@ -391,7 +413,9 @@ def iter_tables(pieces: Sequence[Piece]) -> Iterator[pa.Table]:
 
 class TrackTableWriter:
     """Writes a track table piece by piece, atomically: one Parquet file, or (``directory``) a
-    dataset directory of one Parquet file per piece. Recording names must be unique across pieces."""
+    dataset directory of one Parquet file per piece (the pieces of a long recording cut in whole
+    tracks share one). Recording names must be unique across pieces, but for a piece that
+    ``continues`` the previous one's recording."""
 
     def __init__(self, out: str | Path, *, directory: bool) -> None:
         self.out, self.directory = Path(out), directory
@@ -400,7 +424,7 @@ class TrackTableWriter:
         self._sources: list[str] = []
         self._stack = contextlib.ExitStack()
         self._tmp: Path | None = None
-        self._writer: pq.ParquetWriter | None = None
+        self._writer: pq.ParquetWriter | None = None  # the file, or the open part of a directory
         self._parts = 0
 
     def __enter__(self) -> TrackTableWriter:
@@ -427,22 +451,23 @@ class TrackTableWriter:
         """Where part ``index`` of a directory output goes."""
         return self.part_root() / f"part-{index:05d}.parquet"
 
-    def write(self, table: pa.Table, source: str = "") -> None:
+    def write(self, table: pa.Table, source: str = "", *, continues: bool = False) -> None:
         """Append one validated piece (its metadata names its recordings; ``source`` names the
-        input in errors)."""
+        input in errors); ``continues``: more whole tracks of the previous piece's recording."""
         assert self._tmp is not None, "use TrackTableWriter as a context manager"
-        self._account(track_table.read_meta(table), source)
+        if not continues:
+            self._account(track_table.read_meta(table), source)
         self.rows += table.num_rows
         self.tracks += len(track_table.track_boundaries(table)) - 1
         if self.directory:
-            pq.write_table(
-                table,
-                self.part_path(self._parts),
-                compression="zstd",
-                row_group_size=ROW_GROUP_ROWS,
-                write_page_checksum=True,
-            )
-            self._parts += 1
+            if not continues:
+                self._close_part()
+                self._writer = pq.ParquetWriter(
+                    self.part_path(self._parts), table.schema, compression="zstd", write_page_checksum=True
+                )
+                self._parts += 1
+            assert self._writer is not None
+            self._writer.write_table(table.cast(self._writer.schema), row_group_size=ROW_GROUP_ROWS)
             return
         if self._writer is None:
             self._writer = pq.ParquetWriter(
@@ -450,16 +475,28 @@ class TrackTableWriter:
             )
         self._writer.write_table(self._aligned(table), row_group_size=ROW_GROUP_ROWS)
 
-    def add_part(self, path: Path, source: str = "") -> None:
-        """Account for a part file a worker wrote (directory output) or append it (file output)."""
+    def add_part(
+        self, path: Path, source: str = "", *, continues: bool = False, continued: bool = False
+    ) -> None:
+        """Take a part file a worker wrote: moved into a directory output as its next part, or
+        appended (file output, or a piece of a long recording: it ``continues`` the previous
+        piece's recording or is ``continued`` by the next); the worker's file is removed."""
         table = track_table.read_parquet(path)
-        if self.directory:
+        if self.directory and not (continues or continued):
+            self._close_part()
             self._account(track_table.read_meta(table), source)
             self.rows += table.num_rows
             self.tracks += len(track_table.track_boundaries(table)) - 1
+            path.replace(self.part_path(self._parts))
             self._parts += 1
         else:
-            self.write(table, source)
+            self.write(table, source, continues=continues)
+            path.unlink()
+
+    def _close_part(self) -> None:
+        if self.directory and self._writer is not None:
+            self._writer.close()
+            self._writer = None
 
     def _account(self, meta: track_table.TableMeta, source: str) -> None:
         self._metas.append(meta)
@@ -487,6 +524,7 @@ class TrackTableWriter:
         if not self._metas:
             raise InputError(self.out, "no rows to write", expected="at least one recording")
         if self.directory:
+            self._close_part()
             return
         assert self._writer is not None
         meta = track_table.merge_meta(self._metas, self._sources)
@@ -517,15 +555,16 @@ def convert(
     with TrackTableWriter(out, directory=directory) as writer:
         if ordered_map is None:
             for piece in pieces:
-                writer.write(piece.read(), piece.paths[0])
+                writer.write(piece.read(), piece.paths[0], continues=piece.continues)
         else:
-            with contextlib.ExitStack() as stack:
-                root = writer.part_root() if directory else stack.enter_context(_parts_dir(Path(out)))
+            with _parts_dir(Path(out)) as root:
                 task = functools.partial(write_part, root=str(root))
-                for piece, path in zip(pieces, ordered_map(task, list(enumerate(pieces))), strict=False):
-                    writer.add_part(Path(path), piece.paths[0])
-                    if not directory:
-                        Path(path).unlink()
+                results = ordered_map(task, list(enumerate(pieces)))
+                for i, (piece, path) in enumerate(zip(pieces, results, strict=False)):
+                    continued = i + 1 < len(pieces) and pieces[i + 1].continues
+                    writer.add_part(
+                        Path(path), piece.paths[0], continues=piece.continues, continued=continued
+                    )
     return writer.rows, writer.tracks
 
 

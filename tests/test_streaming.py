@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import shutil
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
@@ -16,7 +17,7 @@ import pytest
 from lanecast.io_adapters import registry, streaming
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.contracts.windows import NpyAppender, Windows, compute_stats, load_windows
-from lanecast.io_adapters.datasets import ngsim, ngsim_stream
+from lanecast.io_adapters.datasets import highd, ngsim, ngsim_stream
 from lanecast.io_adapters.errors import InputError, TrackTableError
 from lanecast.pipeline.make_windows import WindowOptions, make_windows, write_windows
 from lanecast.workflows.cli import main
@@ -100,7 +101,7 @@ def test_a_long_recording_windowed_in_chunks_equals_the_one_call_result(
     path = tmp_path / "one.parquet"
     pq.write_table(table, path, row_group_size=7_000)  # chunks' context spans row groups
     per_recording = max(table.num_rows // 10, 1)
-    pieces = streaming.plan([path], max_rows=per_recording, chunks=True)
+    pieces = streaming.plan([path], max_rows=per_recording, long="context")
     assert len(pieces) > 2 * 4 and all(p.chunk is not None for p in pieces)
     targets = [p.chunk.targets for p in pieces if p.chunk is not None]
     assert all(a <= b for a, b in targets)
@@ -118,6 +119,89 @@ def test_a_long_recording_windowed_in_chunks_equals_the_one_call_result(
     assert [p.chunk.recording for p in pieces if p.chunk] == sorted(
         p.chunk.recording for p in pieces if p.chunk
     )
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+@pytest.mark.parametrize("directory", [False, True], ids=["file", "partition"])
+def test_a_long_highd_recording_converts_block_by_block_in_whole_tracks(
+    sim_recording_dir: Path, tmp_path: Path, directory: bool, workers: int
+) -> None:
+    from lanecast.io_adapters.datasets import highd_stream
+    from lanecast.workflows import engines
+
+    expected = registry.read_any([sim_recording_dir])
+    with streaming.spill_directory(tmp_path / "out") as spill:
+        block = highd_stream.BLOCK_BYTES
+        highd_stream.BLOCK_BYTES = 64 << 10  # many blocks, tracks held back across them
+        try:
+            pieces = streaming.plan(
+                [sim_recording_dir],
+                spill_dir=spill.path,
+                stream_bytes=0,
+                max_rows=expected.num_rows // 7,
+                long="tracks",
+            )
+        finally:
+            highd_stream.BLOCK_BYTES = block
+        assert sum(p.continues for p in pieces) >= 4  # each direction cut in whole tracks
+        ordered_map = None if workers == 1 else functools.partial(engines.ordered_map, workers=workers)
+        rows, tracks = streaming.convert(
+            pieces, tmp_path / "out", directory=directory, ordered_map=ordered_map
+        )
+    assert (rows, tracks) == (expected.num_rows, len(track_table.track_boundaries(expected)) - 1)
+    assert not list(tmp_path.glob(".out.*"))  # spills and parts removed
+    got = registry.read_any([tmp_path / "out"])
+    _assert_same_tracks(expected, got)
+    if directory:  # one part per recording: a recording is never split over files
+        assert len(list((tmp_path / "out").glob("part-*.parquet"))) == 2
+
+
+def test_a_long_highd_recording_windowed_from_its_csv_equals_the_one_call_result(
+    sim_recording_dir: Path, tmp_path: Path
+) -> None:
+    table = registry.read_any([sim_recording_dir])
+    expected = make_windows(table)
+    with streaming.spill_directory(tmp_path / "w") as spill:
+        pieces = streaming.plan(
+            [sim_recording_dir],
+            spill_dir=spill.path,
+            stream_bytes=0,
+            max_rows=table.num_rows // 5,
+            long="context",
+        )
+        assert sum(p.chunk is not None for p in pieces) >= 4
+        streamed = write_windows(pieces, tmp_path / "w")
+    _assert_same_windows(expected, streamed)
+
+
+def test_an_unsorted_or_damaged_highd_file_read_in_blocks_goes_the_whole_file_way(
+    sim_recording_dir: Path, tmp_path: Path
+) -> None:
+    from lanecast.io_adapters.datasets import highd_stream
+
+    lines = (sim_recording_dir / "01_tracks.csv").read_text().splitlines(keepends=True)
+    for kind in ("tracksMeta", "recordingMeta"):
+        shutil.copy(sim_recording_dir / f"01_{kind}.csv", tmp_path / f"01_{kind}.csv")
+    # unsorted: the last vehicle's rows first; read whole, spilled all the same
+    last = lines[-1].split(",", 2)[1]
+    tail = [line for line in lines[1:] if line.split(",", 2)[1] == last]
+    body = [line for line in lines[1:] if line.split(",", 2)[1] != last]
+    (tmp_path / "01_tracks.csv").write_text(lines[0] + "".join(tail + body))
+    rec = highd.recordings([tmp_path])[0]
+    spill = tmp_path / "spill"
+    spill.mkdir()
+    spills = highd_stream.split_tracks(rec, spill, block_bytes=64 << 10)
+    got = track_table.concat([track_table.read_parquet(p) for p in spills])
+    _assert_same_tracks(registry.read_any([tmp_path / "01_tracks.csv"]), got)
+    # a bad cell deep in the file is named by its line, as the whole-file reader names it
+    bad = len(lines) - 5
+    fields = lines[bad].split(",")
+    fields[2] = "oops"
+    lines[bad] = ",".join(fields)
+    (tmp_path / "01_tracks.csv").write_text("".join(lines))
+    with pytest.raises(InputError) as info:
+        highd_stream.split_tracks(rec, spill, block_bytes=64 << 10)
+    assert info.value.line == bad + 1
 
 
 def test_a_failing_piece_leaves_no_half_written_dataset(dataset: Path, tmp_path: Path) -> None:

@@ -120,7 +120,9 @@ def run(args: argparse.Namespace) -> int:
         rows, tracks = table.num_rows, len(track_table.track_boundaries(table)) - 1
     else:
         with streaming.spill_directory(args.out) as spill:  # NGSIM exports: a spill per recording
-            pieces = streaming.plan(args.inputs, fmt=args.format, spill_dir=spill.path, options=options)
+            pieces = streaming.plan(
+                args.inputs, fmt=args.format, spill_dir=spill.path, options=options, long="tracks"
+            )
             ordered_map = engines.mapper_from_args(args, args.inputs, args.out)
             rows, tracks = streaming.convert(pieces, args.out, directory=directory, ordered_map=ordered_map)
         path = args.out

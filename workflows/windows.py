@@ -79,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
     with streaming.spill_directory(args.out) as spill:  # NGSIM exports: a spill per recording
         options = {"location": args.location} if args.location else {}
         pieces = streaming.plan(
-            args.table, fmt=args.format, spill_dir=spill.path, options=options, chunks=True
+            args.table, fmt=args.format, spill_dir=spill.path, options=options, long="context"
         )
         ordered_map = engines.mapper_from_args(args, args.table, args.out)
         windows = write_windows(
