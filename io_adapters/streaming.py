@@ -45,6 +45,8 @@ CONTEXT_MARGIN_NS = 2_000_000_000  # context beyond the targets' lifetime: the n
 # their first and last 10 Hz frames (resampling interpolates between neighbours' samples)
 ROW_GROUP_ROWS = 1 << 20  # rows per Parquet row group of written track tables
 STREAM_BYTES = 256 << 20  # NGSIM CSV exports from this size on are read incrementally
+HIGHD_STREAM_BYTES = 64 << 20  # highD tracks files likewise (15 dense minutes ~140 MB: the same
+# CPU time either way, 0.43 instead of 0.75 GB)
 
 
 @dataclass(frozen=True)
@@ -172,12 +174,13 @@ def plan(
     tracks with the traffic around them (for windows: :meth:`Piece.read_with_context`).
 
     With ``spill_dir`` (storage every worker sees, removed by the caller), NGSIM CSV exports and
-    highD tracks files of at least ``stream_bytes`` (default STREAM_BYTES) are read incrementally
-    into one spill per recording there (a highD spill is a Parquet track table, cut as ``long``
-    says).
+    highD tracks files of at least ``stream_bytes`` (default STREAM_BYTES, HIGHD_STREAM_BYTES for
+    highD) are read incrementally into one spill per recording there (a highD spill is a Parquet
+    track table, cut as ``long`` says).
     """
     if long not in LONG:
         raise ValueError(f"long={long!r}, expected one of {LONG}")
+    highd_bytes = HIGHD_STREAM_BYTES if stream_bytes is None else stream_bytes
     stream_bytes = STREAM_BYTES if stream_bytes is None else stream_bytes
     options = dict(options or {})
     opts = tuple(sorted(options.items()))
@@ -192,7 +195,7 @@ def plan(
         elif name == highd.FORMAT:
             for rec in highd.recordings(group):
                 tracks = rec.path("tracks")
-                if spill_dir is None or not tracks.is_file() or tracks.stat().st_size < stream_bytes:
+                if spill_dir is None or not tracks.is_file() or tracks.stat().st_size < highd_bytes:
                     pieces.append(Piece(name, (str(tracks),), options=opts))
                     continue
                 prefix = str(options.get("recording_prefix", "highd"))
