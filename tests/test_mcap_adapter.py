@@ -656,6 +656,35 @@ def _varint(value: int) -> bytes:
             return bytes(out)
 
 
+def test_varints_of_every_length_decode_exactly() -> None:
+    """Varints of 1 to 10 bytes (the one-byte gather, the joined 8-byte word, the 10-byte window)."""
+    from lanecast.io_adapters.logs import protobuf_wire
+
+    rng = np.random.default_rng(5)
+    edges = [
+        0,
+        1,
+        127,
+        128,
+        300,
+        2**14,
+        2**21 - 1,
+        2**28 + 5,
+        2**35 - 1,
+        2**49 + 3,
+        2**56 - 1,
+        2**56,
+        2**63 - 1,
+    ]
+    values = [*edges, 2**64 - 1, *rng.integers(0, 2**63, 500).tolist(), *rng.integers(0, 2**30, 500).tolist()]
+    coded = [_varint(v) for v in values]
+    buf = np.frombuffer(b"".join(coded) + bytes(16), dtype=np.uint8)
+    pos = np.cumsum([0] + [len(c) for c in coded[:-1]])
+    got, after = protobuf_wire.varints(buf, pos)
+    assert got.tolist() == values
+    assert (after - pos).tolist() == [len(c) for c in coded]
+
+
 def test_decimal_strings_parse_like_python_float() -> None:
     """The vectorised number parser gives Python's float() for shortest float32 reprs, exponents
     included (those take numpy's own parser)."""

@@ -276,6 +276,14 @@ def _row_order(track: np.ndarray, frame: np.ndarray, time_ns: np.ndarray) -> np.
     return np.lexsort((time_ns, frame, track))
 
 
+def _gather(column: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """column[order]; a float column that is all NaN (what the log does not have, e.g. the
+    accelerations lanecast does not write) becomes NaN without a gather."""
+    if column.dtype.kind == "f" and column.size and np.isnan(column[0]) and np.isnan(column).all():
+        return np.full(order.size, np.nan)
+    return column[order]
+
+
 def _derive(
     cols: dict[str, np.ndarray], frames: np.ndarray, body: bool
 ) -> tuple[dict[str, np.ndarray], np.ndarray, int]:
@@ -288,7 +296,7 @@ def _derive(
     keep = run_starts(track, frame)
     order = order[keep]
     dropped = int((~keep).sum())
-    c = {k: v[order] for k, v in cols.items() if k != "msg_time"}
+    c = {k: _gather(v, order) for k, v in cols.items() if k != "msg_time"}
     track, frame = c["track_id"], frames[order]
     heading = c["yaw"]
     t = c["time_ns"]

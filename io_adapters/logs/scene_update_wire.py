@@ -206,9 +206,25 @@ def scene_update_block(
     """Decode protobuf ``foxglove.SceneUpdate`` messages buf[starts[i]:ends[i]] (i < m) at once.
 
     Returns the columns of their entities that have a cube (arrays [n], NaN = absent, first cube
-    of an entity), as :meth:`ObjectColumns.add_block` takes them. ``buf`` is copied unless it
+    of an entity), as :meth:`ObjectColumns.add_blocks` takes them. ``buf`` is copied unless it
     holds :data:`PAD` bytes after the last message.
     """
+    parts = scene_update_groups(buf, starts, ends, log_times)
+    if len(parts) == 1:
+        return parts[0]
+    block: dict[str, Any] = {
+        k: np.concatenate([p[k] for p in parts]) for k in parts[0] if k not in ("classes", "frame_ids")
+    }
+    block["classes"] = Categorical.concat([p["classes"] for p in parts])
+    block["frame_ids"] = Categorical.concat([p["frame_ids"] for p in parts])
+    return block
+
+
+def scene_update_groups(
+    buf: np.ndarray, starts: np.ndarray, ends: np.ndarray, log_times: np.ndarray
+) -> list[dict[str, Any]]:
+    """:func:`scene_update_block` as the blocks of consecutive entity groups (in order, not joined:
+    the reader joins all of a topic's blocks once)."""
     if starts.size and int((ends - starts).max()) > MAX_MESSAGE_BYTES:
         raise ValueError(
             f"a SceneUpdate message of {int((ends - starts).max()):,} bytes "
@@ -219,20 +235,14 @@ def scene_update_block(
     msgs = scan(buf, starts, ends, np.arange(starts.size))
     ent = msgs.pick(2, 2)
     if ent.size <= ENTITY_GROUP:
-        return _entity_columns(buf, msgs.start[ent], msgs.end[ent], log_times[msgs.owner[ent]])
+        return [_entity_columns(buf, msgs.start[ent], msgs.end[ent], log_times[msgs.owner[ent]])]
     # The entities of consecutive messages, a group at a time: the group's bytes and arrays stay in
     # the CPU cache.
     owner = msgs.owner[ent]
     total = np.cumsum(np.bincount(owner, minlength=starts.size))
     cuts = [0, *np.searchsorted(total, np.arange(ENTITY_GROUP, ent.size, ENTITY_GROUP)).tolist(), starts.size]
     groups = [ent[(owner >= a) & (owner < b)] for a, b in itertools.pairwise(cuts) if b > a]
-    parts = [_entity_columns(buf, msgs.start[g], msgs.end[g], log_times[msgs.owner[g]]) for g in groups]
-    block: dict[str, Any] = {
-        k: np.concatenate([p[k] for p in parts]) for k in parts[0] if k not in ("classes", "frame_ids")
-    }
-    block["classes"] = Categorical.concat([p["classes"] for p in parts])
-    block["frame_ids"] = Categorical.concat([p["frame_ids"] for p in parts])
-    return block
+    return [_entity_columns(buf, msgs.start[g], msgs.end[g], log_times[msgs.owner[g]]) for g in groups]
 
 
 def _entity_columns(
@@ -336,7 +346,7 @@ class SceneUpdateBatch:
 
     def _decode(self, pieces: list[tuple[int, bytes, Any, Any, Any]]) -> None:
         args = piece_arrays(pieces)
-        self.columns.add_block(scene_update_block(*args), int(args[1].size))
+        self.columns.add_blocks(scene_update_groups(*args), int(args[1].size))
 
 
 def piece_arrays(

@@ -123,7 +123,7 @@ class ObjectColumns:
 
     Per-message decoders append to flat lists: ints (time_ns, message stamp ns, track id), floats
     (see ``_FLOATS``; NaN = not in the message), the class and the frame id. Vectorised decoders
-    append whole blocks of arrays (:meth:`add_block`).
+    append whole blocks of arrays (:meth:`add_blocks`).
     """
 
     __slots__ = ("blocks", "classes", "floats", "frame_ids", "ints", "messages", "velocity_in_body")
@@ -137,11 +137,11 @@ class ObjectColumns:
         self.messages = 0
         self.velocity_in_body = False
 
-    def add_block(self, block: dict[str, Any], messages: int) -> None:
-        """Arrays [n] named like ``_FLOATS`` (a ``yaw`` instead of the quaternion) plus time_ns,
-        msg_time, track_id, and
-        ``classes``/``frame_ids`` as :class:`Categorical`."""
-        self.blocks.append(block)
+    def add_blocks(self, blocks: list[dict[str, Any]], messages: int) -> None:
+        """Blocks of arrays [n] named like ``_FLOATS`` (a ``yaw`` instead of the quaternion) plus
+        time_ns, msg_time, track_id, and ``classes``/``frame_ids`` as :class:`Categorical`, from
+        ``messages`` messages (kept apart until :meth:`arrays` joins everything once)."""
+        self.blocks.extend(blocks)
         self.messages += messages
 
     def __len__(self) -> int:
