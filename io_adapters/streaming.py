@@ -43,7 +43,8 @@ LONG = ("whole", "tracks", "context")  # what a recording larger than a piece be
 MAX_ROWS = 1_000_000  # input rows per piece where recordings are small enough to group (memory ~ rows)
 CONTEXT_MARGIN_NS = 2_000_000_000  # context beyond the targets' lifetime: the native samples around
 # their first and last 10 Hz frames (resampling interpolates between neighbours' samples)
-ROW_GROUP_ROWS = 1 << 20  # rows per Parquet row group of written track tables
+ROW_GROUP_ROWS = 1 << 17  # rows per Parquet row group of written track tables (a chunk of a long
+# recording reads the groups that hold its context: small groups, little decoded in vain)
 STREAM_BYTES = 256 << 20  # NGSIM CSV exports from this size on are read incrementally
 HIGHD_STREAM_BYTES = 64 << 20  # highD tracks files likewise (15 dense minutes ~140 MB: the same
 # CPU time either way, 0.43 instead of 0.75 GB)
