@@ -10,8 +10,9 @@ Inputs (made once into --work, reused): a simulated highD recording of 15 minute
   dataset grows, every piece stays the same: memory must stay flat);
 - ``--layout long``: one recording of N minutes, the 15 minutes repeated in time (frames and
   vehicle ids shifted, so each copy is new traffic to the stages), or with ``--source DIR`` the
-  first N minutes of a longer simulation (the vehicles that have left by then). One recording is
-  one piece: memory grows with it.
+  first N minutes of a longer simulation (the vehicles that have left by then). `convert` reads
+  its tracks file in blocks and writes pieces of whole tracks; `windows` cuts it into chunks of
+  whole tracks with their context (docs/design.md, whole datasets): memory must stay flat too.
 
 Each command runs in its own process (`python -m lanecast …`); wall time, user and system CPU
 time and peak resident memory come from the kernel for that process (``os.wait4``). Sizes are
