@@ -31,9 +31,7 @@ from lanecast.workflows.annotate_log import (
     annotate_log,
 )
 from lanecast.workflows.log_discovery import Task
-from lanecast.workflows.manifest import (
-    stat_signature,
-)
+from lanecast.workflows.manifest import stat_signature
 
 _QUEUE: Any = None  # progress queue of a local worker process
 

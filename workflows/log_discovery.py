@@ -17,12 +17,8 @@ from pathlib import Path
 from typing import Any
 
 from lanecast.io_adapters.files import check_input
-from lanecast.workflows.annotate_log import (
-    output_name,
-)
-from lanecast.workflows.manifest import (
-    absolute,
-)
+from lanecast.workflows.annotate_log import output_name
+from lanecast.workflows.manifest import absolute
 
 LOG_SUFFIXES = (".mcap", ".bag")
 

@@ -33,9 +33,7 @@ import pyarrow as pa
 
 from lanecast.io_adapters import json_fields as jf
 from lanecast.io_adapters.contracts import track_table
-from lanecast.io_adapters.contracts.track_runs import (
-    run_bounds,
-)
+from lanecast.io_adapters.contracts.track_runs import run_bounds
 from lanecast.io_adapters.errors import LogError
 
 FIXED_FRAMES: frozenset[str] = frozenset({"map", "odom", "world", "road"})
