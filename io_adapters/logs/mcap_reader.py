@@ -50,8 +50,6 @@ from lanecast.io_adapters.logs.mcap_walk import (
 )
 
 FORMAT = "mcap"
-
-
 SCENE_UPDATE = "foxglove.SceneUpdate"
 FRAME_TRANSFORMS = ("foxglove.FrameTransform", "foxglove.FrameTransforms")
 OBJECT_TYPES = (SCENE_UPDATE, ros_types.TRACKED_OBJECTS, ros_types.MARKER_ARRAY)
