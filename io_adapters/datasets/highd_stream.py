@@ -29,6 +29,7 @@ from lanecast.io_adapters.errors import InputError
 # bytes of CSV per block; the peak of a 2-hour file grows with it (measured: 8 MB 0.6 GB, 16 MB 0.95 GB,
 # 32 MB 1.6 GB), the time hardly changes
 BLOCK_BYTES = 8 << 20
+SPILL_COMPRESSION = "zstd"  # the spills of every long recording wait on disk: kept small
 
 
 class _NotStreamable(Exception):
@@ -94,7 +95,10 @@ def _split(rec: highd.Recording, spill_dir: Path, name_prefix: str, block_bytes:
                 part_meta = track_table.restrict_meta(track_table.read_meta(table), [name])
                 schema = part.schema.with_metadata({track_table.META_KEY: part_meta.to_json().encode()})
                 writers[name] = pq.ParquetWriter(
-                    spill_dir / f"{name}.parquet", schema, compression="zstd", write_page_checksum=True
+                    spill_dir / f"{name}.parquet",
+                    schema,
+                    compression=SPILL_COMPRESSION,
+                    write_page_checksum=True,
                 )
             writers[name].write_table(part.replace_schema_metadata(writers[name].schema.metadata))
 
@@ -131,6 +135,6 @@ def _spill_whole(table: pa.Table, spill_dir: Path) -> list[Path]:
         part_meta = track_table.restrict_meta(meta, [name])
         part = part.replace_schema_metadata({track_table.META_KEY: part_meta.to_json().encode()})
         path = spill_dir / f"{name}.parquet"
-        pq.write_table(part, path, compression="zstd", write_page_checksum=True)
+        pq.write_table(part, path, compression=SPILL_COMPRESSION, write_page_checksum=True)
         out.append(path)
     return out
