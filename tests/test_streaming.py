@@ -121,7 +121,7 @@ def test_a_long_recording_windowed_in_chunks_equals_the_one_call_result(
     )
 
 
-@pytest.mark.parametrize("workers", [1, 2])
+@pytest.mark.parametrize("workers", [1, pytest.param(2, marks=pytest.mark.slow)])  # processes: seconds
 @pytest.mark.parametrize("directory", [False, True], ids=["file", "partition"])
 def test_a_long_highd_recording_converts_block_by_block_in_whole_tracks(
     sim_recording_dir: Path, tmp_path: Path, directory: bool, workers: int
@@ -411,3 +411,5 @@ def test_freed_memory_is_kept_for_the_next_piece_on_glibc() -> None:
         pytest.skip("mallopt is glibc's")
     assert heap.keep_freed_memory() is True  # both thresholds accepted
     assert heap.keep_freed_memory() is True  # once per process, then cached
+    assert heap.keep_freed_memory(arrow=True) is True
+    assert pa.default_memory_pool().backend_name == "system"  # Arrow's buffers on the same heap

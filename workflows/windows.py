@@ -75,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
     if args.stride < 1:
         raise InputError(None, f"--stride {args.stride}", expected="at least 1")
     engines.check(args.workers, args.engine)
-    heap.keep_freed_memory()  # pieces reuse what the previous one freed
+    heap.keep_freed_memory(arrow=True)  # pieces reuse what the previous one freed
     with streaming.spill_directory(args.out) as spill:  # NGSIM exports: a spill per recording
         options = {"location": args.location} if args.location else {}
         pieces = streaming.plan(
