@@ -8,7 +8,8 @@ Documented here, used by the MCAP and ROS bag writers and checked by the readers
   ``/lanecast/metadata``, and rosbag2 ``custom_data``) holds a JSON document: ``source_format``,
   ``frame_rate``, ``units`` and per recording ``topic``, ``frame_rate``, ``coordinate_frame``, the
   frame origin (``frame0``, ``time0_ns``) or an explicit frame list, ``source_files`` and ``extra``
-  (parsed and checked by :func:`parse_log_metadata`), and a digest of the object payload.
+  (parsed and checked by :func:`parse_log_metadata`); in the ROS bags lanecast writes, whose
+  formats have no checksum of their own, also a digest of their messages (:class:`PayloadDigest`).
 - SceneUpdate: one message per frame, entity id = track id, one cube (centre, yaw, length × width ×
   1.5 m), entity metadata ``class``, ``lane_id`` (absent = null), ``vx``, ``vy`` (float32 in their
   shortest decimal form); accelerations are not written (read back as velocity differences;
