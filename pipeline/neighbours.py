@@ -19,12 +19,12 @@ Three ways, chosen per recording by :func:`neighbour_rows` (``method="auto"``):
   without lane ids, and logs or arterials (NGSIM Lankershim, Peachtree) in a fixed world frame,
   where vehicles drive both ways and turn.
 
-Everything is vectorised over rows and frames (sorting and searchsorted; the band method works on
-all pairs of vehicles in a frame, in chunks of frames). Results are row indices into the table
-(-1 = none) so that the window stage can gather with fancy indexing.
+Everything is vectorised over rows and frames (sorting and searchsorted; the band method compares
+each vehicle with those of its frame within reach along the road, in chunks of pairs). Results are
+row indices into the table (-1 = none) so that the window stage can gather with fancy indexing.
 
-Size: the three selection methods share the columns, the row index and the slot rules; a little
-over 500 lines.
+Size: the three selection methods share the columns, the row index and the slot rules; about
+600 lines.
 """
 
 from __future__ import annotations
@@ -60,7 +60,7 @@ LANE_WIDTH = 3.75
 NEIGHBOUR_RANGE_M = 100.0
 METHODS = ("auto", "source", "lanes", "bands")
 _CANDIDATES = np.arange(-4, 4)  # positions around the insertion point searched in an adjacent lane
-_MAX_PAIRS = 4_000_000  # pairs per chunk in the band method
+_MAX_PAIRS = 4_000_000  # (target, candidate) pairs per chunk in the band method
 
 
 @dataclass
@@ -376,42 +376,107 @@ def _pick_front_along_rear(
     return picks[0], picks[1], picks[2]
 
 
-def from_bands(cols: Columns, rows: np.ndarray | None = None, lane_width: float = LANE_WIDTH) -> np.ndarray:
+def from_bands(
+    cols: Columns,
+    rows: np.ndarray | None = None,
+    lane_width: float = LANE_WIDTH,
+    max_range_m: float | None = None,
+) -> np.ndarray:
     """Neighbour rows [n, 7] from lateral bands one lane wide in each target's own frame.
 
-    Works on all pairs of vehicles of the same (recording, frame), a chunk of frames at a time.
+    Each target is compared with the vehicles of its (recording, frame) whose position along the
+    recording's axis (:func:`road_coordinates`) is within reach: all of them, or with ``max_range_m``
+    (for recordings not in a road frame, where :func:`limit_range` measures along the target's
+    heading) only those within sqrt(range² + (1.5 lane widths)²) + 1 m, a bound on the distance of
+    any neighbour in range. Vehicles farther away could only be picked to be dropped by
+    :func:`limit_range`, so the neighbours left after it are the same as against all vehicles.
+    Rows with a non-finite x, y or heading are in no band (nobody's neighbour, no neighbours).
     """
     out = np.full((cols.n, len(SLOTS)), -1, dtype=np.int64)
     sel = np.arange(cols.n) if rows is None else np.asarray(rows, dtype=np.int64)
+    sel = sel[np.isfinite(cols.x[sel]) & np.isfinite(cols.y[sel]) & np.isfinite(cols.heading[sel])]
     if sel.size == 0:
         return out
     f_rel = cols.frame[sel] - cols.frame[sel].min()
     gkey = cols.rec[sel] * (int(f_rel.max()) + 1) + f_rel
     order = np.argsort(gkey, kind="stable")
-    srt = sel[order]
+    srt = sel[order]  # candidate order = tie-break order (the first of equals wins)
     g = gkey[order]
-    starts = np.flatnonzero(np.r_[True, g[1:] != g[:-1]])
-    sizes = np.diff(np.append(starts, srt.size))
-    pairs = sizes.astype(np.int64) ** 2
-    cum = np.cumsum(pairs)
-    chunk_of_group = (cum - 1) // _MAX_PAIRS
-    for chunk in np.unique(chunk_of_group):
-        groups = np.flatnonzero(chunk_of_group == chunk)
-        _bands_chunk(cols, srt, starts[groups], sizes[groups], lane_width, out)
+    axis = road_coordinates(cols)[0][srt]
+    by_axis = np.lexsort((axis, g))  # positions in srt, sorted by (group, axis)
+    g_ax = g[by_axis]
+    lo = np.searchsorted(g_ax, g, side="left")  # default: the whole (recording, frame)
+    hi = np.searchsorted(g_ax, g, side="right")
+    reach = _band_reach(max_range_m, lane_width)
+    windowed = ~cols.road_frame[cols.rec[srt]]
+    if reach is not None and windowed.any():
+        window = _axis_windows(g, axis, by_axis, reach)
+        if window is not None:
+            lo = np.where(windowed, window[0], lo)
+            hi = np.where(windowed, window[1], hi)
+    chunk = (np.cumsum(hi - lo) - 1) // _MAX_PAIRS  # pairs per chunk bounded by _MAX_PAIRS
+    bounds = np.flatnonzero(np.r_[True, chunk[1:] != chunk[:-1]])
+    for a, b in zip(bounds, np.append(bounds[1:], srt.size), strict=True):
+        _bands_chunk(cols, srt, by_axis, np.arange(a, b), lo[a:b], hi[a:b], lane_width, out)
     return out
 
 
+def _band_reach(max_range_m: float | None, lane_width: float) -> float | None:
+    """Distance along the recording's axis beyond which no vehicle can be a neighbour in range."""
+    if max_range_m is None or not np.isfinite(max_range_m):
+        return None
+    return float(np.hypot(max_range_m, 1.5 * lane_width)) + 1.0
+
+
+def _axis_windows(
+    g: np.ndarray, axis: np.ndarray, by_axis: np.ndarray, reach: float
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """For each vehicle, the span [lo, hi) of ``by_axis`` (positions sorted by (group, axis)) holding
+    the vehicles of its group within ``reach`` along the axis, or a little more (never less). int64 [m].
+
+    One float64 key group_index * span + axis, span leaving ``reach`` of room on both sides so that
+    no window crosses into another group; None (no windows) when the key would be too coarse for a
+    1 m margin (ulp > 1 mm) or an axis value is not finite."""
+    if not np.all(np.isfinite(axis)):
+        return None
+    new = np.r_[True, g[1:] != g[:-1]]
+    gidx = np.cumsum(new) - 1  # g is sorted
+    a_min = float(axis.min())
+    span = float(axis.max()) - a_min + 2 * reach + 1.0
+    if (int(gidx[-1]) + 1) * span > 4.5e12:
+        return None
+    base = gidx * span + reach - a_min
+    key = (base + axis)[by_axis]  # sorted: by_axis sorts by (group, axis)
+    lo = np.searchsorted(key, base + axis - reach, side="left")
+    hi = np.searchsorted(key, base + axis + reach, side="right")
+    return lo, hi
+
+
 def _bands_chunk(
-    cols: Columns, srt: np.ndarray, starts: np.ndarray, sizes: np.ndarray, lane_width: float, out: np.ndarray
+    cols: Columns,
+    srt: np.ndarray,
+    by_axis: np.ndarray,
+    targets: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    lane_width: float,
+    out: np.ndarray,
 ) -> None:
-    n_pairs = sizes**2
-    grp = np.repeat(np.arange(sizes.size), n_pairs)
-    within = np.arange(grp.size) - np.repeat(np.cumsum(n_pairs) - n_pairs, n_pairs)
-    k = sizes[grp]
-    i = srt[starts[grp] + within // k]
-    j = srt[starts[grp] + within % k]
-    keep = i != j
-    i, j = i[keep], j[keep]
+    """Neighbours of the targets srt[targets] among the candidates srt[by_axis[lo:hi]] of each.
+
+    Per slot, the candidate with the lowest score wins, the first in ``srt`` order among equals
+    (the order an all-pairs search meets them in)."""
+    sizes = hi - lo
+    seg = np.repeat(np.arange(targets.size), sizes)
+    starts = np.cumsum(sizes) - sizes
+    cpos = by_axis[np.arange(seg.size) - starts[seg] + lo[seg]]  # candidate's position in srt
+    tpos = targets[seg]
+    keep = cpos != tpos
+    seg, cpos = seg[keep], cpos[keep]
+    if seg.size == 0:
+        return
+    i = srt[targets[seg]]
+    j = srt[cpos]
     h = cols.heading[i]
     ddx = cols.x[j] - cols.x[i]
     ddy = cols.y[j] - cols.y[i]
@@ -437,13 +502,18 @@ def _bands_chunk(
         "RR": (right & behind, -lon),
     }
     for slot, (mask, score) in rules.items():
-        ti, nj, sc = i[mask], j[mask], score[mask]
-        if ti.size == 0:
+        k = np.flatnonzero(mask)
+        if k.size == 0:
             continue
-        o = np.lexsort((sc, ti))
-        ti, nj = ti[o], nj[o]
-        first = np.r_[True, ti[1:] != ti[:-1]]
-        out[ti[first], SLOTS.index(slot)] = nj[first]
+        ks, sc, cp = seg[k], score[k], cpos[k]
+        first = np.r_[True, ks[1:] != ks[:-1]]  # pairs are grouped by target
+        starts_k = np.flatnonzero(first)
+        best = np.minimum.reduceat(sc, starts_k)
+        run = np.cumsum(first) - 1
+        cand = sc == best[run]  # NaN scores are never in a mask
+        big = np.iinfo(np.int64).max
+        pick = np.minimum.reduceat(np.where(cand, cp, big), starts_k)
+        out[srt[targets[ks[starts_k]]], SLOTS.index(slot)] = srt[pick]
 
 
 def limit_range(cols: Columns, rows: np.ndarray, max_range_m: float) -> np.ndarray:
@@ -521,7 +591,7 @@ def neighbour_rows(
         elif m == "lanes":
             got = from_lanes(cols, part[cols.lane_known[part]])
         else:
-            got = from_bands(cols, part, lane_width)
+            got = from_bands(cols, part, lane_width, max_range_m)
         rows[part] = got[part]
     return Neighbours(limit_range(cols, rows, max_range_m), methods)
 
