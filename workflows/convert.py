@@ -26,8 +26,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         description=(
             "Read INPUTs (format detected per file, or --format) into lanecast's track table and write it as "
             "Parquet (default) or as a drive log (--to mcap|ros2|ros1; the format follows --out's suffix). Parquet output streams: one "
-            "recording (or a group of small ones) at a time is read and written, so memory is set by "
-            "the largest recording; --partition writes a dataset directory of one Parquet file per "
+            "recording (or a group of small ones, or whole tracks of a long one) at a time is read and "
+            "written, so memory stays bounded; --partition writes a dataset directory of one Parquet file per "
             "piece instead of one file (every command reads either). --workers/--engine ray read "
             "recordings in parallel with the same result as one process."
         ),
