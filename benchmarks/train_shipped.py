@@ -88,8 +88,44 @@ def measured_copy(work: Path, sim_dir: Path, scenario: str, rec_id: int, seed: i
     return out
 
 
-def windows_for(dirs: list[Path], out: Path, split: str, max_windows: int) -> Path:
-    """Windows of every recording directory, at most ``max_windows`` per directory (seeded sample)."""
+def true_futures(measured: Any, clean: Any) -> Any:
+    """``measured`` windows with their futures replaced by the true ones: the clean recording's
+    window of the same (direction, track, t0), moved into the measured window's frame (road frames:
+    a translation by the difference of the two origins). The inputs stay measured: a tracker's
+    errors are in what a model sees, not in where the vehicle goes (and sinusoidal errors in the
+    targets would teach the network to extrapolate the error model)."""
+    import numpy as np
+
+    def keys(w: Any) -> Any:
+        direction = np.char.endswith(
+            w.index.column("recording").to_numpy(zero_copy_only=False).astype(str), "-lower"
+        )
+        track = w.index.column("track_id").to_numpy().astype(np.int64)
+        t0 = w.index.column("t0_ns").to_numpy().astype(np.int64)
+        return (t0 * 4_000_000 + track) * 2 + direction  # unique per window within a recording
+
+    km, kc = keys(measured), keys(clean)
+    order = np.argsort(kc)
+    pos = np.clip(np.searchsorted(kc[order], km), 0, max(len(kc) - 1, 0))
+    j = order[pos]
+    if len(kc) == 0 or not np.array_equal(kc[j], km):
+        raise RuntimeError("the measured copy's windows do not match the clean recording's")
+    origin = ("origin_x", "origin_y")
+    shift = np.stack(
+        [clean.index.column(c).to_numpy()[j] - measured.index.column(c).to_numpy() for c in origin], axis=-1
+    )
+    heading = measured.index.column("origin_heading").to_numpy()
+    if not np.allclose(heading, clean.index.column("origin_heading").to_numpy()[j]) or np.any(heading != 0):
+        raise RuntimeError("true futures need road-frame windows (translation only)")
+    measured.future = (np.asarray(clean.future)[j] + shift[:, None, :]).astype(np.float32)
+    return measured
+
+
+def windows_for(
+    dirs: list[Path], out: Path, split: str, max_windows: int, clean_of: dict[Path, Path] | None = None
+) -> Path:
+    """Windows of every recording directory, at most ``max_windows`` per directory (seeded sample);
+    a directory in ``clean_of`` (a measured copy) gets its clean recording's true futures."""
     import numpy as np
 
     from lanecast.io_adapters.contracts.windows import concat_windows, save_windows, subset
@@ -100,6 +136,8 @@ def windows_for(dirs: list[Path], out: Path, split: str, max_windows: int) -> Pa
         parts = []
         for i, d in enumerate(dirs):
             w = make_windows(highd.read([d]), split=split, seed=0)
+            if clean_of and d in clean_of:
+                w = true_futures(w, make_windows(highd.read([clean_of[d]]), split=split, seed=0))
             if len(w) > max_windows:
                 keep = np.sort(np.random.default_rng(i).choice(len(w), max_windows, replace=False))
                 w = subset(w, keep)
@@ -187,6 +225,12 @@ def deviations(config: Any, levels: list[float]) -> list[str]:
             "erroneous positions, as real datasets' are), so that the network learns how far to trust "
             "noisy speed and acceleration inputs"
         )
+    if config.horizon_weight_power > 0:
+        out.append(
+            f"regressor loss: each horizon's squared error weighted by (r_5s / r_h)**{config.horizon_weight_power:g} "
+            "(r_h the RMS of the training targets at h, weights of mean 1), so that the 1 s error counts beside "
+            "the 5 s one (the paper: plain RMSE, where a model can lose to constant velocity at 1 s)"
+        )
     if config.lr_schedule != "constant":
         out.append(f"learning-rate schedule: {config.lr_schedule} decay to 0 over the run, both networks")
     return out
@@ -214,6 +258,12 @@ def main() -> int:
         choices=("none", "cv"),
         default="cv",
         help="regress offsets relative to the constant-velocity extrapolation (cv) or absolute (none, the paper)",
+    )
+    ap.add_argument(
+        "--horizon-weight-power",
+        type=float,
+        default=1.0,
+        help="regressor loss weight per horizon (r_5s / r_h)**power (0: the paper's plain RMSE)",
     )
     ap.add_argument("--max-windows", type=int, default=10000, help="per training recording")
     ap.add_argument(
@@ -259,7 +309,11 @@ def main() -> int:
         if levels
     ]
     train_dir = windows_for(
-        [sims[r] for r in train_recs] + measured, args.work / "windows-train", "hash", args.max_windows
+        [sims[r] for r in train_recs] + measured,
+        args.work / "windows-train",
+        "hash",
+        args.max_windows,
+        clean_of=dict(zip(measured, [sims[r] for r in train_recs], strict=False)),
     )
     test_measured = [measured_copy(args.work, sims[r], r[0], r[1], r[2], 0.3) for r in test_recs]
     measured_dir = windows_for(
@@ -286,6 +340,7 @@ def main() -> int:
         future_relative_to=args.relative_to,
         speed_noise_mps=args.speed_noise,
         acc_noise_mps2=args.acc_noise,
+        horizon_weight_power=args.horizon_weight_power,
     )
     data = {
         "kind": "SUMO simulated traffic, named scenarios (lanecast.io_adapters.sim.scenarios), highD format, 10 Hz",
@@ -305,7 +360,8 @@ def main() -> int:
             "recording_id_offset": MEASURED_ID_OFFSET,
             "tracking_error_levels_m": levels,
             "what": "each training recording again with tracker-like errors on positions, speeds and "
-            "accelerations re-derived from them (lanecast.io_adapters.sim.tracking_errors)",
+            "accelerations re-derived from them (lanecast.io_adapters.sim.tracking_errors); inputs "
+            "measured, futures the true ones",
         },
         "split": "seeded hash split by track (seed 0) within the training recordings: train/val",
         "test_recordings": [

@@ -101,6 +101,11 @@ class TrainConfig:
     #: still, spread ±0.6 m/s²), simulated ones are exact. 0 = none.
     speed_noise_mps: float = 0.0
     acc_noise_mps2: float = 0.0
+    #: regressor loss weight of horizon h ∝ (r_5s / r_h)**power, r_h the RMS of the training targets
+    #: at h (after the reference), normalised to mean 1: 0 = the paper's plain RMSE, where the 1 s
+    #: errors (centimetres) count for almost nothing beside the 5 s ones (metres) and a model may
+    #: lose to constant velocity at 1 s; 1 = each horizon's error in proportion to its scale
+    horizon_weight_power: float = 0.0
     model: STCNNConfig = field(default_factory=STCNNConfig)
 
     def __post_init__(self) -> None:
@@ -118,6 +123,8 @@ class TrainConfig:
             raise ValueError("speed_noise_mps and acc_noise_mps2 must be >= 0")
         if not self.position_noise_m >= 0:
             raise ValueError(f"position_noise_m must be >= 0, not {self.position_noise_m}")
+        if not 0 <= self.horizon_weight_power <= 2:
+            raise ValueError(f"horizon_weight_power must be in [0, 2], not {self.horizon_weight_power}")
         if not self.class_weight_power >= 0:
             raise ValueError(f"class_weight_power must be >= 0, not {self.class_weight_power}")
 
@@ -237,9 +244,25 @@ def classifier_loss(
     ) / len(logits)
 
 
-def regressor_loss(pred: torch.Tensor, true: torch.Tensor) -> torch.Tensor:
-    """Batch RMSE: sqrt(mean over windows and steps of the squared Euclidean error); [B, 5, 2] → scalar."""
-    return torch.sqrt(torch.mean(torch.sum((pred - true) ** 2, dim=-1)))
+def regressor_loss(
+    pred: torch.Tensor, true: torch.Tensor, horizon_weight: torch.Tensor | None = None
+) -> torch.Tensor:
+    """Batch RMSE: sqrt(mean over windows and steps of the squared Euclidean error); [B, 5, 2] → scalar.
+
+    ``horizon_weight`` float [5] (mean 1) weighs each step's squared error; None = all equal."""
+    squared = torch.sum((pred - true) ** 2, dim=-1)  # [B, 5]
+    if horizon_weight is not None:
+        squared = squared * horizon_weight
+    return torch.sqrt(torch.mean(squared))
+
+
+def horizon_weights(residual: np.ndarray, power: float) -> np.ndarray:
+    """Loss weight per horizon, float32 [5], mean 1: (r_last / r_h)**power with r_h the RMS over
+    windows of ``residual`` [N, 5, 2] at step h (the centred, reference-relative training targets)."""
+    rms = np.sqrt(np.mean(np.sum(np.asarray(residual, np.float64) ** 2, axis=-1), axis=0))  # [5]
+    rms = np.maximum(rms, 1e-3)
+    w = (rms[-1] / rms) ** power
+    return (w / w.mean()).astype(np.float32)
 
 
 @torch.no_grad()
@@ -308,16 +331,20 @@ def train(
     relative_to = config.future_relative_to
     if init_from is not None:
         norm = init_from[1]["normalisation"]
+        relative_to = norm["future"].get("relative_to", "none")
+    target = np.asarray(windows.future[train_idx])
+    # the reference needs only the last positions: no copy of the whole inputs
+    base = reference_offsets(np.asarray(windows.inputs[:, :, :, -CV_SPAN:][train_idx]), relative_to)
+    relative_target = target if base is None else target - base
+    if init_from is not None:
         input_stats = NormStats.from_dict(norm["inputs"])
         future_mean = np.asarray(norm["future"]["mean"], dtype=np.float32)
         future_std = float(norm["future"]["std"])
-        relative_to = norm["future"].get("relative_to", "none")
     else:
         input_stats = compute_stats(windows.inputs, windows.present, rows=train_idx)  # chunked: no copy
-        target = np.asarray(windows.future[train_idx])
-        # the reference needs only the last positions: no copy of the whole inputs
-        base = reference_offsets(np.asarray(windows.inputs[:, :, :, -CV_SPAN:][train_idx]), relative_to)
-        future_mean, future_std = future_stats(target if base is None else target - base)
+        future_mean, future_std = future_stats(relative_target)
+    step_weight = horizon_weights(relative_target - future_mean, config.horizon_weight_power)
+    step_weight_t = torch.from_numpy(step_weight).to(device) if config.horizon_weight_power > 0 else None
     batches = _Batches(windows, input_stats, future_mean, future_std, transform, relative_to)
     train_counts = np.bincount(np.asarray(windows.maneuver[train_idx]).ravel(), minlength=3)
     weights = class_weights(windows.maneuver[train_idx], config.class_weight_power, config.model.classes)
@@ -367,7 +394,7 @@ def train(
             else:
                 with torch.no_grad():
                     loss_c = classifier_loss(model.classifier(x), m, weight_t)
-            loss_r = regressor_loss(model.regressor(x, m), y)
+            loss_r = regressor_loss(model.regressor(x, m), y, step_weight_t)
             opt_r.zero_grad(set_to_none=True)
             loss_r.backward()
             opt_r.step()

@@ -22,6 +22,7 @@ from lanecast.models.train import (
     class_weights,
     classifier_loss,
     future_stats,
+    horizon_weights,
     labelled,
     lr_factor,
     regressor_loss,
@@ -118,6 +119,32 @@ def test_weighted_loss_and_macro_f1_selection(windows: Windows) -> None:
     assert not torch.equal(plain.model.classifier.fc2.weight, weighted.model.classifier.fc2.weight)
     for row in weighted.history:
         assert 0.0 <= row["val_macro_f1"] <= 1.0 and len(row["val_recall"]) == 3
+
+
+def test_horizon_weights_by_hand() -> None:
+    """Residual RMS 1, 2, 2, 4, 4 m over the steps: power 1 weighs them 4, 2, 2, 1, 1 (then mean 1),
+    power 0 equally; the weighted loss multiplies each step's squared error by its weight."""
+    residual = np.zeros((2, 5, 2), np.float32)
+    residual[:, :, 0] = np.array([1, 2, 2, 4, 4], np.float32) * np.array([[1], [-1]])
+    w = horizon_weights(residual, 1.0)
+    np.testing.assert_allclose(w, np.array([4, 2, 2, 1, 1]) / 2.0, rtol=1e-6)
+    np.testing.assert_allclose(horizon_weights(residual, 0.0), np.ones(5))
+    pred, true = torch.zeros(1, 5, 2), torch.zeros(1, 5, 2)
+    true[0, 0, 0] = 1.0  # a 1 m error at 1 s only
+    assert float(regressor_loss(pred, true, torch.from_numpy(w))) == pytest.approx(np.sqrt(2.0 / 5))
+    with pytest.raises(ValueError, match="horizon_weight_power"):
+        TrainConfig(horizon_weight_power=-1)
+
+
+def test_horizon_weighting_changes_the_regressor_only(windows: Windows) -> None:
+    """Same seed and batches: weighting the horizons changes the regressor's weights, not the
+    classifier's, and is recorded in the card."""
+    plain = TrainConfig(epochs=1, batch_size=64, seed=2, threads=1)
+    weighted = TrainConfig(epochs=1, batch_size=64, seed=2, threads=1, horizon_weight_power=1.0)
+    a, b = train(windows, plain), train(windows, weighted)
+    assert torch.equal(a.model.classifier.fc2.weight, b.model.classifier.fc2.weight)
+    assert not torch.equal(a.model.regressor.fc2.weight, b.model.regressor.fc2.weight)
+    assert b.card["training"]["config"]["horizon_weight_power"] == 1.0
 
 
 def test_lr_schedules() -> None:

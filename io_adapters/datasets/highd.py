@@ -576,9 +576,13 @@ def road_frame(direction: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple[np.
 
 
 def heading_from_velocity(vx: np.ndarray, vy: np.ndarray, min_speed: float = HEADING_MIN_SPEED) -> np.ndarray:
-    """``atan2(vy, vx)`` where the speed exceeds ``min_speed`` (m/s), else 0. Arrays ``[N]``."""
+    """``atan2(vy, |vx|)`` where the speed exceeds ``min_speed`` (m/s), else 0. Arrays ``[N]``.
+
+    Each recording is one driving direction in its own road frame, so every vehicle travels along
+    +x: a negative ``vx`` is measurement noise of a (nearly) standing vehicle, not a vehicle turned
+    round, and must not flip its heading (and with it the sign of its longitudinal acceleration)."""
     moving = np.hypot(vx, vy) > min_speed
-    return np.where(moving, np.arctan2(vy, vx), 0.0) + 0.0
+    return np.where(moving, np.arctan2(vy, np.abs(vx)), 0.0) + 0.0
 
 
 def road_lane_markings(raw: Sequence[float], direction: int) -> list[float]:
