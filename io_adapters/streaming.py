@@ -113,15 +113,15 @@ class Piece:
             ]
             kept = []
             for g in chunk.context_groups:
-                group = pf.read_row_group(g)
-                row = np.arange(starts[g], starts[g + 1])
-                time_ns = group.column("time_ns").to_numpy()
+                lo = max(chunk.rows[0] - int(starts[g]), 0)  # the recording's rows of the group
+                hi = min(chunk.rows[1], int(starts[g + 1])) - int(starts[g])
+                group = pf.read_row_group(g).slice(lo, hi - lo)
                 track = group.column("track_id").to_numpy()
-                keep = (row >= chunk.rows[0]) & (row < chunk.rows[1])
-                keep &= ((track >= chunk.targets[0]) & (track <= chunk.targets[1])) | (
-                    (time_ns >= chunk.context_ns[0]) & (time_ns <= chunk.context_ns[1])
-                )
-                kept.append(group.filter(pa.array(keep)))
+                keep = (track >= chunk.targets[0]) & (track <= chunk.targets[1])
+                if not keep.all():  # most groups hold targets only: kept without a copy
+                    time_ns = group.column("time_ns").to_numpy()
+                    keep |= (time_ns >= chunk.context_ns[0]) & (time_ns <= chunk.context_ns[1])
+                kept.append(group if keep.all() else group.filter(pa.array(keep)))
             table = pa.concat_tables(kept).combine_chunks()
         except (OSError, pa.ArrowException) as exc:
             raise InputError(
@@ -145,6 +145,24 @@ class Chunk:
     context_groups: tuple[int, ...]
     ids_given: tuple[str, ...]  # neighbour id columns with an id somewhere in the recording
     lanes_everywhere: bool  # every row of the recording has a lane id
+    road_frame: bool  # the recording is in a road frame
+
+
+def uncut(pieces: Sequence[Piece], keep_whole: Callable[[Chunk], bool]) -> list[Piece]:
+    """``pieces`` with the chunks of every recording for which ``keep_whole`` holds put back
+    together as one piece of the whole recording (what a chunk cannot reproduce exactly)."""
+    out: list[Piece] = []
+    for piece in pieces:
+        chunk = piece.chunk
+        if chunk is None or not keep_whole(chunk):
+            out.append(piece)
+        elif not piece.continues:
+            pf = pq.ParquetFile(piece.paths[0])
+            starts = np.r_[
+                0, np.cumsum([pf.metadata.row_group(i).num_rows for i in range(pf.num_row_groups)])
+            ]
+            out.append(_row_range(Path(piece.paths[0]), starts.astype(np.int64), *chunk.rows))
+    return out
 
 
 def _with_meta(table: pa.Table, pf: pq.ParquetFile, path: Path) -> pa.Table:
@@ -352,6 +370,7 @@ def track_chunks(
     g0 = int(np.searchsorted(group_start, lo, side="right") - 1)
     g1 = int(np.searchsorted(group_start, hi, side="left"))
     given = [c for c in track_table.NEIGHBOUR_COLUMNS if c in pf.schema_arrow.names]
+    frame = track_table.read_meta(track_table.file_schema(pf)).recordings[recording].coordinate_frame
     track_parts, time_parts = [], []
     ids_given: set[str] = set()
     lanes_everywhere = True
@@ -392,6 +411,7 @@ def track_chunks(
             context_groups=tuple(int(g) for g in _groups_of(alive, first, last, lo, group_start)),
             ids_given=tuple(sorted(ids_given)),
             lanes_everywhere=bool(lanes_everywhere),
+            road_frame=frame == "road",
         )
         pieces.append(_row_range(path, group_start, int(first[a]) + lo, row_end, chunk, a > 0))
     return pieces

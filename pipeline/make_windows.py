@@ -38,7 +38,7 @@ from lanecast.io_adapters.contracts.windows import (
     save_shard,
 )
 from lanecast.io_adapters.errors import InputError
-from lanecast.io_adapters.streaming import Chunk, Piece
+from lanecast.io_adapters.streaming import Chunk, Piece, uncut
 from lanecast.pipeline import labels as labels_mod
 from lanecast.pipeline import neighbours as nb_mod
 from lanecast.pipeline import window_tensors as wt
@@ -648,6 +648,9 @@ def write_windows(
     """
     options = options or WindowOptions()
     options.check()
+    if options.neighbours == "lanes":  # lanes off a road frame run along the recording's mean
+        # direction of travel, which a chunk would take from its own rows: such recordings whole
+        pieces = uncut(pieces, lambda chunk: not chunk.road_frame)
     parts: list[PieceWindows] = []
     with DatasetWriter(out) as writer:
         if ordered_map is None:

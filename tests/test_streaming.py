@@ -121,6 +121,46 @@ def test_a_long_recording_windowed_in_chunks_equals_the_one_call_result(
     )
 
 
+def _rotated_to_a_world_frame(table: pa.Table, degrees: float) -> pa.Table:
+    """``table`` turned by ``degrees`` about the origin and declared a world (``map``) frame."""
+    from dataclasses import replace
+
+    a = np.deg2rad(degrees)
+    c, s = np.cos(a), np.sin(a)
+
+    def put(t: pa.Table, name: str, values: np.ndarray) -> pa.Table:
+        i = t.schema.get_field_index(name)
+        return t.set_column(i, t.schema.field(i), pa.array(values).cast(t.schema.field(i).type))
+
+    for u_name, v_name in (("x", "y"), ("vx", "vy"), ("ax", "ay")):
+        u = table.column(u_name).to_numpy().astype(float)
+        v = table.column(v_name).to_numpy().astype(float)
+        table = put(put(table, u_name, c * u - s * v), v_name, s * u + c * v)
+    heading = table.column("heading").to_numpy().astype(float) + a
+    table = put(table, "heading", (heading + np.pi) % (2 * np.pi) - np.pi)
+    meta = track_table.read_meta(table)
+    recordings = {k: replace(r, coordinate_frame="map") for k, r in meta.recordings.items()}
+    return table.replace_schema_metadata(
+        {track_table.META_KEY: replace(meta, recordings=recordings).to_json().encode()}
+    )
+
+
+@pytest.mark.parametrize("neighbours", ["bands", "lanes"])
+def test_a_long_world_frame_recording_windowed_in_chunks_equals_the_one_call_result(
+    sim_recording_dir: Path, tmp_path: Path, neighbours: str
+) -> None:
+    table = _rotated_to_a_world_frame(registry.read_any([sim_recording_dir]), 30.0)
+    track_table.validate(table)
+    expected = make_windows(table, neighbours=neighbours)
+    path = tmp_path / "world.parquet"
+    pq.write_table(table, path, row_group_size=7_000)
+    pieces = streaming.plan([path], max_rows=table.num_rows // 8, long="context")
+    assert sum(p.chunk is not None for p in pieces) >= 8
+    # lanes off a road frame follow the recording's mean direction: read whole, not in chunks
+    streamed = write_windows(pieces, tmp_path / "w", WindowOptions(neighbours=neighbours))
+    _assert_same_windows(expected, streamed)
+
+
 @pytest.mark.parametrize("workers", [1, pytest.param(2, marks=pytest.mark.slow)])  # processes: seconds
 @pytest.mark.parametrize("directory", [False, True], ids=["file", "partition"])
 def test_a_long_highd_recording_converts_block_by_block_in_whole_tracks(
