@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import contextlib
 import functools
-import itertools
 import shutil
 import tempfile
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -32,17 +31,16 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from lanecast.io_adapters import registry
+from lanecast.io_adapters import chunks, registry
+from lanecast.io_adapters.chunks import Chunk
 from lanecast.io_adapters.contracts import track_table
-from lanecast.io_adapters.datasets import highd, highd_stream
+from lanecast.io_adapters.datasets import highd, highd_stream, ngsim_stream
 from lanecast.io_adapters.datasets import parquet as parquet_format
 from lanecast.io_adapters.errors import InputError, TrackTableError
 from lanecast.io_adapters.files import atomic_path, check_input
 
 LONG = ("whole", "tracks", "context")  # what a recording larger than a piece becomes (plan)
 MAX_ROWS = 1_000_000  # input rows per piece where recordings are small enough to group (memory ~ rows)
-CONTEXT_MARGIN_NS = 2_000_000_000  # context beyond the targets' lifetime: the native samples around
-# their first and last 10 Hz frames (resampling interpolates between neighbours' samples)
 ROW_GROUP_ROWS = 1 << 17  # rows per Parquet row group of written track tables (a chunk of a long
 # recording reads the groups that hold its context: small groups, little decoded in vain)
 STREAM_BYTES = 256 << 20  # NGSIM CSV exports from this size on are read incrementally
@@ -72,8 +70,6 @@ class Piece:
     @property
     def label(self) -> str:
         if self.spilled:
-            from lanecast.io_adapters.datasets import ngsim_stream  # pandas: not for `lanecast --help`
-
             return f"{self.paths[0]} recording {ngsim_stream.SpilledRecording.from_json(self.spilled).name}"
         where = f" rows {self.offset}+{self.rows} of row groups {self.row_groups[0]}…{self.row_groups[-1]}"
         if self.chunk is not None:
@@ -83,8 +79,6 @@ class Piece:
     def read(self) -> pa.Table:
         """The piece as a validated track table whose metadata names only its recordings."""
         if self.spilled:
-            from lanecast.io_adapters.datasets import ngsim_stream  # pandas: not for `lanecast --help`
-
             return ngsim_stream.read_spilled(ngsim_stream.SpilledRecording.from_json(self.spilled))
         if not self.row_groups:
             return registry.reader(self.fmt).read([Path(p) for p in self.paths], **dict(self.options))
@@ -108,44 +102,12 @@ class Piece:
         chunk, path = self.chunk, Path(self.paths[0])
         try:
             pf = pq.ParquetFile(path, page_checksum_verification=True)
-            starts = np.r_[
-                0, np.cumsum([pf.metadata.row_group(i).num_rows for i in range(pf.num_row_groups)])
-            ]
-            kept = []
-            for g in chunk.context_groups:
-                lo = max(chunk.rows[0] - int(starts[g]), 0)  # the recording's rows of the group
-                hi = min(chunk.rows[1], int(starts[g + 1])) - int(starts[g])
-                group = pf.read_row_group(g).slice(lo, hi - lo)
-                track = group.column("track_id").to_numpy()
-                keep = (track >= chunk.targets[0]) & (track <= chunk.targets[1])
-                if not keep.all():  # most groups hold targets only: kept without a copy
-                    time_ns = group.column("time_ns").to_numpy()
-                    keep |= (time_ns >= chunk.context_ns[0]) & (time_ns <= chunk.context_ns[1])
-                kept.append(group if keep.all() else group.filter(pa.array(keep)))
-            table = pa.concat_tables(kept).combine_chunks()
+            table = chunks.read_chunk(pf, chunk)
         except (OSError, pa.ArrowException) as exc:
             raise InputError(
                 path, f"not a readable Parquet file: {exc}", expected="a lanecast track table"
             ) from exc
         return _with_meta(table, pf, path)
-
-
-@dataclass(frozen=True)
-class Chunk:
-    """Whole tracks ``targets`` (first, last track id) of the long recording ``recording`` (rows
-    ``rows`` [first, end) of its file) and the context windows need: the rows of every other of its
-    tracks at times ``context_ns`` [first, last] (the targets' lifetime and a margin), found in
-    row groups ``context_groups``. ``neighbours``: the recording's neighbour method (``auto``
-    decides it over the whole recording, not over a chunk)."""
-
-    recording: str
-    rows: tuple[int, int]
-    targets: tuple[int, int]
-    context_ns: tuple[int, int]
-    context_groups: tuple[int, ...]
-    ids_given: tuple[str, ...]  # neighbour id columns with an id somewhere in the recording
-    lanes_everywhere: bool  # every row of the recording has a lane id
-    road_frame: bool  # the recording is in a road frame
 
 
 def uncut(pieces: Sequence[Piece], keep_whole: Callable[[Chunk], bool]) -> list[Piece]:
@@ -251,8 +213,6 @@ def spill_directory(out: str | Path) -> SpillDirectory:
 def _ngsim_pieces(
     path: Path, spill_dir: Path | None, stream_bytes: int, options: dict[str, Any]
 ) -> list[Piece]:
-    from lanecast.io_adapters.datasets import ngsim_stream  # pandas: not for `lanecast --help`
-
     whole = [Piece("ngsim", (str(path),), options=tuple(sorted(options.items())))]
     if spill_dir is None or not path.is_file() or path.stat().st_size < stream_bytes:
         return whole
@@ -354,79 +314,13 @@ def track_chunks(
     *,
     context: bool = True,
 ) -> list[Piece]:
-    """Chunks of the long recording ``recording`` (rows [first, end) of ``path``): consecutive
-    whole tracks of about ``max_rows`` rows each (one track alone may be larger), each (with
-    ``context``) with the rows of every other track alive during its tracks' lifetime
-    (± CONTEXT_MARGIN_NS) as context; every chunk but the first ``continues`` the recording.
-
-    A time cut would lose what windows take from a track's past and future (the run a window's
-    stride counts from, labels and the window frame's chord, seconds away); whole tracks keep
-    them, and their windows come in the order of the whole recording. Memory: the targets and the
-    traffic during their lifetime (highway vehicles stay minutes; a vehicle present for hours
-    brings those hours). Reads ``track_id``, ``time_ns``, ``lane_id`` and the neighbour id
-    columns of the recording, one row group at a time.
-    """
-    lo, hi = rows
-    g0 = int(np.searchsorted(group_start, lo, side="right") - 1)
-    g1 = int(np.searchsorted(group_start, hi, side="left"))
-    given = [c for c in track_table.NEIGHBOUR_COLUMNS if c in pf.schema_arrow.names]
-    frame = track_table.read_meta(track_table.file_schema(pf)).recordings[recording].coordinate_frame
-    track_parts, time_parts = [], []
-    ids_given: set[str] = set()
-    lanes_everywhere = True
-    for g in range(g0, g1):
-        a, b = max(lo, int(group_start[g])), min(hi, int(group_start[g + 1]))
-        part = pf.read_row_group(g, columns=["track_id", "time_ns", "lane_id", *given])
-        part = part.slice(a - int(group_start[g]), b - a)
-        track_parts.append(part.column("track_id").to_numpy())
-        time_parts.append(part.column("time_ns").to_numpy())
-        lanes_everywhere &= part.column("lane_id").null_count == 0
-        ids_given.update(c for c in given if part.column(c).null_count < part.num_rows)
-    track = np.concatenate(track_parts)
-    time_ns = np.concatenate(time_parts)
-    del track_parts, time_parts
-    first = np.r_[0, np.flatnonzero(track[1:] != track[:-1]) + 1]  # each track's first row
-    last = np.r_[first[1:], track.size] - 1
-    t_first, t_last, ids = time_ns[first], time_ns[last], track[first]
-    # consecutive tracks of about max_rows rows each
-    cum = np.r_[first, track.size]
-    bounds = [0]
-    while bounds[-1] < first.size:
-        k = int(np.searchsorted(cum, cum[bounds[-1]] + max_rows, side="right")) - 1
-        bounds.append(min(max(k, bounds[-1] + 1), first.size))
-    pieces = []
-    for a, b in itertools.pairwise(bounds):
-        row_end = int(last[b - 1]) + 1 + lo
-        if not context:
-            pieces.append(_row_range(path, group_start, int(first[a]) + lo, row_end, continues=a > 0))
-            continue
-        t0 = int(t_first[a:b].min()) - CONTEXT_MARGIN_NS
-        t1 = int(t_last[a:b].max()) + CONTEXT_MARGIN_NS
-        alive = np.flatnonzero((t_last >= t0) & (t_first <= t1))
-        chunk = Chunk(
-            recording=recording,
-            rows=(lo, hi),
-            targets=(int(ids[a]), int(ids[b - 1])),
-            context_ns=(t0, t1),
-            context_groups=tuple(int(g) for g in _groups_of(alive, first, last, lo, group_start)),
-            ids_given=tuple(sorted(ids_given)),
-            lanes_everywhere=bool(lanes_everywhere),
-            road_frame=frame == "road",
-        )
-        pieces.append(_row_range(path, group_start, int(first[a]) + lo, row_end, chunk, a > 0))
-    return pieces
-
-
-def _groups_of(
-    tracks: np.ndarray, first: np.ndarray, last: np.ndarray, offset: int, group_start: np.ndarray
-) -> np.ndarray:
-    """The row groups holding any row of ``tracks`` (indices into ``first``/``last``, rows
-    relative to ``offset``), sorted: every group from each track's first to its last row."""
-    g_first = np.searchsorted(group_start, first[tracks] + offset, side="right") - 1
-    g_last = np.searchsorted(group_start, last[tracks] + offset, side="right") - 1
-    spans = g_last - g_first + 1
-    within = np.arange(spans.sum()) - np.repeat(np.cumsum(spans) - spans, spans)
-    return np.unique(np.repeat(g_first, spans) + within)
+    """The pieces of the long recording ``recording`` (rows [first, end) of ``path``): whole
+    tracks of about ``max_rows`` rows each, with their context (windows) or without (convert);
+    every piece but the first ``continues`` the recording (:func:`chunks.plan_chunks`)."""
+    return [
+        _row_range(path, group_start, lo, hi, chunk if context else None, continues)
+        for lo, hi, chunk, continues in chunks.plan_chunks(pf, recording, rows, group_start, max_rows)
+    ]
 
 
 def iter_tables(pieces: Sequence[Piece]) -> Iterator[pa.Table]:

@@ -4,6 +4,9 @@ Two entry points: :func:`make_windows` (a table in memory -> Windows in memory, 
 annotation and reports) and :func:`write_windows` (a dataset's pieces -> a dataset directory on
 disk, one piece in memory at a time, optionally on worker processes or Ray; what `lanecast
 windows` runs).
+
+Size: the two entry points share the stages' glue (groups, splits, skipped recordings, the
+manifest); the streamed one adds pieces, chunks, shards and the index of all pieces: ~770 lines.
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
+from lanecast.io_adapters.chunks import Chunk
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.contracts.track_runs import run_bounds
 from lanecast.io_adapters.contracts.windows import (
@@ -38,7 +42,7 @@ from lanecast.io_adapters.contracts.windows import (
     save_shard,
 )
 from lanecast.io_adapters.errors import InputError
-from lanecast.io_adapters.streaming import Chunk, Piece, uncut
+from lanecast.io_adapters.streaming import Piece, uncut
 from lanecast.pipeline import labels as labels_mod
 from lanecast.pipeline import neighbours as nb_mod
 from lanecast.pipeline import window_tensors as wt
