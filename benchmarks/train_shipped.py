@@ -262,7 +262,7 @@ def main() -> int:
     ap.add_argument(
         "--horizon-weight-power",
         type=float,
-        default=1.0,
+        default=2.0,
         help="regressor loss weight per horizon (r_5s / r_h)**power (0: the paper's plain RMSE)",
     )
     ap.add_argument("--max-windows", type=int, default=10000, help="per training recording")
