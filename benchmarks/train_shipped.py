@@ -231,6 +231,12 @@ def deviations(config: Any, levels: list[float]) -> list[str]:
             "(r_h the RMS of the training targets at h, weights of mean 1), so that the 1 s error counts beside "
             "the 5 s one (the paper: plain RMSE, where a model can lose to constant velocity at 1 s)"
         )
+    if config.predicted_maneuver_share > 0:
+        out.append(
+            f"regressor input: for {100 * config.predicted_maneuver_share:g} % of the training windows the "
+            "classifier's argmax maneuvers instead of the true ones (the paper: always the true ones), "
+            "as at inference"
+        )
     if config.lr_schedule != "constant":
         out.append(f"learning-rate schedule: {config.lr_schedule} decay to 0 over the run, both networks")
     return out
@@ -264,6 +270,12 @@ def main() -> int:
         type=float,
         default=2.0,
         help="regressor loss weight per horizon (r_5s / r_h)**power (0: the paper's plain RMSE)",
+    )
+    ap.add_argument(
+        "--predicted-maneuver-share",
+        type=float,
+        default=0.0,
+        help="share of training windows whose regressor gets the classifier's maneuvers (0: the paper)",
     )
     ap.add_argument("--max-windows", type=int, default=10000, help="per training recording")
     ap.add_argument(
@@ -341,6 +353,7 @@ def main() -> int:
         speed_noise_mps=args.speed_noise,
         acc_noise_mps2=args.acc_noise,
         horizon_weight_power=args.horizon_weight_power,
+        predicted_maneuver_share=args.predicted_maneuver_share,
     )
     data = {
         "kind": "SUMO simulated traffic, named scenarios (lanecast.io_adapters.sim.scenarios), highD format, 10 Hz",

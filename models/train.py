@@ -106,6 +106,10 @@ class TrainConfig:
     #: errors (centimetres) count for almost nothing beside the 5 s ones (metres) and a model may
     #: lose to constant velocity at 1 s; 1 = each horizon's error in proportion to its scale
     horizon_weight_power: float = 0.0
+    #: share of training windows whose regressor gets the classifier's argmax maneuvers instead of
+    #: the true ones (0 = the paper: always the true ones). At inference the regressor only ever sees
+    #: the classifier's; trained on the truth alone it follows a wrong maneuver confidently.
+    predicted_maneuver_share: float = 0.0
     model: STCNNConfig = field(default_factory=STCNNConfig)
 
     def __post_init__(self) -> None:
@@ -123,6 +127,10 @@ class TrainConfig:
             raise ValueError("speed_noise_mps and acc_noise_mps2 must be >= 0")
         if not self.position_noise_m >= 0:
             raise ValueError(f"position_noise_m must be >= 0, not {self.position_noise_m}")
+        if not 0 <= self.predicted_maneuver_share <= 1:
+            raise ValueError(
+                f"predicted_maneuver_share must be in [0, 1], not {self.predicted_maneuver_share}"
+            )
         if not 0 <= self.horizon_weight_power <= 2:
             raise ValueError(f"horizon_weight_power must be in [0, 2], not {self.horizon_weight_power}")
         if not self.class_weight_power >= 0:
@@ -387,14 +395,20 @@ def train(
                 (config.speed_noise_mps, config.acc_noise_mps2),
             )
             if train_classifier:
-                loss_c = classifier_loss(model.classifier(x), m, weight_t)
+                logits = model.classifier(x)
+                loss_c = classifier_loss(logits, m, weight_t)
                 opt_c.zero_grad(set_to_none=True)
                 loss_c.backward()
                 opt_c.step()
             else:
                 with torch.no_grad():
-                    loss_c = classifier_loss(model.classifier(x), m, weight_t)
-            loss_r = regressor_loss(model.regressor(x, m), y, step_weight_t)
+                    logits = model.classifier(x)
+                    loss_c = classifier_loss(logits, m, weight_t)
+            m_in = m
+            if config.predicted_maneuver_share > 0:
+                use_predicted = torch.from_numpy(rng.random(len(m)) < config.predicted_maneuver_share)
+                m_in = torch.where(use_predicted.to(m.device)[:, None], logits.detach().argmax(dim=2), m)
+            loss_r = regressor_loss(model.regressor(x, m_in), y, step_weight_t)
             opt_r.zero_grad(set_to_none=True)
             loss_r.backward()
             opt_r.step()

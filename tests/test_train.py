@@ -147,6 +147,19 @@ def test_horizon_weighting_changes_the_regressor_only(windows: Windows) -> None:
     assert b.card["training"]["config"]["horizon_weight_power"] == 1.0
 
 
+def test_predicted_maneuvers_change_the_regressor_only(windows: Windows) -> None:
+    """Feeding the regressor the classifier's maneuvers for half the windows leaves the classifier's
+    training as it was (same weights) and changes the regressor's; recorded in the card."""
+    plain = TrainConfig(epochs=1, batch_size=64, seed=2, threads=1)
+    mixed = TrainConfig(epochs=1, batch_size=64, seed=2, threads=1, predicted_maneuver_share=0.5)
+    a, b = train(windows, plain), train(windows, mixed)
+    assert torch.equal(a.model.classifier.fc2.weight, b.model.classifier.fc2.weight)
+    assert not torch.equal(a.model.regressor.fc2.weight, b.model.regressor.fc2.weight)
+    assert b.card["training"]["config"]["predicted_maneuver_share"] == 0.5
+    with pytest.raises(ValueError, match="predicted_maneuver_share"):
+        TrainConfig(predicted_maneuver_share=1.5)
+
+
 def test_lr_schedules() -> None:
     assert [lr_factor("constant", s, 100) for s in (0, 50, 100)] == [1.0, 1.0, 1.0]
     assert [lr_factor("cosine", s, 100) for s in (0, 50, 100, 120)] == pytest.approx([1.0, 0.5, 0.0, 0.0])
