@@ -40,9 +40,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         ),
         epilog=(
             "examples:\n"
-            "  lanecast explain windows/ --track 147 --time 91.4 --out explain/\n"
+            "  lanecast explain windows/sim --track 75 --time 58.3 --out explain/\n"
             "  lanecast explain drive.mcap --track 12 --time 1700000123.4 --remove F,RL --out explain/\n"
-            "  lanecast explain sim/ --track 669 --time 552.6 --remove F+FL --out explain/"
+            "  lanecast explain sim/ --track 75 --time 58.3 --remove F+FL --out explain/"
         ),
         formatter_class=HelpFormatter,
     )
