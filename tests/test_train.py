@@ -3,6 +3,7 @@ a seed reproduces the weights, and save → load → predict gives identical out
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -136,28 +137,21 @@ def test_horizon_weights_by_hand() -> None:
         TrainConfig(horizon_weight_power=-1)
 
 
-def test_horizon_weighting_changes_the_regressor_only(windows: Windows) -> None:
-    """Same seed and batches: weighting the horizons changes the regressor's weights, not the
-    classifier's, and is recorded in the card."""
+@pytest.mark.parametrize(
+    ("field", "value"), [("horizon_weight_power", 1.0), ("predicted_maneuver_share", 0.5)]
+)
+def test_regressor_options_change_the_regressor_only(windows: Windows, field: str, value: float) -> None:
+    """Same seed and batches: weighting the horizons, or feeding the regressor the classifier's
+    maneuvers for half the windows, changes the regressor's weights, not the classifier's, and is
+    recorded in the card; a value out of range is refused."""
     plain = TrainConfig(epochs=1, batch_size=64, seed=2, threads=1)
-    weighted = TrainConfig(epochs=1, batch_size=64, seed=2, threads=1, horizon_weight_power=1.0)
-    a, b = train(windows, plain), train(windows, weighted)
+    changed = dataclasses.replace(plain, **{field: value})
+    a, b = train(windows, plain), train(windows, changed)
     assert torch.equal(a.model.classifier.fc2.weight, b.model.classifier.fc2.weight)
     assert not torch.equal(a.model.regressor.fc2.weight, b.model.regressor.fc2.weight)
-    assert b.card["training"]["config"]["horizon_weight_power"] == 1.0
-
-
-def test_predicted_maneuvers_change_the_regressor_only(windows: Windows) -> None:
-    """Feeding the regressor the classifier's maneuvers for half the windows leaves the classifier's
-    training as it was (same weights) and changes the regressor's; recorded in the card."""
-    plain = TrainConfig(epochs=1, batch_size=64, seed=2, threads=1)
-    mixed = TrainConfig(epochs=1, batch_size=64, seed=2, threads=1, predicted_maneuver_share=0.5)
-    a, b = train(windows, plain), train(windows, mixed)
-    assert torch.equal(a.model.classifier.fc2.weight, b.model.classifier.fc2.weight)
-    assert not torch.equal(a.model.regressor.fc2.weight, b.model.regressor.fc2.weight)
-    assert b.card["training"]["config"]["predicted_maneuver_share"] == 0.5
-    with pytest.raises(ValueError, match="predicted_maneuver_share"):
-        TrainConfig(predicted_maneuver_share=1.5)
+    assert b.card["training"]["config"][field] == value
+    with pytest.raises(ValueError, match=field):
+        TrainConfig(**{field: 3.0})
 
 
 def test_lr_schedules() -> None:
