@@ -6,7 +6,7 @@ disk, one piece in memory at a time, optionally on worker processes or Ray; what
 windows` runs).
 
 Size: the two entry points share the stages' glue (groups, splits, skipped recordings, the
-manifest); the streamed one adds pieces, chunks, shards and the index of all pieces, the writer thread: ~800 lines.
+manifest); the streamed one adds pieces, chunks, shards and the index of all pieces: ~770 lines.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from __future__ import annotations
 import functools
 import time
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
@@ -658,7 +658,13 @@ def write_windows(
     parts: list[PieceWindows] = []
     with DatasetWriter(out) as writer:
         if ordered_map is None:
-            parts = _cut_and_append(pieces, options, writer)
+            buffers = _Buffers()
+            for piece in pieces:
+                part = piece_windows(piece.read_with_context(), options, buffers, piece.chunk)
+                assert part.arrays is not None
+                writer.append(part.arrays)
+                part.arrays = None
+                parts.append(part)
         else:
             root = str(writer.shard_root)
             task = functools.partial(_numbered_shard, options=options, shard_root=root)
@@ -668,32 +674,6 @@ def write_windows(
                 parts.append(part)
         writer.finish(*_index_and_manifest(parts, options, allow_empty, sources))
     return load_windows(out)
-
-
-def _cut_and_append(
-    pieces: Sequence[Piece], options: WindowOptions, writer: DatasetWriter
-) -> list[PieceWindows]:
-    """Cut the pieces one after the other in this process, each piece's arrays appended to the
-    dataset by a writer thread while the next piece is cut (the kernel's copy into the page cache
-    overlaps the computation; two buffer sets alternate, so a buffer is refilled only after its
-    write finished). The parts (without arrays), in piece order."""
-    buffers = (_Buffers(), _Buffers())
-    writes: list[Future[None] | None] = [None, None]
-    parts: list[PieceWindows] = []
-    with ThreadPoolExecutor(max_workers=1) as pool:  # one thread: appends stay in piece order
-        for k, piece in enumerate(pieces):
-            slot = k % 2
-            if (done := writes[slot]) is not None:
-                done.result()  # this slot's buffers are on disk (raises what the write raised)
-            part = piece_windows(piece.read_with_context(), options, buffers[slot], piece.chunk)
-            assert part.arrays is not None
-            writes[slot] = pool.submit(writer.append, part.arrays)
-            part.arrays = None
-            parts.append(part)
-        for done in writes:
-            if done is not None:
-                done.result()
-    return parts
 
 
 def _numbered_shard(item: tuple[int, Piece], options: WindowOptions, shard_root: str) -> PieceWindows:
