@@ -39,6 +39,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from lanecast.io_adapters.contracts.track_runs import row_extent, run_starts  # noqa: E402
 from lanecast.io_adapters.datasets.highd import read as read_highd  # noqa: E402
 from lanecast.io_adapters.sim.scenarios import scenario_config  # noqa: E402
 from lanecast.io_adapters.sim.sumo_highway import simulate  # noqa: E402
@@ -75,11 +76,9 @@ def write_ngsim_txt(table, path: Path, *, noisy: bool, args: argparse.Namespace,
     lane = cols["lane_id"][order]
     cls = cols["object_class"][order]
     t = frame * 0.1
-    new = np.r_[True, track[1:] != track[:-1]]
-    starts = np.flatnonzero(new)
+    new = run_starts(track)
     run = np.cumsum(new) - 1
-    first = starts[run]
-    last = np.r_[starts[1:], track.size][run] - 1
+    first, last = row_extent(new)
     rng = np.random.default_rng(seed)
     front = x + length / 2  # m, along travel
     lateral = -y  # m, to the right

@@ -34,6 +34,7 @@ import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -134,10 +135,16 @@ def windows_for(
 
     if not (out / "manifest.json").is_file():
         parts = []
+        sources = set((clean_of or {}).values())
+        truth: dict[Path, Any] = {}  # a measured copy's source: the index and futures true_futures needs
         for i, d in enumerate(dirs):
             w = make_windows(highd.read([d]), split=split, seed=0)
+            if d in sources:
+                truth[d] = SimpleNamespace(index=w.index, future=np.array(w.future))
             if clean_of and d in clean_of:
-                w = true_futures(w, make_windows(highd.read([clean_of[d]]), split=split, seed=0))
+                source = clean_of[d]
+                clean = truth.pop(source, None) or make_windows(highd.read([source]), split=split, seed=0)
+                w = true_futures(w, clean)
             if len(w) > max_windows:
                 keep = np.sort(np.random.default_rng(i).choice(len(w), max_windows, replace=False))
                 w = subset(w, keep)

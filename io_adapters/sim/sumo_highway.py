@@ -62,6 +62,7 @@ from lanecast.io_adapters.contracts.track_runs import (
 from lanecast.io_adapters.datasets.highd import NEIGHBOURS
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import bar
+from lanecast.io_adapters.sim.slow_signals import sinusoid_sum
 
 FRAME_RATE = 25.0
 STEP_S = 1.0 / FRAME_RATE
@@ -730,29 +731,17 @@ def smooth_lateral(y: np.ndarray, new_track: np.ndarray, width_s: float, rate_hz
 
 
 WANDER_PERIODS_S = (6.0, 40.0)  # range of the periods of the in-lane weave's sinusoids
-WANDER_COMPONENTS = 3
 
 
 def lateral_wander(vehicle: np.ndarray, time_s: np.ndarray, std_m: float, seed: int) -> np.ndarray:
     """Each vehicle's slow weave inside its lane, float64 [n] (m, to the left) for rows of
-    ``vehicle`` int [n] at ``time_s`` [n].
-
-    A sum of ``WANDER_COMPONENTS`` sinusoids per vehicle with random periods (log-uniform in
-    ``WANDER_PERIODS_S``), phases and equal amplitudes, of total std ``std_m``: smooth (lateral
-    acceleration at most 3·std·√(2/3)·(2π/6 s)², 0.4 m/s² for 0.15 m; median 0.03, p99 0.17), deterministic per seed, and
-    independent of the row order. Real drivers hold the lane centre to a few decimetres; SUMO's
-    vehicles hold it exactly, so without it a model never sees lateral motion that is not a lane
-    change."""
+    ``vehicle`` int [n] at ``time_s`` [n]: :func:`~lanecast.io_adapters.sim.slow_signals.sinusoid_sum`
+    with periods in ``WANDER_PERIODS_S`` and total std ``std_m``. Smooth (lateral acceleration at
+    most 3·std·√(2/3)·(2π/6 s)², 0.4 m/s² for 0.15 m; median 0.03, p99 0.17), deterministic per
+    seed. Real drivers hold the lane centre to a few decimetres; SUMO's vehicles hold it exactly,
+    so without it a model never sees lateral motion that is not a lane change."""
     rng = np.random.default_rng([int(seed), 0x5A4E])
-    n_vehicles = int(vehicle.max()) + 1 if vehicle.size else 0
-    lo, hi = np.log(WANDER_PERIODS_S[0]), np.log(WANDER_PERIODS_S[1])
-    periods = np.exp(rng.uniform(lo, hi, size=(n_vehicles, WANDER_COMPONENTS)))
-    phases = rng.uniform(0.0, 2 * np.pi, size=(n_vehicles, WANDER_COMPONENTS))
-    amplitude = std_m * np.sqrt(2.0 / WANDER_COMPONENTS)  # a sinusoid of amplitude A has std A/√2
-    out = np.zeros(vehicle.size)
-    for k in range(WANDER_COMPONENTS):  # a few vectorised passes over all rows
-        out += np.sin(2 * np.pi * time_s / periods[vehicle, k] + phases[vehicle, k])
-    return amplitude * out
+    return sinusoid_sum(vehicle, time_s, std_m, WANDER_PERIODS_S, rng)
 
 
 def _round(values: np.ndarray, decimals: int) -> np.ndarray:

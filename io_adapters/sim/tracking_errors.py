@@ -27,6 +27,7 @@ import pyarrow as pa
 import pyarrow.csv as pacsv
 
 from lanecast.io_adapters.contracts.track_runs import row_extent, run_starts
+from lanecast.io_adapters.sim.slow_signals import sinusoid_sum
 from lanecast.io_adapters.sim.sumo_highway import file_names, write_highd
 
 SLOW_PERIODS_S = (2.0, 10.0)
@@ -36,16 +37,9 @@ DIFF_SPAN_S = 0.2  # half-width of the difference that gives velocities and acce
 def slow_error(
     track_index: np.ndarray, time_s: np.ndarray, std: float, rng: np.random.Generator
 ) -> np.ndarray:
-    """A smooth error per track, float64 [n]: three sinusoids of periods log-uniform in
-    ``SLOW_PERIODS_S`` and random phases, total std ``std``. ``track_index`` int [n] in 0 … T-1."""
-    n_tracks = int(track_index.max()) + 1 if track_index.size else 0
-    lo, hi = np.log(SLOW_PERIODS_S[0]), np.log(SLOW_PERIODS_S[1])
-    periods = np.exp(rng.uniform(lo, hi, size=(n_tracks, 3)))
-    phases = rng.uniform(0.0, 2 * np.pi, size=(n_tracks, 3))
-    out = np.zeros(time_s.size)
-    for k in range(3):
-        out += np.sin(2 * np.pi * time_s / periods[track_index, k] + phases[track_index, k])
-    return std * np.sqrt(2.0 / 3.0) * out
+    """A smooth error per track, float64 [n], total std ``std``: a sinusoid sum with periods in
+    ``SLOW_PERIODS_S``. ``track_index`` int [n] in 0 … T-1."""
+    return sinusoid_sum(track_index, time_s, std, SLOW_PERIODS_S, rng)
 
 
 def central_difference(
