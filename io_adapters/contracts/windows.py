@@ -24,7 +24,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
-from typing import Any, BinaryIO
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -32,6 +32,7 @@ import pyarrow.parquet as pq
 
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import atomic_path
+from lanecast.io_adapters.npy_append import SHARD_HEADER_BYTES, NpyAppender, save_npy
 
 #: Vehicle rows of the window tensor, in their fixed, spatially coherent order.
 ROWS: tuple[str, ...] = ("FL", "F", "FR", "L", "T", "R", "RL", "RR")
@@ -188,7 +189,7 @@ def save_shard(directory: Path, arrays: dict[str, np.ndarray]) -> Path:
     dataset that :meth:`DatasetWriter.append_shard` then appends)."""
     directory.mkdir(parents=True, exist_ok=True)
     for name in _ARRAYS:
-        np.save(directory / f"{name}.npy", np.ascontiguousarray(arrays[name]), allow_pickle=False)
+        save_npy(directory / f"{name}.npy", arrays[name], header_bytes=SHARD_HEADER_BYTES)
     return directory
 
 
@@ -324,67 +325,6 @@ def concat_windows(parts: list[Windows], manifest: dict[str, Any] | None = None)
         index=pa.concat_tables([p.index.cast(INDEX_SCHEMA) for p in parts]),
         manifest=dict(manifest if manifest is not None else parts[0].manifest),
     )
-
-
-_NPY_HEADER = 128  # bytes of a grown .npy file's header (magic + length + dict, padded)
-
-
-def _npy_header(dtype: np.dtype, shape: tuple[int, ...]) -> bytes:
-    """A version 1.0 .npy header of exactly ``_NPY_HEADER`` bytes (room for any row count)."""
-    text = f"{{'descr': {dtype.str!r}, 'fortran_order': False, 'shape': {shape!r}, }}"
-    pad = _NPY_HEADER - 10 - len(text) - 1
-    if pad < 0:
-        raise ValueError(f"shape {shape} does not fit a {_NPY_HEADER}-byte header")
-    body = (text + " " * pad + "\n").encode("latin1")
-    return b"\x93NUMPY\x01\x00" + len(body).to_bytes(2, "little") + body
-
-
-class NpyAppender:
-    """A .npy file grown on disk row block by row block: the header is rewritten with the final
-    row count on :meth:`close`, so a dataset of any size is written with one block in memory and
-    then memory-mapped by ``np.load`` like any other .npy file."""
-
-    def __init__(self, path: Path, dtype: np.dtype, row_shape: tuple[int, ...]) -> None:
-        self.path, self.dtype, self.row_shape = path, np.dtype(dtype), tuple(row_shape)
-        self.rows = 0
-        self._fh: BinaryIO = path.open("wb")
-        self._fh.write(_npy_header(self.dtype, (0, *self.row_shape)))
-
-    def append(self, block: np.ndarray) -> None:
-        """Append rows [B, *row_shape] (C order)."""
-        if block.dtype != self.dtype or block.shape[1:] != self.row_shape:
-            raise ValueError(f"{self.path.name}: block {block.dtype}{block.shape} does not match the array")
-        if block.size:
-            self._fh.write(np.ascontiguousarray(block).reshape(-1).view(np.uint8).data)
-        self.rows += block.shape[0]
-
-    def append_npy(self, path: Path) -> int:
-        """Append the rows of a .npy file (same dtype and row shape) by copying its bytes; its row count."""
-        with path.open("rb") as src:
-            version = np.lib.format.read_magic(src)
-            read_header = (
-                np.lib.format.read_array_header_1_0
-                if version == (1, 0)
-                else np.lib.format.read_array_header_2_0
-            )
-            shape, fortran, dtype = read_header(src)
-            if fortran or dtype != self.dtype or tuple(shape[1:]) != self.row_shape:
-                raise InputError(
-                    path, f"shard array {dtype}{list(shape)}", expected=f"{self.dtype}[N, *{self.row_shape}]"
-                )
-            shutil.copyfileobj(src, self._fh, 1 << 22)
-        self.rows += int(shape[0])
-        return int(shape[0])
-
-    def close(self) -> None:
-        """Write the final shape into the header and close (data flushed to the OS)."""
-        self._fh.flush()
-        self._fh.seek(0)
-        self._fh.write(_npy_header(self.dtype, (self.rows, *self.row_shape)))
-        self._fh.close()
-
-    def abort(self) -> None:
-        self._fh.close()
 
 
 def _jsonable(value: Any) -> Any:

@@ -1,0 +1,69 @@
+"""Large outputs around the page cache: the bytes equal numpy's, direct or buffered, whatever the
+block sizes (smaller than, equal to and across the staging buffer and the alignment)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lanecast.io_adapters import direct_file
+from lanecast.io_adapters.direct_file import ALIGN, DirectWriter
+from lanecast.io_adapters.errors import InputError
+from lanecast.io_adapters.npy_append import SHARD_HEADER_BYTES, NpyAppender, read_npy_header, save_npy
+
+
+@pytest.fixture(params=[True, False], ids=["direct", "buffered"])
+def direct(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> bool:
+    monkeypatch.setattr(direct_file, "STAGE_BYTES", 4 * ALIGN)  # small: many flushes in a test
+    return bool(request.param)
+
+
+@pytest.mark.parametrize("sizes", [[0], [1], [ALIGN - 128], [5 * ALIGN + 7, 3, 9 * ALIGN], [ALIGN] * 6])
+def test_written_bytes_and_header_are_exact(tmp_path: Path, direct: bool, sizes: list[int]) -> None:
+    rng = np.random.default_rng(len(sizes))
+    blocks = [rng.integers(0, 256, size=n, dtype=np.uint8) for n in sizes]
+    out = DirectWriter(tmp_path / "f.bin", direct=direct)
+    out.write(b"\0" * 128)  # reserved for the header
+    for block in blocks:
+        out.write(block)
+    assert out.size == 128 + sum(sizes)
+    out.close(b"H" * 128)
+    assert (tmp_path / "f.bin").read_bytes() == b"H" * 128 + b"".join(b.tobytes() for b in blocks)
+
+
+def test_appended_file_from_an_aligned_offset(tmp_path: Path, direct: bool) -> None:
+    rng = np.random.default_rng(3)
+    src = rng.integers(0, 256, size=ALIGN + 9 * ALIGN + 77, dtype=np.uint8)
+    (tmp_path / "src.bin").write_bytes(src.tobytes())
+    out = DirectWriter(tmp_path / "f.bin", direct=direct)
+    out.write(b"ab")
+    assert out.append_file(tmp_path / "src.bin", ALIGN) == src.size - ALIGN
+    assert out.append_file(tmp_path / "src.bin", 5) == src.size - 5  # unaligned: read buffered
+    out.close(b"XY")
+    assert (tmp_path / "f.bin").read_bytes() == b"XY" + src[ALIGN:].tobytes() + src[5:].tobytes()
+
+
+def test_arrays_equal_numpy_save_and_shards_append(tmp_path: Path, direct: bool) -> None:
+    rng = np.random.default_rng(4)
+    blocks = [rng.normal(size=(n, 4, 8, 30)).astype(np.float32) for n in (3, 0, 11)]
+    shard = save_npy(tmp_path / "shard.npy", blocks[2], header_bytes=SHARD_HEADER_BYTES)
+    assert read_npy_header(shard) == ((11, 4, 8, 30), np.dtype(np.float32), SHARD_HEADER_BYTES)
+    np.testing.assert_array_equal(np.load(shard), blocks[2])
+    app = NpyAppender(tmp_path / "a.npy", np.dtype(np.float32), (4, 8, 30), direct=direct)
+    app.append(blocks[0])
+    app.append(blocks[1])
+    assert app.append_npy(shard) == 11
+    app.close()
+    np.save(tmp_path / "b.npy", np.concatenate(blocks))
+    assert (tmp_path / "a.npy").read_bytes() == (tmp_path / "b.npy").read_bytes()
+
+
+def test_a_truncated_shard_is_refused_naming_it(tmp_path: Path) -> None:
+    shard = save_npy(tmp_path / "s.npy", np.ones((4, 5, 2), np.float32), header_bytes=SHARD_HEADER_BYTES)
+    shard.write_bytes(shard.read_bytes()[:-8])
+    app = NpyAppender(tmp_path / "a.npy", np.dtype(np.float32), (5, 2))
+    with pytest.raises(InputError, match=r"s\.npy.*bytes of rows"):
+        app.append_npy(shard)
+    app.abort()
