@@ -65,14 +65,26 @@ class NpyAppender:
         self.path, self.dtype, self.row_shape = path, np.dtype(dtype), tuple(row_shape)
         self.header_bytes = header_bytes
         self.rows = 0
+        self._reserved: np.ndarray | None = None
         self._out = DirectWriter(path, direct=direct)
         self._out.write(npy_header(self.dtype, (0, *self.row_shape), header_bytes))
 
+    def reserve(self, rows: int) -> np.ndarray:
+        """The next ``rows`` rows [rows, *row_shape] as an array in the file's staging memory, to
+        fill and then :meth:`append` without a copy (valid until the next append)."""
+        row_bytes = self.dtype.itemsize * int(np.prod(self.row_shape))
+        view = self._out.reserve(rows * row_bytes)
+        self._reserved = np.frombuffer(view, dtype=self.dtype).reshape(rows, *self.row_shape)
+        return self._reserved
+
     def append(self, block: np.ndarray) -> None:
-        """Append rows [B, *row_shape] (C order)."""
+        """Append rows [B, *row_shape] (C order): the array :meth:`reserve` gave, or any other."""
         if block.dtype != self.dtype or block.shape[1:] != self.row_shape:
             raise ValueError(f"{self.path.name}: block {block.dtype}{block.shape} does not match the array")
-        if block.size:
+        reserved, self._reserved = self._reserved, None
+        if reserved is not None and _same_memory(block, reserved):
+            self._out.commit(block.nbytes)
+        elif block.size:
             self._out.write(np.ascontiguousarray(block).reshape(-1).view(np.uint8))
         self.rows += block.shape[0]
 
@@ -97,6 +109,15 @@ class NpyAppender:
 
     def abort(self) -> None:
         self._out.abort()
+
+
+def _same_memory(a: np.ndarray, b: np.ndarray) -> bool:
+    """``a`` is exactly the array ``b`` (same first byte, shape and strides)."""
+    return (
+        a.__array_interface__["data"][0] == b.__array_interface__["data"][0]
+        and a.shape == b.shape
+        and a.strides == b.strides
+    )
 
 
 def save_npy(path: Path, array: np.ndarray, *, header_bytes: int = HEADER_BYTES) -> Path:

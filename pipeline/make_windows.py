@@ -18,7 +18,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 import pyarrow as pa
@@ -543,6 +543,13 @@ class PieceWindows:
     chunk_of: str = ""  # the recording a chunk piece is part of (its metadata is given once)
 
 
+class Buffers(Protocol):
+    """Where a piece's inputs and presence are gathered: ``take(n)`` gives [n, 4, 8, 30] float32
+    and [n, 8, 30] bool arrays (a :class:`DatasetWriter`'s staging memory, or :class:`_Buffers`)."""
+
+    def take(self, n: int) -> tuple[np.ndarray, np.ndarray]: ...
+
+
 class _Buffers:
     """Input and presence buffers reused from piece to piece (no fresh memory to fault in)."""
 
@@ -559,7 +566,7 @@ class _Buffers:
 
 
 def piece_windows(
-    table: pa.Table, options: WindowOptions, buffers: _Buffers | None = None, chunk: Chunk | None = None
+    table: pa.Table, options: WindowOptions, buffers: Buffers | None = None, chunk: Chunk | None = None
 ) -> PieceWindows:
     """Every window of one piece (a validated track table of whole recordings, or a ``chunk``'s
     target tracks and their context); inputs and presence go into ``buffers`` when given (valid
@@ -658,9 +665,8 @@ def write_windows(
     parts: list[PieceWindows] = []
     with DatasetWriter(out) as writer:
         if ordered_map is None:
-            buffers = _Buffers()
-            for piece in pieces:
-                part = piece_windows(piece.read_with_context(), options, buffers, piece.chunk)
+            for piece in pieces:  # gathered into the dataset files' staging memory: no copy
+                part = piece_windows(piece.read_with_context(), options, writer, piece.chunk)
                 assert part.arrays is not None
                 writer.append(part.arrays)
                 part.arrays = None

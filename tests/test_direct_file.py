@@ -67,3 +67,22 @@ def test_a_truncated_shard_is_refused_naming_it(tmp_path: Path) -> None:
     with pytest.raises(InputError, match=r"s\.npy.*bytes of rows"):
         app.append_npy(shard)
     app.abort()
+
+
+def test_rows_filled_in_place_equal_numpy_save(tmp_path: Path, direct: bool) -> None:
+    """reserve -> fill -> append (no copy), the staging memory growing past its first size, mixed
+    with copied blocks: the file equals numpy's."""
+    rng = np.random.default_rng(5)
+    sizes = [2, 40, 1, 90, 3]  # rows of 3840 bytes: 40 and 90 exceed the 4-block staging buffer
+    blocks = [rng.normal(size=(n, 4, 8, 30)).astype(np.float32) for n in sizes]
+    app = NpyAppender(tmp_path / "a.npy", np.dtype(np.float32), (4, 8, 30), direct=direct)
+    for i, block in enumerate(blocks):
+        if i % 2:
+            app.append(block.copy())
+        else:
+            rows = app.reserve(len(block))
+            rows[...] = block
+            app.append(rows)
+    app.close()
+    np.save(tmp_path / "b.npy", np.concatenate(blocks))
+    assert (tmp_path / "a.npy").read_bytes() == (tmp_path / "b.npy").read_bytes()

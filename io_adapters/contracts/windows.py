@@ -232,8 +232,14 @@ class DatasetWriter:
         assert self._tmp is not None, "use DatasetWriter as a context manager"
         return self._tmp / "_shards"
 
+    def take(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """Inputs [n, 4, 8, 30] and presence [n, 8, 30] of the next ``n`` windows, in the files'
+        staging memory: fill them and :meth:`append` them with no copy (valid until then)."""
+        return self._appenders["inputs"].reserve(n), self._appenders["present"].reserve(n)
+
     def append(self, arrays: dict[str, np.ndarray]) -> None:
-        """Append windows: ``inputs``, ``present``, ``future``, ``maneuver`` with the same length."""
+        """Append windows: ``inputs``, ``present``, ``future``, ``maneuver`` with the same length
+        (inputs and presence ideally those :meth:`take` gave)."""
         lengths = {name: len(arrays[name]) for name in _ARRAYS}
         if len(set(lengths.values())) != 1:
             raise ValueError(f"arrays of different lengths {lengths}")
