@@ -11,6 +11,8 @@ accelerations differentiated from noisy positions):
 * ``Local_Y`` (longitudinal): a slow error (sum of sinusoids, periods 2-10 s, std ``--lon-slow``)
   plus white jitter (std ``--lon-white``);
 * ``Local_X`` (lateral): white jitter (std ``--lat-white``) plus a slow error (``--lat-slow``);
+* standing vehicles keep the error they had when they stopped (NGSIM's standing boxes do not
+  jitter and report speed 0); ``--standing-jitter`` gives them the same errors as moving ones;
 * ``v_Vel``: the central difference of the noisy ``Local_Y`` over ±0.2 s; ``v_Acc``: the central
   difference of ``v_Vel`` over ±0.2 s, clipped to ±11.2 ft/s² as NGSIM's are.
 
@@ -43,7 +45,12 @@ from lanecast.io_adapters.contracts.track_runs import row_extent, run_starts  # 
 from lanecast.io_adapters.datasets.highd import read as read_highd  # noqa: E402
 from lanecast.io_adapters.sim.scenarios import scenario_config  # noqa: E402
 from lanecast.io_adapters.sim.sumo_highway import simulate  # noqa: E402
-from lanecast.io_adapters.sim.tracking_errors import central_difference, slow_error  # noqa: E402
+from lanecast.io_adapters.sim.tracking_errors import (  # noqa: E402
+    STANDING_MS,
+    central_difference,
+    held_while_standing,
+    slow_error,
+)
 
 FT = 0.3048
 SEEDS = {
@@ -64,7 +71,7 @@ def write_ngsim_txt(table, path: Path, *, noisy: bool, args: argparse.Namespace,
     keep = np.char.endswith(rec, "-lower")
     cols = {
         c: table.column(c).to_numpy(zero_copy_only=False)[keep]
-        for c in ("track_id", "frame", "x", "y", "length", "width", "lane_id", "object_class")
+        for c in ("track_id", "frame", "x", "y", "vx", "vy", "length", "width", "lane_id", "object_class")
     }
     frame = cols["frame"].astype(np.int64)
     # SUMO scenarios run at 10 Hz already; keep the rows on NGSIM's 0.1 s grid.
@@ -83,10 +90,13 @@ def write_ngsim_txt(table, path: Path, *, noisy: bool, args: argparse.Namespace,
     front = x + length / 2  # m, along travel
     lateral = -y  # m, to the right
     if noisy:
-        front = front + slow_error(track, t, args.lon_slow, rng) + rng.normal(0, args.lon_white, track.size)
-        lateral = (
-            lateral + slow_error(track, t, args.lat_slow, rng) + rng.normal(0, args.lat_white, track.size)
-        )
+        lon_error = slow_error(track, t, args.lon_slow, rng) + rng.normal(0, args.lon_white, track.size)
+        lat_error = slow_error(track, t, args.lat_slow, rng) + rng.normal(0, args.lat_white, track.size)
+        if not args.standing_jitter:
+            standing = np.hypot(cols["vx"][order], cols["vy"][order]) < STANDING_MS
+            lon_error = held_while_standing(lon_error, standing, first)
+            lat_error = held_while_standing(lat_error, standing, first)
+        front, lateral = front + lon_error, lateral + lat_error
     speed = np.maximum(central_difference(front, first, last, 2, 0.1), 0.0)
     acc = np.clip(central_difference(speed, first, last, 2, 0.1), -11.2 * FT, 11.2 * FT)
     # NGSIM lanes: 1 = left-most; the highD lane ids of one carriageway ordered by mean lateral position.
@@ -174,6 +184,9 @@ def main() -> None:
     ap.add_argument("--lon-white", type=float, default=0.05, help="m, std of longitudinal jitter")
     ap.add_argument("--lat-slow", type=float, default=0.1, help="m, std of the slow lateral error")
     ap.add_argument("--lat-white", type=float, default=0.1, help="m, std of lateral jitter")
+    ap.add_argument(
+        "--standing-jitter", action="store_true", help="standing vehicles jitter too (default: held still)"
+    )
     args = ap.parse_args()
     model = str(Path(args.model).resolve()) if args.model else None
     print(f"load average: {os.getloadavg()}; model: {model or 'shipped'}")

@@ -14,6 +14,7 @@ from lanecast.io_adapters.sim import sumo_highway
 from lanecast.io_adapters.sim.tracking_errors import (
     add_tracking_errors,
     central_difference,
+    held_while_standing,
     write_measured_copy,
 )
 
@@ -121,3 +122,80 @@ def test_measured_copy_of_a_simulated_recording_reads_back(tmp_path: Path) -> No
     assert 0.1 < dx.std() < 0.35
     dv = b.column("vx").to_numpy() - a.column("vx").to_numpy()
     assert 0.1 < np.median(np.abs(dv)) < 2.0
+
+
+def _stopping_track(rate: float = 25.0) -> pa.Table:
+    """One highD track braking at 2 m/s² from 10 m/s to a stop at 5 s, then standing for 15 s."""
+    t = np.arange(int(20 * rate)) / rate
+    moving = t < 5.0
+    x = np.where(moving, 10 * t - t**2, 25.0)
+    vx = np.where(moving, 10 - 2 * t, 0.0)
+    n = t.size
+    return pa.table(
+        {
+            "frame": np.arange(1, n + 1),
+            "id": np.ones(n, np.int64),
+            "x": x,
+            "y": np.full(n, 12.0),
+            "xVelocity": vx,
+            "yVelocity": np.zeros(n),
+            "xAcceleration": np.where(moving, -2.0, 0.0),
+            "yAcceleration": np.zeros(n),
+            "laneId": np.full(n, 2, np.int64),
+        }
+    )
+
+
+def test_standing_vehicles_are_held_still_unless_asked_to_jitter() -> None:
+    """Once stopped, the measured box keeps the error it had when the vehicle stopped: positions
+    constant, speed and acceleration exactly 0 (as NGSIM reports standing cars); moving rows keep
+    their errors; ``hold_standing=False`` makes the standing box jitter like a moving one."""
+    tracks = _stopping_track()
+    standing_rows = np.r_[140:500]  # > 0.2 s (the difference span) after the stop at row 125
+    held = add_tracking_errors(tracks, 25.0, 0.3, seed=1)
+    x = held.column("x").to_numpy()
+    assert np.unique(x[standing_rows]).size == 1
+    assert np.abs(x[standing_rows][0] - 25.0) < 1.5  # the error it had when it stopped
+    assert not np.any(held.column("xVelocity").to_numpy()[standing_rows])
+    assert not np.any(held.column("xAcceleration").to_numpy()[standing_rows])
+    assert np.unique(held.column("y").to_numpy()[standing_rows]).size == 1
+    assert (x[:100] - tracks.column("x").to_numpy()[:100]).std() > 0.1  # moving: errors as before
+    jitter = add_tracking_errors(tracks, 25.0, 0.3, seed=1, hold_standing=False)
+    assert np.abs(jitter.column("xVelocity").to_numpy()[standing_rows]).mean() > 0.1
+    np.testing.assert_array_equal(jitter.column("x").to_numpy()[:120], x[:120])
+
+
+def test_held_while_standing_takes_the_last_moving_value_per_track() -> None:
+    error = np.array([1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0])
+    standing = np.array([True, False, True, True, False, True, True])
+    first = np.array([0, 0, 0, 0, 4, 4, 4])  # two tracks: rows 0-3 and 4-6
+    np.testing.assert_array_equal(
+        held_while_standing(error, standing, first), [1.0, 2.0, 2.0, 2.0, 5.0, 5.0, 5.0]
+    )
+    first2 = np.array([0, 0, 0, 0, 4, 4, 4])
+    standing2 = np.array([False, False, False, False, True, True, False])  # track 2 starts standing
+    np.testing.assert_array_equal(
+        held_while_standing(error, standing2, first2), [1.0, 2.0, 3.0, 4.0, 5.0, 5.0, 7.0]
+    )
+
+
+def test_a_standing_vehicle_does_not_weave(tmp_path: Path) -> None:
+    """The weave advances with distance: in a signal queue, a vehicle standing for seconds keeps
+    its lateral position (real cars do not drift sideways at a red light)."""
+    from lanecast.io_adapters.sim.scenarios import scenario_config
+
+    cfg = scenario_config("signal", minutes=2, seed=4)
+    assert cfg.lateral_wander_m > 0
+    sim = sumo_highway.simulate(tmp_path / "sim", minutes=2, seed=4, config=cfg, show_progress=False)
+    t = highd.read([sim])
+    standing = np.abs(t.column("vx").to_numpy()) < 0.01  # standing still along the road
+    assert standing.mean() > 0.05  # the red phase makes queues
+    track = t.column("track_id").to_numpy()
+    starts = np.r_[True, (standing[1:] != standing[:-1]) | (track[1:] != track[:-1])]
+    run = np.cumsum(starts)[standing]  # one id per stretch of standing rows of one track
+    y = t.column("y").to_numpy()[standing]
+    low, high = np.full(run.max() + 1, np.inf), np.full(run.max() + 1, -np.inf)
+    np.minimum.at(low, run, y)
+    np.maximum.at(high, run, y)
+    spread = (high - low)[np.isfinite(low)]
+    assert spread.max() < 0.011  # centimetre rounding of the files: no weave while standing

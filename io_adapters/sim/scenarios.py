@@ -98,13 +98,14 @@ SCENARIOS: dict[str, tuple[str, dict[str, Any]]] = {
         },
     ),
     "signal": (
-        "2 lanes of 3.5 m, 60 km/h, a traffic light downstream (40 s green, 30 s red): queues that stop and start",
+        "2 lanes of 3.5 m, 60 km/h, a traffic light downstream (40 s green, 50 s red): queues that stand and start",
         {
             "lanes_per_direction": 2,
             "lane_width_m": 3.5,
             "speed_limit_kmh": 60.0,
-            "demand_per_s": 0.6,
+            "demand_per_s": 0.5,
             "bottleneck": "signal",
+            "signal_red_s": 50.0,
             "truck_share": 0.1,
             "extra_warmup_s": 60.0,
         },

@@ -730,18 +730,21 @@ def smooth_lateral(y: np.ndarray, new_track: np.ndarray, width_s: float, rate_hz
     return _box_mean(_box_mean(y, new_track, half), new_track, half)
 
 
-WANDER_PERIODS_S = (6.0, 40.0)  # range of the periods of the in-lane weave's sinusoids
+WANDER_PERIODS_S = (6.0, 40.0)  # range of the weave's periods at WANDER_SPEED_MS
+WANDER_SPEED_MS = 30.0  # the weave advances with distance: its periods are these at 30 m/s
 
 
-def lateral_wander(vehicle: np.ndarray, time_s: np.ndarray, std_m: float, seed: int) -> np.ndarray:
+def lateral_wander(vehicle: np.ndarray, clock_s: np.ndarray, std_m: float, seed: int) -> np.ndarray:
     """Each vehicle's slow weave inside its lane, float64 [n] (m, to the left) for rows of
-    ``vehicle`` int [n] at ``time_s`` [n]: :func:`~lanecast.io_adapters.sim.slow_signals.sinusoid_sum`
-    with periods in ``WANDER_PERIODS_S`` and total std ``std_m``. Smooth (lateral acceleration at
-    most 3·std·√(2/3)·(2π/6 s)², 0.4 m/s² for 0.15 m; median 0.03, p99 0.17), deterministic per
-    seed. Real drivers hold the lane centre to a few decimetres; SUMO's vehicles hold it exactly,
-    so without it a model never sees lateral motion that is not a lane change."""
+    ``vehicle`` int [n] at ``clock_s`` [n] (distance travelled / ``WANDER_SPEED_MS``: a weave is
+    a path over the road, so a standing vehicle does not drift sideways and a slow one weaves
+    slowly): :func:`~lanecast.io_adapters.sim.slow_signals.sinusoid_sum` with periods in
+    ``WANDER_PERIODS_S`` and total std ``std_m``. Smooth (at 30 m/s lateral acceleration at most
+    3·std·√(2/3)·(2π/6 s)², 0.4 m/s² for 0.15 m; median 0.03, p99 0.17), deterministic per seed.
+    Real drivers hold the lane centre to a few decimetres; SUMO's vehicles hold it exactly, so
+    without it a model never sees lateral motion that is not a lane change."""
     rng = np.random.default_rng([int(seed), 0x5A4E])
-    return sinusoid_sum(vehicle, time_s, std_m, WANDER_PERIODS_S, rng)
+    return sinusoid_sum(vehicle, clock_s, std_m, WANDER_PERIODS_S, rng)
 
 
 def _round(values: np.ndarray, decimals: int) -> np.ndarray:
@@ -787,7 +790,8 @@ def to_highd(samples: Samples, cfg: HighwayConfig, recording_id: int = 1) -> dic
     if cfg.lateral_smoothing_s > 0:
         y_net = smooth_lateral(y_net, run_starts(veh), cfg.lateral_smoothing_s, cfg.frame_rate)
     if cfg.lateral_wander_m > 0:
-        y_net = y_net + lateral_wander(veh, frame * cfg.step_s, cfg.lateral_wander_m, cfg.seed)
+        travelled = np.abs(x_front - x_front[first])
+        y_net = y_net + lateral_wander(veh, travelled / WANDER_SPEED_MS, cfg.lateral_wander_m, cfg.seed)
     if cfg.lateral_smoothing_s > 0 or cfg.lateral_wander_m > 0:
         y_vel = -along_track_derivative(y_net, frame, first, last, t_unit=cfg.step_s)  # image y points down
     else:

@@ -14,6 +14,10 @@ Error model, per track (``level`` in metres):
 * longitudinal: a slow error, a sum of three sinusoids with periods 2-10 s and random phases, std
   ``level``, plus white jitter of std ``level / 4``;
 * lateral: the same with std ``level / 3`` each;
+* standing vehicles (true speed below ``STANDING_MS``) keep the error they had when they stopped,
+  without jitter: a dataset's tracker and smoothing hold a standing box still (NGSIM reports
+  speed 0 for them), and a measured copy whose standing cars jitter teaches a network that speed
+  0 never happens, so that on real data it predicts standing cars rolling backwards;
 * velocities: the central difference of the positions over ±``DIFF_SPAN_S``; accelerations: the
   central difference of those velocities; both clipped to each track.
 """
@@ -32,6 +36,7 @@ from lanecast.io_adapters.sim.sumo_highway import file_names, write_highd
 
 SLOW_PERIODS_S = (2.0, 10.0)
 DIFF_SPAN_S = 0.2  # half-width of the difference that gives velocities and accelerations
+STANDING_MS = 0.1  # a vehicle slower than this stands: its measured box stays still
 
 
 def slow_error(
@@ -40,6 +45,15 @@ def slow_error(
     """A smooth error per track, float64 [n], total std ``std``: a sinusoid sum with periods in
     ``SLOW_PERIODS_S``. ``track_index`` int [n] in 0 … T-1."""
     return sinusoid_sum(track_index, time_s, std, SLOW_PERIODS_S, rng)
+
+
+def held_while_standing(error: np.ndarray, standing: np.ndarray, first: np.ndarray) -> np.ndarray:
+    """``error`` float64 [n] with every standing row (``standing`` bool [n]) given the value of
+    the last moving row before it in its track (the track's first row if none): the error a
+    tracker keeps while the vehicle stands. ``first`` int [n]: first row of each row's track."""
+    idx = np.arange(error.size)
+    last_moving = np.maximum.accumulate(np.where(standing, -1, idx))
+    return error[np.maximum(last_moving, first)]
 
 
 def central_difference(
@@ -53,9 +67,12 @@ def central_difference(
     return np.where(hi > lo, (values[hi] - values[lo]) / (steps * dt_s), 0.0)
 
 
-def add_tracking_errors(tracks: pa.Table, frame_rate: float, level_m: float, seed: int) -> pa.Table:
+def add_tracking_errors(
+    tracks: pa.Table, frame_rate: float, level_m: float, seed: int, *, hold_standing: bool = True
+) -> pa.Table:
     """A highD ``tracks`` table (rows sorted by id, then frame) with tracker-like errors of ``level_m``
     on ``x``, ``y`` and velocities and accelerations re-derived from them (module docstring).
+    ``hold_standing`` False: standing vehicles jitter like moving ones (a tracker without smoothing).
 
     The lane, neighbour and headway columns keep their true values (a dataset's lane assignment
     comes from its own, smoothed processing)."""
@@ -69,9 +86,13 @@ def add_tracking_errors(tracks: pa.Table, frame_rate: float, level_m: float, see
     rng = np.random.default_rng([int(seed), 0x7E5])
     x = tracks.column("x").to_numpy().astype(np.float64)
     y = tracks.column("y").to_numpy().astype(np.float64)
+    speed = np.hypot(tracks.column("xVelocity").to_numpy(), tracks.column("yVelocity").to_numpy())
+    standing = (speed < STANDING_MS) & hold_standing
     # highD's x runs along the road and y across it, whichever the direction.
-    x = x + slow_error(track_index, time_s, level_m, rng) + rng.normal(0.0, level_m / 4, x.size)
-    y = y + slow_error(track_index, time_s, level_m / 3, rng) + rng.normal(0.0, level_m / 3, y.size)
+    x_error = slow_error(track_index, time_s, level_m, rng) + rng.normal(0.0, level_m / 4, x.size)
+    y_error = slow_error(track_index, time_s, level_m / 3, rng) + rng.normal(0.0, level_m / 3, y.size)
+    x = x + held_while_standing(x_error, standing, first)
+    y = y + held_while_standing(y_error, standing, first)
     span = max(round(DIFF_SPAN_S * frame_rate), 1)
     dt = 1.0 / frame_rate
     vx = central_difference(x, first, last, span, dt)
@@ -93,14 +114,21 @@ def add_tracking_errors(tracks: pa.Table, frame_rate: float, level_m: float, see
 
 
 def write_measured_copy(
-    src_dir: Path, recording_id: int, out_dir: Path, new_id: int, level_m: float, seed: int
+    src_dir: Path,
+    recording_id: int,
+    out_dir: Path,
+    new_id: int,
+    level_m: float,
+    seed: int,
+    *,
+    hold_standing: bool = True,
 ) -> Path:
     """Write recording ``recording_id`` of ``src_dir`` (highD CSVs) as recording ``new_id`` in
     ``out_dir`` with tracking errors of ``level_m`` (:func:`add_tracking_errors`); atomic."""
     names = file_names(recording_id)
     tables = {kind: pacsv.read_csv(Path(src_dir) / name) for kind, name in names.items()}
     rate = float(tables["recordingMeta"].column("frameRate")[0].as_py())
-    tables["tracks"] = add_tracking_errors(tables["tracks"], rate, level_m, seed)
+    tables["tracks"] = add_tracking_errors(tables["tracks"], rate, level_m, seed, hold_standing=hold_standing)
     meta = tables["recordingMeta"]
     i = meta.schema.get_field_index("id")
     tables["recordingMeta"] = meta.set_column(
