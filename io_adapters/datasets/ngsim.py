@@ -22,7 +22,10 @@ Conversion (all NGSIM is 10 Hz, in feet): positions, lengths, speeds and acceler
   back by half the length *along the heading* (for a southbound car that is +L/2 in x).
   ``vx, vy = v_Vel * (cos, sin)(heading)``.
 
-``ax, ay`` are ``v_Acc`` along the heading. One recording per (location, source file, period):
+``ax, ay`` are ``v_Acc`` along the heading, except where the vehicle stands still (``v_Vel`` 0 in
+the row and in its track's rows before and after): there NGSIM's ``v_Acc`` holds single-frame
+spikes of up to ±6 ft/s² that no motion follows (a speed that stays 0 cannot have accelerated), and
+the acceleration is 0. One recording per (location, source file, period):
 ``ngsim-<location>-<file stem>``; when one file holds several recording periods, the periods become
 ``...-p1``, ``...-p2`` (ordered by time). A period is a cluster of the epoch
 ``Global_Time - 100 * Frame_ID``. The CSV export needs this: its Peachtree rows have two epochs,
@@ -832,7 +835,10 @@ def _kinematics(
     t = frame / FRAME_RATE
     half_length = cols["v_length"] * FEET / 2
     speed = cols["v_vel"] * FEET
-    accel = cols["v_acc"] * FEET
+    i = np.arange(speed.size)
+    standing_still = (speed == 0) & (speed[np.maximum(i - 1, tracks.first)] == 0)
+    standing_still &= speed[np.minimum(i + 1, tracks.last)] == 0
+    accel = np.where(standing_still, 0.0, cols["v_acc"] * FEET)  # module docstring: no spikes at rest
     front_x = cols["local_y"] * FEET
     front_y = -cols["local_x"] * FEET
 
