@@ -118,7 +118,17 @@ class PredictionGraph(nn.Module):
             velocity = (track * self.cv_weights).sum(-1)  # [N, 2]
             base = track[:, None, :, -1] + velocity[:, None, :] * self.horizons  # [N, 5, 2]
             offsets = offsets + base.float()[:, None]
-        return log_probs.exp(), logits.argmax(dim=2), seqs, best.exp(), offsets
+        return log_probs.exp(), logits.argmax(dim=2), seqs, best.exp(), _forward_only(offsets)
+
+
+def _forward_only(offsets: torch.Tensor) -> torch.Tensor:
+    """lanecast.models.baselines.forward_only in the graph: [N, K, H, 2] → x ≥ 0 and non-decreasing
+    over the horizons (a running maximum unrolled over the fixed H steps: ONNX has no cummax)."""
+    along = offsets[..., 0].clamp(min=0.0)
+    steps = [along[..., 0]]
+    for h in range(1, along.shape[-1]):
+        steps.append(torch.maximum(steps[-1], along[..., h]))
+    return torch.stack((torch.stack(steps, dim=-1), offsets[..., 1]), dim=-1)
 
 
 def export_onnx(model: Path | str | None, out_dir: Path | str | None = None) -> Path:

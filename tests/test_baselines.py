@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lanecast.models.baselines import constant_acceleration, constant_velocity, extrapolate
+from lanecast.models.baselines import constant_acceleration, constant_velocity, extrapolate, forward_only
+from lanecast.models.predict import STCNNForecaster
 
 T_HIST = (np.arange(30) - 29) * 0.1
 
@@ -65,3 +66,30 @@ def test_bad_degree_or_span() -> None:
         extrapolate(inputs, degree=3, span=10)
     with pytest.raises(ValueError):
         extrapolate(inputs, degree=2, span=2)
+
+
+def test_forward_only_removes_reversing_and_keeps_lateral_offsets() -> None:
+    offsets = np.array(
+        [[[-0.2, 0.1], [0.5, 0.2], [0.3, 0.3], [1.0, 0.4], [0.9, -0.5]]], np.float32
+    )  # [1, 5, 2]
+    out = forward_only(offsets)
+    assert out is offsets  # in place
+    np.testing.assert_allclose(out[0, :, 0], [0.0, 0.5, 0.5, 1.0, 1.0])  # by hand
+    np.testing.assert_allclose(out[0, :, 1], [0.1, 0.2, 0.3, 0.4, -0.5])
+
+
+def test_the_shipped_model_never_forecasts_a_standing_car_behind_itself() -> None:
+    """A car that stood for 3 s alone (speed 0, as NGSIM reports standing cars), and the same among
+    standing neighbours: every forecast, top-K included, is at or ahead of it along the road."""
+    inputs, present = _window(0.0, 0.0)
+    queue_inputs, queue_present = inputs.copy(), present.copy()
+    for row, x, y in ((1, 7.5, 0.0), (6, -7.5, 3.5)):  # F ahead, RL behind in the lane on the left
+        queue_inputs[0, 0, row] = x
+        queue_inputs[0, 1, row] = y
+        queue_present[0, row] = True
+    model = STCNNForecaster.load(None)
+    for x, p in ((inputs, present), (queue_inputs, queue_present)):
+        pred = model.predict(x, p, top_k=3)
+        assert pred.top_offsets[..., 0].min() >= 0.0
+        assert np.all(np.diff(pred.top_offsets[..., 0], axis=-1) >= 0.0)
+        assert np.abs(pred.offsets[0, 0]).max() < 0.5  # a standing car stays near where it is at 1 s
