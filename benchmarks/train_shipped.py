@@ -54,6 +54,9 @@ MIX: dict[str, tuple[float, int]] = {
 TEST_MINUTES = 3.0
 TEST_SEED_OFFSET = 800  # held-out seed = training seed + 800
 MEASURED_ID_OFFSET = 20  # recording id of a training recording's measured copy
+#: measured copies whose standing vehicles jitter (a tracker without smoothing); the others hold
+#: standing vehicles still, as NGSIM's do (lanecast.io_adapters.sim.tracking_errors)
+STANDING_JITTER = frozenset({"urban"})
 PEACHTREE = ROOT / "tests" / "data" / "ngsim" / "peachtree_sample.csv"
 
 
@@ -79,13 +82,19 @@ def simulate_one(work: Path, scenario: str, rec_id: int, seed: int, minutes: flo
     return out
 
 
-def measured_copy(work: Path, sim_dir: Path, scenario: str, rec_id: int, seed: int, level: float) -> Path:
-    """The measured copy (recording id + 20) of a simulated recording, errors of ``level`` m."""
+def measured_copy(
+    work: Path, sim_dir: Path, scenario: str, rec_id: int, seed: int, level: float, *, hold: bool = True
+) -> Path:
+    """The measured copy (recording id + 20) of a simulated recording, errors of ``level`` m,
+    standing vehicles held still (``hold``) or jittering."""
     from lanecast.io_adapters.sim.tracking_errors import write_measured_copy
 
-    out = work / "sim" / f"{rec_id + MEASURED_ID_OFFSET:02d}-{scenario}-measured-{level:g}m"
+    kind = "held" if hold else "jitter"
+    out = work / "sim" / f"{rec_id + MEASURED_ID_OFFSET:02d}-{scenario}-measured-{level:g}m-{kind}"
     if not (out / f"{rec_id + MEASURED_ID_OFFSET:02d}_tracks.csv").is_file():
-        write_measured_copy(sim_dir, rec_id, out, rec_id + MEASURED_ID_OFFSET, level, seed)
+        write_measured_copy(
+            sim_dir, rec_id, out, rec_id + MEASURED_ID_OFFSET, level, seed, hold_standing=hold
+        )
     return out
 
 
@@ -244,6 +253,17 @@ def deviations(config: Any, levels: list[float]) -> list[str]:
             "classifier's argmax maneuvers instead of the true ones (the paper: always the true ones), "
             "as at inference"
         )
+    if config.neighbour_dropout > 0:
+        out.append(
+            f"augmentation: {100 * config.neighbour_dropout:g} % of the training windows shown with every "
+            "neighbour removed (the target alone), as real data misses neighbours"
+        )
+    if config.derivative_outliers > 0:
+        out.append(
+            f"augmentation: {100 * config.derivative_outliers:g} % of the input entries get a speed and "
+            "acceleration outlier (acceleration + N(0, 1.5 m/s²), speed + |N(0, 0.2 m/s)|), as real "
+            "datasets' differentiated speeds and accelerations flicker"
+        )
     if config.lr_schedule != "constant":
         out.append(f"learning-rate schedule: {config.lr_schedule} decay to 0 over the run, both networks")
     return out
@@ -284,6 +304,18 @@ def main() -> int:
         default=0.0,
         help="share of training windows whose regressor gets the classifier's maneuvers (0: the paper)",
     )
+    ap.add_argument(
+        "--neighbour-dropout",
+        type=float,
+        default=0.1,
+        help="share of training windows shown without any neighbour (TrainConfig.neighbour_dropout)",
+    )
+    ap.add_argument(
+        "--derivative-outliers",
+        type=float,
+        default=0.05,
+        help="share of input entries with a speed/acceleration outlier (TrainConfig.derivative_outliers)",
+    )
     ap.add_argument("--max-windows", type=int, default=10000, help="per training recording")
     ap.add_argument(
         "--tracking-error-levels",
@@ -323,7 +355,9 @@ def main() -> int:
     traffic = json.loads(stats_path.read_text())
     levels = list(args.tracking_error_levels)
     measured = [
-        measured_copy(args.work, sims[r], r[0], r[1], r[2], levels[i % len(levels)])
+        measured_copy(
+            args.work, sims[r], r[0], r[1], r[2], levels[i % len(levels)], hold=r[0] not in STANDING_JITTER
+        )
         for i, r in enumerate(train_recs)
         if levels
     ]
@@ -361,6 +395,8 @@ def main() -> int:
         acc_noise_mps2=args.acc_noise,
         horizon_weight_power=args.horizon_weight_power,
         predicted_maneuver_share=args.predicted_maneuver_share,
+        neighbour_dropout=args.neighbour_dropout,
+        derivative_outliers=args.derivative_outliers,
     )
     data = {
         "kind": "SUMO simulated traffic, named scenarios (lanecast.io_adapters.sim.scenarios), highD format, 10 Hz",
@@ -382,6 +418,9 @@ def main() -> int:
             "what": "each training recording again with tracker-like errors on positions, speeds and "
             "accelerations re-derived from them (lanecast.io_adapters.sim.tracking_errors); inputs "
             "measured, futures the true ones",
+            "standing_vehicles": "held still (the error they had when they stopped) except in "
+            + ", ".join(sorted(STANDING_JITTER))
+            + ", where they jitter",
         },
         "split": "seeded hash split by track (seed 0) within the training recordings: train/val",
         "test_recordings": [

@@ -357,3 +357,58 @@ def test_offsets_relative_to_constant_velocity(windows: Windows) -> None:
     np.testing.assert_allclose(flat.offsets, cv.offsets + mean, atol=1e-3)
     with pytest.raises(ValueError):
         TrainConfig(future_relative_to="ca")
+
+
+def test_neighbour_dropout_shows_targets_alone(windows: Windows) -> None:
+    """A dropped window keeps its target (inputs and presence) and loses every neighbour: presence
+    False and the normalised inputs exactly 0, as for a window recorded without neighbours; the
+    others are untouched; the future is the same either way."""
+    from lanecast.io_adapters.contracts.windows import TARGET_ROW, compute_stats, normalise
+    from lanecast.models.augment import Augmentation
+    from lanecast.models.train import _Batches
+
+    idx = np.arange(64)
+    present = np.asarray(windows.present[idx])
+    assert present[:, np.arange(8) != TARGET_ROW].any()
+    stats = compute_stats(windows.inputs[idx], windows.present[idx])
+    batches = _Batches(windows, stats, np.zeros((5, 2), np.float32), 1.0)
+    cpu = torch.device("cpu")
+    x0, y0, _ = batches.get(idx, cpu)
+    x1, y1, _ = batches.get(idx, cpu, Augmentation(neighbour_dropout=1.0), np.random.default_rng(0))
+    torch.testing.assert_close(y0, y1)
+    alone = np.asarray(windows.inputs[idx]) * (np.arange(8) == TARGET_ROW)[None, None, :, None]
+    only_target = present & (np.arange(8) == TARGET_ROW)[None, :, None]
+    np.testing.assert_array_equal(x1.numpy(), normalise(alone, only_target, stats))
+    np.testing.assert_array_equal(x1.numpy()[:, :, TARGET_ROW], x0.numpy()[:, :, TARGET_ROW])
+    x_half, _, _ = batches.get(idx, cpu, Augmentation(neighbour_dropout=0.5), np.random.default_rng(0))
+    kept = (x_half.numpy() == x0.numpy()).all(axis=(1, 2, 3))
+    assert 0 < kept.sum() < len(idx)
+    with pytest.raises(ValueError, match="neighbour_dropout"):
+        TrainConfig(neighbour_dropout=1.5)
+
+
+def test_derivative_outliers_touch_only_present_speed_and_acceleration(windows: Windows) -> None:
+    """Outliers go into the speed (upwards only) and acceleration inputs of present entries, at
+    about the share asked for; positions, absent entries and the future are untouched."""
+    from lanecast.io_adapters.contracts.windows import compute_stats
+    from lanecast.models.augment import Augmentation
+    from lanecast.models.train import _Batches
+
+    idx = np.arange(256)
+    present = np.asarray(windows.present[idx])
+    stats = compute_stats(windows.inputs[idx], windows.present[idx])
+    batches = _Batches(windows, stats, np.zeros((5, 2), np.float32), 1.0)
+    cpu = torch.device("cpu")
+    x0, y0, _ = batches.get(idx, cpu)
+    x1, y1, _ = batches.get(idx, cpu, Augmentation(derivative_outliers=0.2), np.random.default_rng(1))
+    x0n, x1n = x0.numpy(), x1.numpy()
+    torch.testing.assert_close(y0, y1)
+    np.testing.assert_array_equal(x1n[:, :2], x0n[:, :2])
+    changed = (x1n != x0n).any(axis=1)  # [B, 8, T]
+    assert not (changed & ~present).any()
+    share = changed.sum() / present.sum()
+    assert 0.15 < share < 0.25
+    assert (x1n[:, 2] >= x0n[:, 2]).all()  # speed is normalised by a positive scale: only upwards
+    assert (x1n[:, 3] != x0n[:, 3]).sum() > 0.9 * changed.sum()
+    with pytest.raises(ValueError, match="derivative_outliers"):
+        TrainConfig(derivative_outliers=-0.1)
