@@ -519,16 +519,21 @@ def _bands_chunk(
 def limit_range(cols: Columns, rows: np.ndarray, max_range_m: float) -> np.ndarray:
     """Neighbour rows [n, 7] with -1 where the neighbour is more than ``max_range_m`` ahead or behind.
 
-    The distance is longitudinal: along x in road frames, else along the target's heading.
+    The distance is longitudinal: along x in road frames, else along the target's heading
+    (computed for those rows only; one [n, 7] temporary, reused in place).
     """
     got = rows >= 0
-    j = np.where(got, rows, np.arange(cols.n)[:, None])
-    dx = cols.x[j] - cols.x[:, None]
-    dy = cols.y[j] - cols.y[:, None]
-    road = cols.road_frame[cols.rec][:, None]
-    h = cols.heading[:, None]
-    lon = np.where(road, dx, np.cos(h) * dx + np.sin(h) * dy)
-    return np.where(got & (np.abs(lon) <= max_range_m), rows, -1)
+    lon = np.take(cols.x, rows, mode="clip")  # [n, 7]; -1 (none) reads row 0, masked below
+    lon -= cols.x[:, None]
+    other = np.flatnonzero(~cols.road_frame[cols.rec])
+    if other.size:
+        dx = lon[other]
+        dy = np.take(cols.y, rows[other], mode="clip") - cols.y[other, None]
+        h = cols.heading[other, None]
+        lon[other] = np.cos(h) * dx + np.sin(h) * dy
+    np.abs(lon, out=lon)
+    got &= lon <= max_range_m
+    return np.where(got, rows, -1)
 
 
 @dataclass

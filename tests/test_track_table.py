@@ -102,6 +102,47 @@ def test_validate_rejects_missing_column_wrong_type_and_unknown_recording() -> N
         track_table.validate(other)
 
 
+def test_a_null_recording_is_named_with_its_row_beside_an_unknown_one() -> None:
+    table = track_table.concat(
+        [track_table.build_table(_columns(recording=r), _meta(r)) for r in ("rec-a", "rec-b")]
+    )
+    i = table.schema.get_field_index("recording")
+    col = table.column(i).combine_chunks()
+    mask = np.zeros(table.num_rows, dtype=bool)
+    mask[5] = True
+    nulled = pa.DictionaryArray.from_arrays(pa.array(col.indices.to_numpy(), mask=mask), col.dictionary)
+    with pytest.raises(TrackTableError, match=r"t.parquet: row 5: column 'recording' is null"):
+        track_table.validate(table.set_column(i, table.schema.field(i), nulled), source="t.parquet")
+    meta = TableMeta("test", {"rec-a": RecordingMeta(frame_rate=25.0)}, ["memory"])
+    only_a = table.set_column(i, table.schema.field(i), nulled).replace_schema_metadata(
+        {track_table.META_KEY: meta.to_json().encode()}
+    )
+    with pytest.raises(TrackTableError, match=r"recordings \['rec-b'\] have no entry"):
+        track_table.validate(only_a)
+
+
+def test_recording_codes_of_slices_and_chunks_with_other_dictionaries() -> None:
+    """Codes index the sorted names of the recordings that have rows, whatever each chunk's
+    dictionary holds (a slice keeps its parent's whole dictionary)."""
+    rng = np.random.default_rng(3)
+    pool = ["highd-02-lower", "highd-01-upper", "b", "a", "zz"]
+    for _ in range(200):
+        chunks = []
+        for _ in range(int(rng.integers(0, 4))):
+            entries = list(rng.choice(pool, size=int(rng.integers(1, 5)), replace=False))
+            idx = rng.integers(0, len(entries), size=int(rng.integers(0, 20))).astype(np.int32)
+            chunks.append(pa.DictionaryArray.from_arrays(pa.array(idx), pa.array(entries)))
+        table = pa.table({"recording": pa.chunked_array(chunks, type=pa.dictionary(pa.int32(), pa.string()))})
+        if table.num_rows and rng.random() < 0.5:
+            lo = int(rng.integers(0, table.num_rows))
+            table = table.slice(lo, int(rng.integers(0, table.num_rows - lo + 1)))
+        values = [str(v) for v in table.column("recording").to_pylist()]
+        names, codes = track_table.recording_codes(table)
+        assert names.tolist() == sorted(set(values))
+        assert codes.dtype == np.int64
+        assert [names[c] for c in codes] == values
+
+
 def test_lane_change_rows_are_first_frames_in_the_new_lane() -> None:
     table = track_table.build_table(_columns(), _meta("rec-a"))
     # lane 2 at frames 0-1, lane 3 at frames 2-3, for both tracks; rows 2 and 6.

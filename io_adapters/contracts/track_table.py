@@ -246,7 +246,12 @@ def validate(table: pa.Table, source: str | Path | None = None) -> None:
         meta = read_meta(table)
     except TrackTableError as exc:
         raise TrackTableError(f"{where}{exc}") from exc
-    recordings = set(pc.unique(table.column("recording").cast(pa.string())).to_pylist())
+    rec_codes = None
+    if table.column("recording").null_count:  # a null one is reported with its row below
+        recordings = set(pc.unique(table.column("recording").drop_null().cast(pa.string())).to_pylist())
+    else:
+        rec_names, rec_codes = recording_codes(table)
+        recordings = set(rec_names.tolist())
     unknown = recordings - set(meta.recordings)
     if unknown:
         raise TrackTableError(f"{where}recordings {sorted(unknown)} have no entry in the table metadata")
@@ -268,7 +273,7 @@ def validate(table: pa.Table, source: str | Path | None = None) -> None:
             raise TrackTableError(
                 f"{where}row {row}: column {name!r} is {values[row]}, expected a finite number"
             )
-    rec_codes = recording_codes(table)[1]
+    assert rec_codes is not None  # a null recording was refused above
     track = table.column("track_id").to_numpy()
     frame = table.column("frame").to_numpy()
     time = table.column("time_ns").to_numpy()
@@ -299,22 +304,23 @@ def _first(mask: pa.ChunkedArray | pa.Array) -> int:
 
 def recording_codes(table: pa.Table) -> tuple[np.ndarray, np.ndarray]:
     """(sorted names str [R] of the recordings that have rows, code of each row int64 [n]) via the
-    dictionary encoding, without touching a string per row."""
+    dictionary encoding, without touching a string per row: one pass over each chunk's indices
+    to find the entries that have rows (a slice keeps its parent's whole dictionary), one to map
+    them. The column has no nulls (validate refuses them)."""
     col = table.column("recording")
     if not pa.types.is_dictionary(col.type):
         col = pc.dictionary_encode(col)
-    chunk_names = [np.asarray(c.dictionary.to_pylist(), dtype=object).astype(str) for c in col.chunks]
-    all_names = np.concatenate(chunk_names) if chunk_names else np.zeros(0, dtype=str)
-    names, inv = np.unique(all_names, return_inverse=True)
-    parts, offset = [], 0
-    for c, dnames in zip(col.chunks, chunk_names, strict=True):
-        parts.append(inv[offset + c.indices.to_numpy(zero_copy_only=False).astype(np.int64)])
-        offset += dnames.size
-    codes = np.concatenate(parts) if parts else np.zeros(0, dtype=np.int64)
-    # only the recordings that have rows (a slice keeps its parent's whole dictionary)
-    used = np.bincount(codes, minlength=names.size) > 0
-    codes = (np.cumsum(used) - 1)[codes]
-    return names[used].astype(str), codes.astype(np.int64)
+    chunks = [c for c in col.chunks if len(c)]
+    entries = [np.asarray(c.dictionary.to_pylist(), dtype=object).astype(str) for c in chunks]
+    indices = [c.indices.to_numpy(zero_copy_only=False) for c in chunks]
+    used = [e[np.bincount(i, minlength=e.size) > 0] for e, i in zip(entries, indices, strict=True)]
+    names = np.unique(np.concatenate(used)) if used else np.zeros(0, dtype=str)
+    codes = np.empty(len(col), dtype=np.int64)
+    lo = 0
+    for e, i in zip(entries, indices, strict=True):  # an unused entry maps anywhere: never read
+        np.take(np.searchsorted(names, e), i, out=codes[lo : lo + i.size], mode="clip")
+        lo += i.size
+    return names.astype(str), codes
 
 
 def track_boundaries(table: pa.Table) -> np.ndarray:
