@@ -129,22 +129,25 @@ def resample_with_physics(
     else:
         k, j, w = resample_indices(time_ns, seg_start, step)
     j1 = np.minimum(j + 1, max(table.num_rows - 1, 0))
-    out = table.take(pa.array(j, pa.int64()))
     physics: dict[str, np.ndarray] = {}
     for name in _LINEAR:
         v = table.column(name).to_numpy().astype(np.float64)
-        physics[name] = v[j] + w * (v[j1] - v[j]) if v.size else v[j]
+        vj = v[j]
+        physics[name] = vj + w * (v[j1] - vj) if v.size else vj
     h = table.column("heading").to_numpy().astype(np.float64)
-    physics["heading"] = wrap_angle(h[j] + w * wrap_angle(h[j1] - h[j])) if h.size else h[j]
+    hj = h[j]
+    physics["heading"] = wrap_angle(hj + w * wrap_angle(h[j1] - hj)) if h.size else hj
     columns = {
         "frame": pa.array(k, pa.int64()),
         "time_ns": pa.array(k * step, pa.int64()),
         **{name: pa.array(values) for name, values in physics.items()},
     }
-    for name, values in columns.items():
-        i = out.schema.get_field_index(name)
-        f = out.schema.field(i)
-        out = out.set_column(i, f, values.cast(f.type))
+    # the other columns (ids, lanes, classes) take the nearest-earlier sample's value
+    taken = table.select([n for n in table.column_names if n not in columns]).take(pa.array(j, pa.int64()))
+    out = pa.Table.from_arrays(
+        [columns[f.name].cast(f.type) if f.name in columns else taken.column(f.name) for f in table.schema],
+        schema=table.schema,
+    )
     recordings = {
         name: replace(
             rec,
