@@ -24,6 +24,7 @@ FUTURE = 50  # frames at 10 Hz after t0 that the targets need
 HORIZON_STEP = 10  # frames between future steps (1 s)
 SLOT_ROWS = np.array([ROWS.index(s) for s in SLOTS])  # tensor row of each neighbour slot
 CHUNK = 512  # windows per gather chunk (temporaries of ~1 MB stay in cache)
+ROW_BLOCK = 8192  # rows per block of per_row_features (temporaries of ~0.5 MB)
 WORKERS = min(2, os.cpu_count() or 1)  # threads for the CPU-bound stages (see make_windows)
 MIN_CHORD_M = 3.0  # a shorter displacement gives no reliable direction (tracker noise ~0.1-0.3 m)
 LONG_CHORD_FRAMES = 100  # 10 s: the fallback chord for a target that barely moved in its history
@@ -80,28 +81,36 @@ def speed_and_lon_acc(cols: Columns) -> tuple[np.ndarray, np.ndarray]:
     return np.hypot(cols.vx, cols.vy), cols.ax * np.cos(cols.heading) + cols.ay * np.sin(cols.heading)
 
 
-def per_row_features(cols: Columns, neighbour_rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def per_row_features(
+    cols: Columns, neighbour_rows: np.ndarray, block: int = ROW_BLOCK
+) -> tuple[np.ndarray, np.ndarray]:
     """What every row contributes to a window, before the window's own transform.
 
     Returns (features float32 [4, 8, n], present bool [8, n]): for each tensor row (FL … RR, T
     itself included) the vehicle's position relative to this row's vehicle in the source frame
     (computed in float64, so small and exact in float32), its speed and its longitudinal
     acceleration; zeros where the slot is empty. Row-last so that a window's 30 consecutive
-    history rows are 30 contiguous values.
+    history rows are 30 contiguous values. Computed ``block`` rows at a time, so that the
+    temporaries stay in cache.
     """
     n = cols.n
-    vehicles = np.empty((len(ROWS), n), dtype=np.int64)
-    vehicles[SLOT_ROWS] = neighbour_rows.T
-    vehicles[TARGET_ROW] = np.arange(n)
-    present = vehicles >= 0
-    v = np.where(present, vehicles, np.arange(n)[None, :])
     speed, lon_acc = speed_and_lon_acc(cols)
     features = np.empty((4, len(ROWS), n), dtype=np.float32)
-    features[0] = cols.x[v] - cols.x[None, :]
-    features[1] = cols.y[v] - cols.y[None, :]
-    features[2] = speed[v]
-    features[3] = lon_acc[v]
-    features *= present[None]
+    present = np.empty((len(ROWS), n), dtype=bool)
+    for lo in range(0, n, block):
+        hi = min(lo + block, n)
+        own = np.arange(lo, hi)
+        vehicles = np.empty((len(ROWS), hi - lo), dtype=np.int64)
+        vehicles[SLOT_ROWS] = neighbour_rows[lo:hi].T
+        vehicles[TARGET_ROW] = own
+        here = np.greater_equal(vehicles, 0, out=present[:, lo:hi])
+        v = np.where(here, vehicles, own[None, :])  # an empty slot reads the row itself: 0 offset
+        f = features[:, :, lo:hi]
+        np.subtract(cols.x[v], cols.x[None, lo:hi], out=f[0], casting="same_kind")  # float64, then float32
+        np.subtract(cols.y[v], cols.y[None, lo:hi], out=f[1], casting="same_kind")
+        f[2] = speed[v]
+        f[3] = lon_acc[v]
+        f *= here[None]
     return features, present
 
 
@@ -163,6 +172,7 @@ def gather(
     w = t0.size
     h0 = frame_heading(cols, t0)
     cos0, sin0 = np.cos(h0), np.sin(h0)
+    rotated = h0 != 0
     if out is None:
         inputs = np.empty((w, 4, len(ROWS), HISTORY), dtype=np.float32)
         present = np.empty((w, len(ROWS), HISTORY), dtype=bool)
@@ -184,11 +194,15 @@ def gather(
         dy = (y_view[first] - y_view[first, -1:]).astype(np.float32)
         px = f[0] + dx
         py = f[1] + dy
-        c = cos0[b0:b1, None].astype(np.float32)
-        s = sin0[b0:b1, None].astype(np.float32)
         out = inputs[b0:b1].transpose(1, 2, 0, 3)  # [4, 8, B, 30] view of the output
-        np.multiply(c * px + s * py, here, out=out[0])
-        np.multiply(c * py - s * px, here, out=out[1])
+        if rotated[b0:b1].any():
+            c = cos0[b0:b1, None].astype(np.float32)
+            s = sin0[b0:b1, None].astype(np.float32)
+            np.multiply(c * px + s * py, here, out=out[0])
+            np.multiply(c * py - s * px, here, out=out[1])
+        else:  # road frames: the window frame is T's position, not rotated (cos 1, sin 0)
+            np.multiply(px, here, out=out[0])
+            np.multiply(py, here, out=out[1])
         out[2] = f[2]
         out[3] = f[3]
         present[b0:b1] = here.transpose(1, 0, 2)
