@@ -53,10 +53,9 @@ import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.csv as pacsv
@@ -66,6 +65,9 @@ from lanecast.io_adapters.contracts.track_runs import along_track_derivative, ro
 from lanecast.io_adapters.datasets.csv_errors import check_field_counts, line_spans, record_lines
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import progress
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 FORMAT = "ngsim"
 FEET = 0.3048
@@ -248,6 +250,8 @@ def _parse_txt(path: Path, location: str | None) -> _Parsed:
     n_fields = len(TXT_COLUMNS)
     # Integer columns as int64 where every cell is a plain integer (ids above 2^53 stay exact),
     # else everything as float64 and the integers checked afterwards.
+    import pandas as pd  # here, not at the top: every other command is spared its import (~0.2 s)
+
     int_types = {
         i: np.int64 if n.lower() in INTEGER_COLUMNS else np.float64 for i, n in enumerate(TXT_COLUMNS)
     }
@@ -408,6 +412,8 @@ def _coerce(cells: pd.Series, allow_missing: bool = False) -> np.ndarray:
     With ``allow_missing`` (columns this reader does not use), missing-value cells such as NaN
     count as fine (0.0): only text that is not a number at all is flagged.
     """
+    import pandas as pd  # only for text files (see _parse_txt)
+
     values = np.array(pd.to_numeric(cells, errors="coerce"), dtype=np.float64)  # a writable copy
     if allow_missing:
         missing = np.asarray(cells.astype(str).str.strip().str.lower().isin(_NAN_LITERALS))
