@@ -37,7 +37,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from lanecast.io_adapters.contracts import track_table
-from lanecast.io_adapters.contracts.track_runs import run_starts
+from lanecast.io_adapters.contracts.track_runs import run_bounds, run_starts
 from lanecast.io_adapters.contracts.windows import ROWS
 from lanecast.io_adapters.errors import TrackTableError
 
@@ -149,6 +149,7 @@ class RowIndex:
         self.track_of_row = np.cumsum(new_track) - 1
         self.track_end = np.append(self.track_start[1:], n)  # exclusive
         self.first_frame = cols.frame[self.track_start] if n else np.zeros(0, dtype=np.int64)
+        self.last_frame = cols.frame[self.track_end - 1] if n else np.zeros(0, dtype=np.int64)
         self.uniq_ids = np.unique(cols.track)
         self.n_ids = max(self.uniq_ids.size, 1)
         rank = np.searchsorted(self.uniq_ids, cols.track[self.track_start])
@@ -189,8 +190,9 @@ class RowIndex:
             return out
         ti = self.tracks(np.asarray(rec, dtype=np.int64), track_id)
         t = np.maximum(ti, 0)
-        inside = (ti >= 0) & (frame >= self.first_frame[t]) & (frame <= self.frame[self.track_end[t] - 1])
-        r = self.track_start[t] + (frame - self.first_frame[t])
+        first = self.first_frame[t]
+        inside = (ti >= 0) & (frame >= first) & (frame <= self.last_frame[t])
+        r = self.track_start[t] + (frame - first)
         arithmetic = inside & (r < self.track_end[t])
         hit = arithmetic & (self.frame[np.where(arithmetic, r, 0)] == frame)
         out[hit] = r[hit]
@@ -214,7 +216,7 @@ def from_source(table: pa.Table, cols: Columns, index: RowIndex) -> np.ndarray:
     for s, slot in enumerate(SLOTS):
         col = table.column(SOURCE_COLUMNS[slot])
         known = ~np.asarray(pc.is_null(col))
-        ids = np.asarray(col.fill_null(-1).to_numpy()).astype(np.int64)
+        ids = np.asarray(col.fill_null(-1).to_numpy()).astype(np.int64, copy=False)
         known &= ids != cols.track
         q = np.flatnonzero(known)
         out[q, s] = index.rows(cols.rec[q], ids[q], cols.frame[q])
@@ -558,12 +560,18 @@ def recording_methods(table: pa.Table, cols: Columns, method: str = "auto") -> d
             )
         return {str(name): method for name in cols.names}
     src_all = np.zeros(n_rec, dtype=bool)
+    bounds = run_bounds(cols.rec)  # rows are sorted by recording: one run each
+    starts = bounds[:-1]
+    runs = list(zip(cols.rec[starts].tolist(), starts.tolist(), np.diff(bounds).tolist(), strict=True))
     if has_source_columns(table):
         src_all[:] = True
-        for name in SOURCE_COLUMNS.values():
-            known = ~np.asarray(pc.is_null(table.column(name)))
-            src_all &= np.bincount(cols.rec, known, minlength=n_rec) > 0
-    lanes_all = (np.bincount(cols.rec, ~cols.lane_known, minlength=n_rec) == 0) & cols.road_frame
+        for name in SOURCE_COLUMNS.values():  # the column gives ids where not all rows are null
+            column = table.column(name)
+            for r, lo, size in runs:
+                src_all[r] &= column.slice(lo, size).null_count < size
+    lanes_all = np.zeros(n_rec, dtype=bool)
+    for r, lo, size in runs:
+        lanes_all[r] = cols.lane_known[lo : lo + size].all() and cols.road_frame[r]
     return {
         str(name): "source" if src_all[r] else ("lanes" if lanes_all[r] else "bands")
         for r, name in enumerate(cols.names)

@@ -255,3 +255,21 @@ def test_agreement_with_sumo_neighbours(sim_recording_dir: Path) -> None:
         print(f"  {name}: {mask.mean():.4f}")
     assert total >= 0.95
     assert (sid >= 0).mean() > 0.2  # the comparison is not between two empty sets
+
+
+def test_each_recording_needs_ids_in_every_source_column_of_its_own_rows() -> None:
+    """auto decides per recording: ids of one recording do not make another's column usable."""
+    a = scene(SEVEN)
+    tid = a.column("track_id").to_numpy()
+    full = {name: np.where(tid == 1, 2.0, np.nan) for name in nbm.SOURCE_COLUMNS.values()}
+    cols = {
+        name: np.concatenate([a.column(name).to_numpy(zero_copy_only=False)] * 3) for name in a.column_names
+    }
+    cols["recording"] = np.r_[["a"] * a.num_rows, ["b"] * a.num_rows, ["c"] * a.num_rows]
+    for name, ids in full.items():  # a: every column; b: all but one; c: none
+        cols[name] = np.r_[
+            ids, ids if name != "left_following_id" else np.full(a.num_rows, np.nan), ids * np.nan
+        ]
+    table = build_table(cols, TableMeta("test", {r: RecordingMeta(10.0) for r in "abc"}))
+    assert nbm.recording_methods(table, nbm.columns(table)) == {"a": "source", "b": "lanes", "c": "lanes"}
+    assert nbm.recording_methods(table.slice(0, 0), nbm.columns(table.slice(0, 0))) == {}
