@@ -86,3 +86,44 @@ def test_rows_filled_in_place_equal_numpy_save(tmp_path: Path, direct: bool) -> 
     app.close()
     np.save(tmp_path / "b.npy", np.concatenate(blocks))
     assert (tmp_path / "a.npy").read_bytes() == (tmp_path / "b.npy").read_bytes()
+
+
+def test_committed_rows_written_by_the_thread_while_the_next_are_filled(tmp_path: Path) -> None:
+    """Every reserve is filled while the previous commit may still be on its way to the disk (two
+    staging buffers alternate): the file equals numpy's, whatever the interleaving."""
+    rng = np.random.default_rng(7)
+    blocks = [rng.normal(size=(int(n), 4, 8, 30)).astype(np.float32) for n in rng.integers(1, 300, 12)]
+    app = NpyAppender(tmp_path / "a.npy", np.dtype(np.float32), (4, 8, 30))
+    for block in blocks:
+        rows = app.reserve(len(block))
+        rows[...] = block
+        app.append(rows)
+    app.close()
+    np.save(tmp_path / "b.npy", np.concatenate(blocks))
+    assert (tmp_path / "a.npy").read_bytes() == (tmp_path / "b.npy").read_bytes()
+
+
+def test_a_failed_background_write_is_raised_by_the_next_commit_or_close(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    out = DirectWriter(tmp_path / "f.bin")
+    if not out.direct:
+        out.abort()
+        pytest.skip("no O_DIRECT here: commits are written at once")
+
+    def full(fd: int, data: object, offset: int) -> int:
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(direct_file.os, "pwrite", full)
+    out.reserve(3 * ALIGN)[:] = b"x" * (3 * ALIGN)
+    out.commit(3 * ALIGN)  # handed to the thread
+    out.reserve(ALIGN)[:] = b"y" * ALIGN
+    with pytest.raises(OSError, match="No space left"):
+        out.commit(ALIGN)
+    out.abort()
+    out.abort()  # idempotent, the thread and the file closed
+    out2 = DirectWriter(tmp_path / "g.bin")
+    out2.reserve(ALIGN)[:] = b"z" * ALIGN
+    out2.commit(ALIGN)
+    with pytest.raises(OSError, match="No space left"):
+        out2.close(b"")
