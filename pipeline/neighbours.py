@@ -150,7 +150,7 @@ class RowIndex:
         self.track_end = np.append(self.track_start[1:], n)  # exclusive
         self.first_frame = cols.frame[self.track_start] if n else np.zeros(0, dtype=np.int64)
         self.last_frame = cols.frame[self.track_end - 1] if n else np.zeros(0, dtype=np.int64)
-        self.uniq_ids = np.unique(cols.track)
+        self.uniq_ids = np.unique(cols.track[self.track_start])  # every id starts a track
         self.n_ids = max(self.uniq_ids.size, 1)
         rank = np.searchsorted(self.uniq_ids, cols.track[self.track_start])
         self.track_key = cols.rec[self.track_start] * self.n_ids + rank
@@ -591,7 +591,7 @@ def neighbour_rows(
     farther than ``max_range_m`` ahead or behind (:func:`limit_range`)."""
     cols = columns(table) if cols is None else cols
     methods = recording_methods(table, cols, method)
-    rows = np.full((cols.n, len(SLOTS)), -1, dtype=np.int64)
+    rows: np.ndarray | None = None
     code_of = {str(name): r for r, name in enumerate(cols.names)}
     for m in ("source", "lanes", "bands"):
         codes = [code_of[name] for name, used in methods.items() if used == m]
@@ -605,7 +605,14 @@ def neighbour_rows(
             got = from_lanes(cols, part[cols.lane_known[part]])
         else:
             got = from_bands(cols, part, lane_width, max_range_m)
+        if part.size == cols.n:  # one method for every row: its result as it is
+            rows = got
+            break
+        if rows is None:
+            rows = np.full((cols.n, len(SLOTS)), -1, dtype=np.int64)
         rows[part] = got[part]
+    if rows is None:
+        rows = np.full((cols.n, len(SLOTS)), -1, dtype=np.int64)
     return Neighbours(limit_range(cols, rows, max_range_m), methods)
 
 
