@@ -76,16 +76,7 @@ def test_rows_filled_in_place_equal_numpy_save(tmp_path: Path, direct: bool) -> 
     sizes = [2, 40, 1, 90, 3]  # rows of 3840 bytes: 40 and 90 exceed the 4-block staging buffer
     blocks = [rng.normal(size=(n, 4, 8, 30)).astype(np.float32) for n in sizes]
     app = NpyAppender(tmp_path / "a.npy", np.dtype(np.float32), (4, 8, 30), direct=direct)
-    for i, block in enumerate(blocks):
-        if i % 2:
-            app.append(block.copy())
-        else:
-            rows = app.reserve(len(block))
-            rows[...] = block
-            app.append(rows)
-    app.close()
-    np.save(tmp_path / "b.npy", np.concatenate(blocks))
-    assert (tmp_path / "a.npy").read_bytes() == (tmp_path / "b.npy").read_bytes()
+    _append_and_compare(app, blocks, tmp_path, copy_every_other=True)
 
 
 def test_committed_rows_written_by_the_thread_while_the_next_are_filled(tmp_path: Path) -> None:
@@ -94,10 +85,21 @@ def test_committed_rows_written_by_the_thread_while_the_next_are_filled(tmp_path
     rng = np.random.default_rng(7)
     blocks = [rng.normal(size=(int(n), 4, 8, 30)).astype(np.float32) for n in rng.integers(1, 300, 12)]
     app = NpyAppender(tmp_path / "a.npy", np.dtype(np.float32), (4, 8, 30))
-    for block in blocks:
-        rows = app.reserve(len(block))
-        rows[...] = block
-        app.append(rows)
+    _append_and_compare(app, blocks, tmp_path, copy_every_other=False)
+
+
+def _append_and_compare(
+    app: NpyAppender, blocks: list[np.ndarray], tmp_path: Path, *, copy_every_other: bool
+) -> None:
+    """Append ``blocks`` (filled in place through reserve, or every other one copied), close, and
+    check that the file equals numpy's save of them all."""
+    for i, block in enumerate(blocks):
+        if copy_every_other and i % 2:
+            app.append(block.copy())
+        else:
+            rows = app.reserve(len(block))
+            rows[...] = block
+            app.append(rows)
     app.close()
     np.save(tmp_path / "b.npy", np.concatenate(blocks))
     assert (tmp_path / "a.npy").read_bytes() == (tmp_path / "b.npy").read_bytes()
