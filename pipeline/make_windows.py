@@ -545,24 +545,9 @@ class PieceWindows:
 
 class Buffers(Protocol):
     """Where a piece's inputs and presence are gathered: ``take(n)`` gives [n, 4, 8, 30] float32
-    and [n, 8, 30] bool arrays (a :class:`DatasetWriter`'s staging memory, or :class:`_Buffers`)."""
+    and [n, 8, 30] bool arrays (a :class:`DatasetWriter`'s staging memory)."""
 
     def take(self, n: int) -> tuple[np.ndarray, np.ndarray]: ...
-
-
-class _Buffers:
-    """Input and presence buffers reused from piece to piece (no fresh memory to fault in)."""
-
-    def __init__(self) -> None:
-        self.inputs = np.empty((0, 4, len(ROWS), HISTORY), dtype=np.float32)
-        self.present = np.empty((0, len(ROWS), HISTORY), dtype=bool)
-
-    def take(self, n: int) -> tuple[np.ndarray, np.ndarray]:
-        if n > len(self.inputs):
-            size = max(n, int(len(self.inputs) * 1.5))
-            self.inputs = np.empty((size, 4, len(ROWS), HISTORY), dtype=np.float32)
-            self.present = np.empty((size, len(ROWS), HISTORY), dtype=bool)
-        return self.inputs[:n], self.present[:n]
 
 
 def piece_windows(
@@ -584,7 +569,7 @@ def piece_windows(
         None if chunk is None else chunk.targets,
     )
     n = prep.t0_rows.size
-    out = (buffers or _Buffers()).take(n)
+    out = None if buffers is None else buffers.take(n)  # None: gather allocates them
     t = time.perf_counter()
     arrays = wt.gather(prep.cols, prep.neighbour_rows, prep.labels, prep.t0_rows, prep.fwd, out=out)
     prep.timings["windows_s"] += time.perf_counter() - t
