@@ -10,12 +10,15 @@ Paths and cards are ``lanecast.models.card`` (torch-free; re-exported here).
 
 from __future__ import annotations
 
+import json
+import sys
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import torch
 from safetensors import SafetensorError
-from safetensors.torch import load_file, save_file
+from safetensors.torch import load_file
 
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import atomic_path
@@ -64,11 +67,62 @@ def save_checkpoint(model: STCNN, card: dict[str, Any], directory: Path, stem: s
     directory.mkdir(parents=True, exist_ok=True)
     tensors = {k: v.detach().to("cpu").contiguous() for k, v in model.state_dict().items()}
     with atomic_path(directory / f"{stem}.safetensors") as tmp:
-        save_file(tensors, str(tmp), metadata={"format": FORMAT, "format_version": str(FORMAT_VERSION)})
+        write_safetensors(tmp, tensors, {"format": FORMAT, "format_version": str(FORMAT_VERSION)})
         tmp.chmod(0o644)  # package data: readable by everyone
     card_path = directory / f"{stem}.json"
     write_card(card_path, full)
     return card_path
+
+
+#: safetensors dtype names (https://huggingface.co/docs/safetensors, "Format").
+_DTYPES = {
+    torch.float64: "F64",
+    torch.float32: "F32",
+    torch.float16: "F16",
+    torch.bfloat16: "BF16",
+    torch.int64: "I64",
+    torch.int32: "I32",
+    torch.int16: "I16",
+    torch.int8: "I8",
+    torch.uint8: "U8",
+    torch.bool: "BOOL",
+}
+
+
+def write_safetensors(path: Path, tensors: Mapping[str, torch.Tensor], metadata: Mapping[str, str]) -> None:
+    """Write ``tensors`` in the safetensors format, byte-identical for equal tensors and metadata.
+
+    ``safetensors.torch.save_file`` writes ``__metadata__`` from a hash map, in an order that changes
+    from process to process. Here: 8-byte little-endian header length, compact JSON header with
+    ``__metadata__`` first (keys sorted), then the tensors in data order (larger elements first, then
+    by name: aligned, and the library's order for one dtype), the header padded with spaces to a
+    multiple of 8, then each tensor's raw little-endian bytes.
+    """
+    order = sorted(tensors, key=lambda name: (-tensors[name].element_size(), name))
+    header: dict[str, Any] = {"__metadata__": dict(sorted(metadata.items()))} if metadata else {}
+    blobs: list[bytes] = []
+    offset = 0
+    for name in order:
+        tensor = tensors[name]
+        if tensor.dtype not in _DTYPES or tensor.layout != torch.strided:
+            raise ValueError(f"cannot write tensor {name!r} ({tensor.dtype}, {tensor.layout})")
+        raw = tensor.detach().to("cpu").contiguous().reshape(-1).view(torch.uint8)
+        if sys.byteorder != "little":
+            raw = raw.reshape(-1, tensor.element_size()).flip(-1).reshape(-1)
+        blobs.append(raw.numpy().tobytes())
+        header[name] = {
+            "dtype": _DTYPES[tensor.dtype],
+            "shape": list(tensor.shape),
+            "data_offsets": [offset, offset + len(blobs[-1])],
+        }
+        offset += len(blobs[-1])
+    text = json.dumps(header, separators=(",", ":"), ensure_ascii=False).encode()
+    text += b" " * (-len(text) % 8)
+    with open(path, "wb") as f:
+        f.write(len(text).to_bytes(8, "little"))
+        f.write(text)
+        for blob in blobs:
+            f.write(blob)
 
 
 def load_checkpoint(model: Path | str | None = None) -> tuple[STCNN, dict[str, Any]]:

@@ -1,20 +1,27 @@
 """Training of the ST-CNN on small synthetic windows: losses fall, a few windows are overfitted,
-a seed reproduces the weights, and save → load → predict gives identical outputs."""
+a seed reproduces the weights, save → load → predict gives identical outputs, and equal weights
+save to equal bytes."""
 
 from __future__ import annotations
 
 import dataclasses
 import json
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
 import pytest
 import torch
 from conftest import synthetic_windows
+from safetensors import safe_open
+from safetensors.torch import load_file, save_file
 
 from lanecast.io_adapters.contracts.windows import Windows
 from lanecast.io_adapters.errors import InputError
-from lanecast.models.checkpoint import load_checkpoint, resolve, save_checkpoint
+from lanecast.models.checkpoint import load_checkpoint, resolve, save_checkpoint, write_safetensors
 from lanecast.models.metrics import displacement_errors, rmse
 from lanecast.models.predict import STCNNForecaster
 from lanecast.models.stcnn import STCNN, count_parameters
@@ -235,6 +242,89 @@ def test_save_load_predict_identical(windows: Windows, tmp_path) -> None:
     for key in ("offsets", "probs", "maneuver", "top_sequences", "top_probs", "top_offsets"):
         np.testing.assert_array_equal(getattr(before, key), getattr(after, key), err_msg=key)
     assert resolve(tmp_path / "model") == (tmp_path / "model/stcnn.safetensors", card_path)
+
+
+REPO = Path(__file__).resolve().parents[1]
+# A small seeded model saved as a checkpoint; run both in this process and in a fresh one.
+_SAVE_SMALL_MODEL = """
+import sys
+from pathlib import Path
+import torch
+from lanecast.models.checkpoint import save_checkpoint
+from lanecast.models.stcnn import STCNN, STCNNConfig
+
+def save(out):
+    torch.manual_seed(0)
+    norm = {"inputs": {"mean": [0.0] * 4, "std": [1.0] * 4}, "future": {"mean": [0.0] * 10, "std": 1.0}}
+    save_checkpoint(STCNN(STCNNConfig(hidden=8)), {"normalisation": norm}, out)
+
+if __name__ == "__main__":
+    save(Path(sys.argv[1]))
+"""
+
+
+def _header(path: Path) -> tuple[int, dict]:
+    data = path.read_bytes()
+    size = int.from_bytes(data[:8], "little")
+    return size, json.loads(data[8 : 8 + size])
+
+
+def test_checkpoint_bytes_are_reproducible(tmp_path: Path) -> None:
+    """The same tensors and card give the same bytes in another process (safetensors' own writer
+    orders ``__metadata__`` by a per-process hash); the library and our loader read them back."""
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    script = [sys.executable, "-c", _SAVE_SMALL_MODEL, str(tmp_path / "a")]
+    subprocess.run(script, cwd=REPO, env=env, check=True, timeout=120)
+    namespace: dict = {}
+    exec(_SAVE_SMALL_MODEL, namespace)
+    namespace["save"](tmp_path / "b")
+    for name in ("stcnn.safetensors", "stcnn.json"):
+        assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes(), name
+    weights = tmp_path / "a/stcnn.safetensors"
+    size, header = _header(weights)
+    assert size % 8 == 0 and next(iter(header)) == "__metadata__"
+    assert list(header["__metadata__"].items()) == [("format", "lanecast-stcnn"), ("format_version", "1")]
+    net, _ = load_checkpoint(tmp_path / "a")
+    state = net.state_dict()
+    library = load_file(str(weights))
+    assert library.keys() == state.keys() and all(torch.equal(library[k], state[k]) for k in state)
+    with safe_open(str(weights), "pt") as f:
+        assert f.metadata() == header["__metadata__"]
+
+
+def test_write_safetensors_ignores_insertion_order_and_matches_the_library(tmp_path: Path) -> None:
+    gen = torch.Generator().manual_seed(0)
+    tensors = {
+        "w": torch.randn(3, 4, generator=gen),
+        "steps": torch.arange(5),
+        "mask": torch.tensor([True, False, True]),
+        "half": torch.randn(2, generator=gen).to(torch.bfloat16),
+        "scalar": torch.tensor(2.5, dtype=torch.float64),
+        "empty": torch.zeros(0, 4),
+        "column": torch.randn(4, 3, generator=gen)[:, 1],  # not contiguous
+    }
+    metadata = {f"key{i}": str(i) for i in range(10)}
+    write_safetensors(tmp_path / "a", tensors, metadata)
+    write_safetensors(tmp_path / "b", dict(reversed(tensors.items())), dict(reversed(metadata.items())))
+    assert (tmp_path / "a").read_bytes() == (tmp_path / "b").read_bytes()
+    back = load_file(str(tmp_path / "a"))
+    assert back.keys() == tensors.keys()
+    assert all(back[k].dtype == v.dtype and torch.equal(back[k], v) for k, v in tensors.items())
+    # one dtype and one metadata key (no order to vary): exactly the library's bytes
+    floats = {k: v.contiguous() for k, v in tensors.items() if v.dtype == torch.float32}
+    write_safetensors(tmp_path / "ours", floats, {"format": "x"})
+    save_file(floats, str(tmp_path / "lib"), metadata={"format": "x"})
+    assert (tmp_path / "ours").read_bytes() == (tmp_path / "lib").read_bytes()
+
+
+def test_shipped_weights_load_and_resave_unchanged(tmp_path: Path) -> None:
+    net, card = load_checkpoint(None)
+    save_checkpoint(net, card, tmp_path / "a")
+    save_checkpoint(load_checkpoint(tmp_path / "a")[0], card, tmp_path / "b")
+    again = load_checkpoint(tmp_path / "b")[0].state_dict()
+    assert all(torch.equal(again[k], v) for k, v in net.state_dict().items())
+    a, b = (tmp_path / "a/stcnn.safetensors").read_bytes(), (tmp_path / "b/stcnn.safetensors").read_bytes()
+    assert a == b
 
 
 def test_load_rejects_bad_files(tmp_path) -> None:
