@@ -14,7 +14,10 @@ accelerations differentiated from noisy positions):
 * standing vehicles keep the error they had when they stopped (NGSIM's standing boxes do not
   jitter and report speed 0); ``--standing-jitter`` gives them the same errors as moving ones;
 * ``v_Vel``: the central difference of the noisy ``Local_Y`` over ±0.2 s; ``v_Acc``: the central
-  difference of ``v_Vel`` over ±0.2 s, clipped to ±11.2 ft/s² as NGSIM's are.
+  difference of ``v_Vel`` over ±0.2 s, clipped to ±11.2 ft/s² as NGSIM's are;
+* or (``--derivatives keyframe``) as NGSIM's interpolating tracker gives them: positions measured in
+  a random share of each track's frames and linear between, ``v_Vel`` and ``v_Acc`` forward
+  differences (speeds held for frames, then jumping; accelerations 0, then saturating).
 
 Then, exactly as a user runs a recording (one process per command, relative paths):
 ``lanecast convert trajectories.txt --out t.parquet``, ``lanecast windows t.parquet --out w``,
@@ -48,7 +51,10 @@ from lanecast.io_adapters.sim.sumo_highway import simulate  # noqa: E402
 from lanecast.io_adapters.sim.tracking_errors import (  # noqa: E402
     STANDING_MS,
     central_difference,
+    forward_difference,
     held_while_standing,
+    interpolate_between,
+    keyframes,
     slow_error,
 )
 
@@ -97,8 +103,14 @@ def write_ngsim_txt(table, path: Path, *, noisy: bool, args: argparse.Namespace,
             lon_error = held_while_standing(lon_error, standing, first)
             lat_error = held_while_standing(lat_error, standing, first)
         front, lateral = front + lon_error, lateral + lat_error
-    speed = np.maximum(central_difference(front, first, last, 2, 0.1), 0.0)
-    acc = np.clip(central_difference(speed, first, last, 2, 0.1), -11.2 * FT, 11.2 * FT)
+    if noisy and args.derivatives == "keyframe":
+        measured = keyframes(run, first, last, rng)
+        front, lateral = interpolate_between(front, measured), interpolate_between(lateral, measured)
+        speed = np.maximum(forward_difference(front, first, last, 0.1), 0.0)
+        acc = np.clip(forward_difference(speed, first, last, 0.1), -11.2 * FT, 11.2 * FT)
+    else:
+        speed = np.maximum(central_difference(front, first, last, 2, 0.1), 0.0)
+        acc = np.clip(central_difference(speed, first, last, 2, 0.1), -11.2 * FT, 11.2 * FT)
     # NGSIM lanes: 1 = left-most; the highD lane ids of one carriageway ordered by mean lateral position.
     lanes = np.unique(lane[lane > 0])
     mean_lat = np.array([lateral[lane == k].mean() for k in lanes])
@@ -184,6 +196,14 @@ def main() -> None:
     ap.add_argument("--lon-white", type=float, default=0.05, help="m, std of longitudinal jitter")
     ap.add_argument("--lat-slow", type=float, default=0.1, help="m, std of the slow lateral error")
     ap.add_argument("--lat-white", type=float, default=0.1, help="m, std of lateral jitter")
+    ap.add_argument(
+        "--derivatives",
+        choices=("central", "keyframe"),
+        default="central",
+        help="noisy copies: speed and acceleration as central differences of the noisy positions over "
+        "+-0.2 s (default), or as an interpolating tracker gives them (positions measured in some frames, "
+        "linear between: speeds held, then jumping; accelerations 0, then saturating, like NGSIM's)",
+    )
     ap.add_argument(
         "--standing-jitter", action="store_true", help="standing vehicles jitter too (default: held still)"
     )

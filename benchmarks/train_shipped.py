@@ -54,6 +54,7 @@ MIX: dict[str, tuple[float, int]] = {
 TEST_MINUTES = 3.0
 TEST_SEED_OFFSET = 800  # held-out seed = training seed + 800
 MEASURED_ID_OFFSET = 20  # recording id of a training recording's measured copy
+INTERPOLATED_ID_OFFSET = 40  # … and of its copy measured by an interpolating tracker
 #: measured copies whose standing vehicles jitter (a tracker without smoothing); the others hold
 #: standing vehicles still, as NGSIM's do (lanecast.io_adapters.sim.tracking_errors)
 STANDING_JITTER = frozenset({"urban"})
@@ -83,17 +84,27 @@ def simulate_one(work: Path, scenario: str, rec_id: int, seed: int, minutes: flo
 
 
 def measured_copy(
-    work: Path, sim_dir: Path, scenario: str, rec_id: int, seed: int, level: float, *, hold: bool = True
+    work: Path,
+    sim_dir: Path,
+    scenario: str,
+    rec_id: int,
+    seed: int,
+    level: float,
+    *,
+    hold: bool = True,
+    interpolating: bool = False,
 ) -> Path:
-    """The measured copy (recording id + 20) of a simulated recording, errors of ``level`` m,
-    standing vehicles held still (``hold``) or jittering."""
+    """The measured copy (recording id + 20; + 40 if ``interpolating``) of a simulated recording,
+    errors of ``level`` m, standing vehicles held still (``hold``) or jittering; ``interpolating``:
+    measured in some frames only, speeds and accelerations as NGSIM's (held, then jumping)."""
     from lanecast.io_adapters.sim.tracking_errors import write_measured_copy
 
-    kind = "held" if hold else "jitter"
-    out = work / "sim" / f"{rec_id + MEASURED_ID_OFFSET:02d}-{scenario}-measured-{level:g}m-{kind}"
-    if not (out / f"{rec_id + MEASURED_ID_OFFSET:02d}_tracks.csv").is_file():
+    new_id = rec_id + (INTERPOLATED_ID_OFFSET if interpolating else MEASURED_ID_OFFSET)
+    kind = ("held" if hold else "jitter") + ("-interpolated" if interpolating else "")
+    out = work / "sim" / f"{new_id:02d}-{scenario}-measured-{level:g}m-{kind}"
+    if not (out / f"{new_id:02d}_tracks.csv").is_file():
         write_measured_copy(
-            sim_dir, rec_id, out, rec_id + MEASURED_ID_OFFSET, level, seed, hold_standing=hold
+            sim_dir, rec_id, out, new_id, level, seed, hold_standing=hold, interpolating=interpolating
         )
     return out
 
@@ -208,7 +219,7 @@ def direction_agreement(windows: Any) -> float:
     return float(np.mean((d > 0) == (label[sel] == 1))) if sel.any() else float("nan")
 
 
-def deviations(config: Any, levels: list[float]) -> list[str]:
+def deviations(config: Any, levels: list[float], interpolated_levels: list[float]) -> list[str]:
     """What the shipped training does beyond the paper (for the card)."""
     out = [
         f"optimiser: Adam lr {config.lr:g}, batch {config.batch_size}, {config.epochs} epochs "
@@ -240,6 +251,13 @@ def deviations(config: Any, levels: list[float]) -> list[str]:
             f"(levels {', '.join(f'{v:g}' for v in levels)} m; speeds and accelerations re-derived from the "
             "erroneous positions, as real datasets' are), so that the network learns how far to trust "
             "noisy speed and acceleration inputs"
+        )
+    if interpolated_levels:
+        out.append(
+            "training data: every simulated recording a third time as measured by an interpolating tracker "
+            f"(levels {', '.join(f'{v:g}' for v in interpolated_levels)} m; positions measured in some frames "
+            "and linear between, speeds and accelerations forward differences clipped to +-11.2 ft/s2), "
+            "so that the network meets NGSIM's held speeds and saturating accelerations"
         )
     if config.horizon_weight_power > 0:
         out.append(
@@ -324,6 +342,14 @@ def main() -> int:
         default=[0.1, 0.2, 0.3, 0.4],
         help="m; a measured copy of every training recording at these levels in turn (none: no copies)",
     )
+    ap.add_argument(
+        "--interpolated-levels",
+        type=float,
+        nargs="*",
+        default=[0.05, 0.1, 0.2],
+        help="m; a second measured copy of every training recording, by an interpolating tracker "
+        "(NGSIM-like held speeds and saturating accelerations), at these levels in turn (none: no copies)",
+    )
     ap.add_argument("--max-test-windows", type=int, default=6000, help="per held-out recording")
     ap.add_argument("--jobs", type=int, default=2, help="simulations in parallel")
     args = ap.parse_args()
@@ -361,16 +387,38 @@ def main() -> int:
         for i, r in enumerate(train_recs)
         if levels
     ]
+    ilevels = list(args.interpolated_levels)
+    interpolated = [
+        measured_copy(
+            args.work,
+            sims[r],
+            r[0],
+            r[1],
+            r[2],
+            ilevels[i % len(ilevels)],
+            hold=r[0] not in STANDING_JITTER,
+            interpolating=True,
+        )
+        for i, r in enumerate(train_recs)
+        if ilevels
+    ]
     train_dir = windows_for(
-        [sims[r] for r in train_recs] + measured,
+        [sims[r] for r in train_recs] + measured + interpolated,
         args.work / "windows-train",
         "hash",
         args.max_windows,
-        clean_of=dict(zip(measured, [sims[r] for r in train_recs], strict=False)),
+        clean_of=dict(zip(measured, [sims[r] for r in train_recs], strict=False))
+        | dict(zip(interpolated, [sims[r] for r in train_recs], strict=False)),
     )
     test_measured = [measured_copy(args.work, sims[r], r[0], r[1], r[2], 0.3) for r in test_recs]
     measured_dir = windows_for(
         test_measured, args.work / "windows-test-measured", "none", args.max_test_windows
+    )
+    test_interpolated = [
+        measured_copy(args.work, sims[r], r[0], r[1], r[2], 0.1, interpolating=True) for r in test_recs
+    ]
+    interpolated_dir = windows_for(
+        test_interpolated, args.work / "windows-test-interpolated", "none", args.max_test_windows
     )
     test_dir = windows_for(
         [sims[r] for r in test_recs], args.work / "windows-test", "none", args.max_test_windows
@@ -421,6 +469,13 @@ def main() -> int:
             "standing_vehicles": "held still (the error they had when they stopped) except in "
             + ", ".join(sorted(STANDING_JITTER))
             + ", where they jitter",
+            "interpolating_tracker": {
+                "recording_id_offset": INTERPOLATED_ID_OFFSET,
+                "tracking_error_levels_m": ilevels,
+                "what": "each training recording a third time, measured in a random share of frames "
+                "(15-100 % per track) and interpolated between, speeds and accelerations forward "
+                "differences clipped to +-11.2 ft/s2: NGSIM's held speeds and saturating accelerations",
+            },
         },
         "split": "seeded hash split by track (seed 0) within the training recordings: train/val",
         "test_recordings": [
@@ -455,6 +510,7 @@ def main() -> int:
     same = evaluate(windows, [stcnn], splits=("test",), top_k=3)[0]["stcnn"]
     reference = always_straight(held_out, idx)
     measured_test = evaluate(load_windows(measured_dir), models, splits=("none",), top_k=3)[0]
+    interpolated_test = evaluate(load_windows(interpolated_dir), models, splits=("none",), top_k=3)[0]
     real = peachtree_check(models, args.work)
     card = {
         **result.card,
@@ -482,9 +538,13 @@ def main() -> int:
                 "data": "the held-out recordings with tracking errors of level 0.3 m",
                 **{k: {"rmse": v["rmse"], "n_windows": v["n_windows"]} for k, v in measured_test.items()},
             },
+            "test_measured_interpolating": {
+                "data": "the held-out recordings measured by an interpolating tracker, level 0.1 m",
+                **{k: {"rmse": v["rmse"], "n_windows": v["n_windows"]} for k, v in interpolated_test.items()},
+            },
             "real_ngsim_peachtree_sample": real,
         },
-        "beyond_the_paper": deviations(config, levels),
+        "beyond_the_paper": deviations(config, levels, ilevels),
         "reproduce": "python benchmarks/train_shipped.py " + " ".join(sys.argv[1:]),
     }
     card_path = save_checkpoint(result.model, card, args.out, SHIPPED_STEM)
@@ -522,6 +582,9 @@ def main() -> int:
             print(line(name, m))
     print("held-out recordings with tracking errors (0.3 m), RMSE 1-5 s:")
     for name, m in measured_test.items():
+        print(f"  {name:<24}{' '.join(f'{v:.2f}' for v in m['rmse'])}")
+    print("held-out recordings measured by an interpolating tracker (0.1 m), RMSE 1-5 s:")
+    for name, m in interpolated_test.items():
         print(f"  {name:<24}{' '.join(f'{v:.2f}' for v in m['rmse'])}")
     if real:
         print("real NGSIM Peachtree sample (never trained on), RMSE 1-5 s:")

@@ -12,9 +12,12 @@ import pytest
 from lanecast.io_adapters.datasets import highd
 from lanecast.io_adapters.sim import sumo_highway
 from lanecast.io_adapters.sim.tracking_errors import (
+    NGSIM_MAX_ACC,
     add_tracking_errors,
     central_difference,
+    forward_difference,
     held_while_standing,
+    interpolate_between,
     write_measured_copy,
 )
 
@@ -199,3 +202,36 @@ def test_a_standing_vehicle_does_not_weave(tmp_path: Path) -> None:
     np.maximum.at(high, run, y)
     spread = (high - low)[np.isfinite(low)]
     assert spread.max() < 0.011  # centimetre rounding of the files: no weave while standing
+
+
+def test_interpolate_between_and_forward_difference_stay_within_each_track() -> None:
+    values = np.array([0.0, 5.0, 5.0, 3.0, 10.0, 99.0, 12.0])
+    measured = np.array([True, False, False, True, True, False, True])  # tracks: rows 0-3, 4-6
+    np.testing.assert_allclose(interpolate_between(values, measured), [0, 1, 2, 3, 10, 11, 12])
+    first, last = np.repeat([0, 4], [4, 3]), np.repeat([3, 6], [4, 3])
+    v = np.array([0.0, 1.0, 2.0, 4.0, 10.0, 11.0, 13.0])
+    # forward differences; a track's last row takes the backward one, never the next track's row
+    np.testing.assert_allclose(forward_difference(v, first, last, 0.1), [10, 10, 20, 20, 10, 20, 20])
+
+
+def test_an_interpolating_tracker_holds_speeds_and_saturates_accelerations() -> None:
+    """NGSIM-like derivatives: speeds constant between measured frames (held for several frames),
+    accelerations 0 there and clipped to +-11.2 ft/s^2 where the speed jumps; positions still near
+    the truth and the speeds right on average."""
+    tracks = _tracks()
+    out = add_tracking_errors(tracks, 25.0, 0.1, seed=4, interpolating=True)
+    vx = out.column("xVelocity").to_numpy()
+    ax = out.column("xAcceleration").to_numpy()
+    held = np.r_[False, (vx[1:] == vx[:-1])]
+    assert 0.2 < held.mean() < 0.95  # held for frames, then jumping
+    assert np.all(np.abs(ax) <= NGSIM_MAX_ACC + 1e-3)
+    assert np.mean(np.abs(np.abs(ax) - NGSIM_MAX_ACC) < 1e-3) > 0.01  # saturates, as NGSIM's do
+    assert np.mean(ax == 0) > 0.2
+    err = out.column("x").to_numpy() - tracks.column("x").to_numpy()
+    assert 0.05 < err.std() < 0.2
+    np.testing.assert_allclose(vx[:2500].mean(), 30.0, atol=0.05)
+    central = add_tracking_errors(tracks, 25.0, 0.1, seed=4)
+    assert (
+        np.mean(central.column("xVelocity").to_numpy()[1:] == central.column("xVelocity").to_numpy()[:-1])
+        < 0.1
+    )

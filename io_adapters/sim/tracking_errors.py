@@ -19,7 +19,10 @@ Error model, per track (``level`` in metres):
   speed 0 for them), and a measured copy whose standing cars jitter teaches a network that speed
   0 never happens, so that on real data it predicts standing cars rolling backwards;
 * velocities: the central difference of the positions over ±``DIFF_SPAN_S``; accelerations: the
-  central difference of those velocities; both clipped to each track.
+  central difference of those velocities; both clipped to each track;
+* or, for an *interpolating* tracker (NGSIM's: speeds held for frames, then jumping; accelerations 0,
+  then saturating at ±11.2 ft/s²), positions measured only in some frames and linear between,
+  velocities and accelerations forward differences.
 """
 
 from __future__ import annotations
@@ -37,6 +40,8 @@ from lanecast.io_adapters.sim.sumo_highway import file_names, write_highd
 SLOW_PERIODS_S = (2.0, 10.0)
 DIFF_SPAN_S = 0.2  # half-width of the difference that gives velocities and accelerations
 STANDING_MS = 0.1  # a vehicle slower than this stands: its measured box stays still
+NGSIM_MAX_ACC = 11.2 * 0.3048  # m/s²: NGSIM's accelerations saturate at ±11.2 ft/s²
+KEYFRAME_RATE_MIN = 0.15  # lowest share of a track's frames an interpolating tracker measures
 
 
 def slow_error(
@@ -67,12 +72,56 @@ def central_difference(
     return np.where(hi > lo, (values[hi] - values[lo]) / (steps * dt_s), 0.0)
 
 
+def keyframes(
+    track_index: np.ndarray, first: np.ndarray, last: np.ndarray, rng: np.random.Generator
+) -> np.ndarray:
+    """Rows a tracker measured, bool [n]; the rows between are interpolated.
+
+    NGSIM's speeds are held for several frames and then jump (its v_Acc is 0, then saturates):
+    the video tracker detected a vehicle only in some frames and interpolated between them. Each
+    track gets a detection rate ``p`` uniform in [``KEYFRAME_RATE_MIN``, 1]; a row is measured with
+    probability ``p``; a track's first and last rows always are.
+    """
+    idx = np.arange(track_index.size)
+    rate = rng.uniform(KEYFRAME_RATE_MIN, 1.0, size=int(track_index.max(initial=-1)) + 1)[track_index]
+    return (rng.random(idx.size) < rate) | (idx == first) | (idx == last)
+
+
+def interpolate_between(values: np.ndarray, measured: np.ndarray) -> np.ndarray:
+    """``values`` float64 [n] linearly interpolated (in row steps) between the ``measured`` rows
+    bool [n]; each track's first and last rows must be measured, so no track reads another's."""
+    idx = np.arange(values.size)
+    prev = np.maximum.accumulate(np.where(measured, idx, 0))
+    nxt = np.minimum.accumulate(np.where(measured, idx, values.size - 1)[::-1])[::-1]
+    span = np.maximum(nxt - prev, 1)
+    weight = (idx - prev) / span
+    return values[prev] * (1.0 - weight) + values[nxt] * weight
+
+
+def forward_difference(values: np.ndarray, first: np.ndarray, last: np.ndarray, dt_s: float) -> np.ndarray:
+    """(values[i+1] - values[i]) / dt within row i's track (the last row takes the backward
+    difference); 0 on a one-row track. float64 [n]."""
+    idx = np.arange(values.size)
+    hi = np.minimum(idx + 1, last)
+    lo = np.where(hi > idx, idx, np.maximum(idx - 1, first))
+    return np.where(hi > lo, (values[hi] - values[lo]) / dt_s, 0.0)
+
+
 def add_tracking_errors(
-    tracks: pa.Table, frame_rate: float, level_m: float, seed: int, *, hold_standing: bool = True
+    tracks: pa.Table,
+    frame_rate: float,
+    level_m: float,
+    seed: int,
+    *,
+    hold_standing: bool = True,
+    interpolating: bool = False,
 ) -> pa.Table:
     """A highD ``tracks`` table (rows sorted by id, then frame) with tracker-like errors of ``level_m``
     on ``x``, ``y`` and velocities and accelerations re-derived from them (module docstring).
     ``hold_standing`` False: standing vehicles jitter like moving ones (a tracker without smoothing).
+    ``interpolating``: the tracker measured only some frames (:func:`keyframes`) and interpolated
+    between them; velocities and accelerations are forward differences, accelerations clipped to
+    NGSIM's ±11.2 ft/s² (speeds held, then jumping; accelerations 0, then saturating).
 
     The lane, neighbour and headway columns keep their true values (a dataset's lane assignment
     comes from its own, smoothed processing)."""
@@ -93,12 +142,19 @@ def add_tracking_errors(
     y_error = slow_error(track_index, time_s, level_m / 3, rng) + rng.normal(0.0, level_m / 3, y.size)
     x = x + held_while_standing(x_error, standing, first)
     y = y + held_while_standing(y_error, standing, first)
-    span = max(round(DIFF_SPAN_S * frame_rate), 1)
     dt = 1.0 / frame_rate
-    vx = central_difference(x, first, last, span, dt)
-    vy = central_difference(y, first, last, span, dt)
-    ax = central_difference(vx, first, last, span, dt)
-    ay = central_difference(vy, first, last, span, dt)
+    if interpolating:
+        measured = keyframes(track_index, first, last, rng)
+        x, y = interpolate_between(x, measured), interpolate_between(y, measured)
+        vx, vy = forward_difference(x, first, last, dt), forward_difference(y, first, last, dt)
+        ax = np.clip(forward_difference(vx, first, last, dt), -NGSIM_MAX_ACC, NGSIM_MAX_ACC)
+        ay = np.clip(forward_difference(vy, first, last, dt), -NGSIM_MAX_ACC, NGSIM_MAX_ACC)
+    else:
+        span = max(round(DIFF_SPAN_S * frame_rate), 1)
+        vx = central_difference(x, first, last, span, dt)
+        vy = central_difference(y, first, last, span, dt)
+        ax = central_difference(vx, first, last, span, dt)
+        ay = central_difference(vy, first, last, span, dt)
     replaced = {
         "x": np.round(x, 2),
         "y": np.round(y, 2),
@@ -122,13 +178,16 @@ def write_measured_copy(
     seed: int,
     *,
     hold_standing: bool = True,
+    interpolating: bool = False,
 ) -> Path:
     """Write recording ``recording_id`` of ``src_dir`` (highD CSVs) as recording ``new_id`` in
     ``out_dir`` with tracking errors of ``level_m`` (:func:`add_tracking_errors`); atomic."""
     names = file_names(recording_id)
     tables = {kind: pacsv.read_csv(Path(src_dir) / name) for kind, name in names.items()}
     rate = float(tables["recordingMeta"].column("frameRate")[0].as_py())
-    tables["tracks"] = add_tracking_errors(tables["tracks"], rate, level_m, seed, hold_standing=hold_standing)
+    tables["tracks"] = add_tracking_errors(
+        tables["tracks"], rate, level_m, seed, hold_standing=hold_standing, interpolating=interpolating
+    )
     meta = tables["recordingMeta"]
     i = meta.schema.get_field_index("id")
     tables["recordingMeta"] = meta.set_column(
