@@ -35,10 +35,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from interleave import Samples, interleaved_rates, machine_line, ratio
 
+from lanecast.models.losses import classifier_loss, regressor_loss
 from lanecast.models.predict import FusedSTCNN, STCNNForecaster
 from lanecast.models.serving import load_forecaster
 from lanecast.models.stcnn import STCNN
-from lanecast.models.train import classifier_loss, regressor_loss
 
 LIB_ORT, BARE_ORT, LIB_TORCH = (
     "library: ONNX Runtime",

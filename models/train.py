@@ -32,7 +32,6 @@ from typing import Any
 
 import numpy as np
 import torch
-from torch.nn import functional as F
 
 from lanecast.io_adapters.contracts.windows import NormStats, Windows, compute_stats, labelled, normalise
 from lanecast.io_adapters.errors import InputError
@@ -41,6 +40,14 @@ from lanecast.models import ood
 from lanecast.models.augment import Augmentation, augment
 from lanecast.models.baselines import CV_SPAN, RELATIVE_TO, reference_offsets
 from lanecast.models.checkpoint import torch_device
+from lanecast.models.decision import choose_offsets, classifier_log_probs, fold_into_classifier
+from lanecast.models.losses import (
+    class_weights,
+    classifier_loss,
+    future_stats,
+    horizon_weights,
+    regressor_loss,
+)
 from lanecast.models.metrics import confusion_matrix, macro_f1, precision_recall
 from lanecast.models.stcnn import STCNN, STCNNConfig
 
@@ -52,19 +59,6 @@ def select_epoch(history: list[dict[str, Any]], criterion: str) -> int:
     """The classifier's best epoch (1-based) in ``history`` by ``criterion``; the first one on ties."""
     key, sign = SELECTION[criterion]
     return 1 + int(np.argmin([sign * row[key] for row in history]))
-
-
-def class_weights(maneuver: np.ndarray, power: float, classes: int = 3) -> np.ndarray:
-    """Loss weight per class: maneuver int [N, 5] training labels → float32 [classes].
-
-    w_c ∝ (1 / frequency_c)**power, scaled so the mean weight over the training steps is 1 (the loss
-    keeps the plain NLL's scale). power 0 → all ones (plain NLL); 1 → fully balanced classes. An absent
-    class gets weight 0 (its count is 0, so it never occurs in the loss anyway).
-    """
-    counts = np.bincount(np.asarray(maneuver).ravel(), minlength=classes)[:classes].astype(np.float64)
-    freq = counts / max(counts.sum(), 1.0)
-    w = np.where(counts > 0, np.power(np.where(counts > 0, freq, 1.0), -power), 0.0)
-    return (w / max(float(np.sum(freq * w)), 1e-12)).astype(np.float32)
 
 
 def lr_factor(schedule: str, step: int, total: int) -> float:
@@ -122,6 +116,9 @@ class TrainConfig:
     #: that never saw a target alone extrapolates arbitrarily there: trained on SUMO's queues, it
     #: forecast a standing car with no neighbour in sight 3 m ahead at 5 s. 0 = the paper.
     neighbour_dropout: float = 0.0
+    #: after training, shift the classifier's decision by per-class logit offsets chosen for the best
+    #: validation macro-F1 (lanecast.models.decision); False = the paper's plain argmax
+    decision_offsets: bool = False
     model: STCNNConfig = field(default_factory=STCNNConfig)
 
     def __post_init__(self) -> None:
@@ -188,14 +185,6 @@ class TrainResult:
     history: list[dict[str, Any]]
 
 
-def future_stats(future: np.ndarray) -> tuple[np.ndarray, float]:
-    """Offset normalisation: future [N, 5, 2] → (mean float32 [5, 2], one std over all centred entries)."""
-    f = np.asarray(future, np.float64)
-    mean = f.mean(axis=0)
-    std = float(np.sqrt(np.mean((f - mean) ** 2)))
-    return mean.astype(np.float32), (std if std > 1e-6 else 1.0)
-
-
 class _Batches:
     """Gathers and normalises batches from (possibly memory-mapped) windows."""
 
@@ -241,40 +230,6 @@ class _Batches:
             torch.from_numpy(y.astype(np.float32)).to(device),
             torch.from_numpy(m).to(device),
         )
-
-
-def classifier_loss(
-    logits: torch.Tensor, maneuver: torch.Tensor, weight: torch.Tensor | None = None
-) -> torch.Tensor:
-    """Sum over steps of the NLL, mean over the batch: logits [B, 5, 3], maneuver [B, 5] → scalar.
-
-    ``weight`` float [3]: each step's NLL times the weight of its true class (not renormalised per
-    batch, so it is the same per-step criterion in every batch); None = plain NLL.
-    """
-    return F.cross_entropy(
-        logits.reshape(-1, logits.shape[-1]), maneuver.reshape(-1), weight=weight, reduction="sum"
-    ) / len(logits)
-
-
-def regressor_loss(
-    pred: torch.Tensor, true: torch.Tensor, horizon_weight: torch.Tensor | None = None
-) -> torch.Tensor:
-    """Batch RMSE: sqrt(mean over windows and steps of the squared Euclidean error); [B, 5, 2] → scalar.
-
-    ``horizon_weight`` float [5] (mean 1) weighs each step's squared error; None = all equal."""
-    squared = torch.sum((pred - true) ** 2, dim=-1)  # [B, 5]
-    if horizon_weight is not None:
-        squared = squared * horizon_weight
-    return torch.sqrt(torch.mean(squared))
-
-
-def horizon_weights(residual: np.ndarray, power: float) -> np.ndarray:
-    """Loss weight per horizon, float32 [5], mean 1: (r_last / r_h)**power with r_h the RMS over
-    windows of ``residual`` [N, 5, 2] at step h (the centred, reference-relative training targets)."""
-    rms = np.sqrt(np.mean(np.sum(np.asarray(residual, np.float64) ** 2, axis=-1), axis=0))  # [5]
-    rms = np.maximum(rms, 1e-3)
-    w = (rms[-1] / rms) ** power
-    return (w / w.mean()).astype(np.float32)
 
 
 @torch.no_grad()
@@ -445,6 +400,13 @@ def train(
     model.classifier.load_state_dict(best_c[2])
     model.regressor.load_state_dict(best_r[2])
     model.to("cpu").eval()
+    decision = None
+    if config.decision_offsets and train_classifier and len(val_idx):
+        val_batches = (
+            batches.get(val_idx[i : i + 4096], torch.device("cpu")) for i in range(0, len(val_idx), 4096)
+        )
+        decision = choose_offsets(*classifier_log_probs(model, ((x, m) for x, _, m in val_batches)))
+        fold_into_classifier(model, decision.offsets)
 
     params = (getattr(windows, "manifest", None) or {}).get("parameters", {})
     card = {
@@ -484,6 +446,7 @@ def train(
             "selected_on": select_on,
             "initialised_from": None if init_from is None else init_from[1].get("training", {}).get("data"),
             "classifier_selected_by": sel_key,
+            "decision_offsets": None if decision is None else decision.to_dict(),
             "best_epoch": {"classifier": best_c[1] if train_classifier else "copied", "regressor": best_r[1]},
             "train_seconds": round(train_seconds, 2),
             "train_samples_per_s": round(len(train_idx) * config.epochs / max(train_seconds, 1e-9), 1),

@@ -22,21 +22,17 @@ from safetensors.torch import load_file, save_file
 from lanecast.io_adapters.contracts.windows import Windows
 from lanecast.io_adapters.errors import InputError
 from lanecast.models.checkpoint import load_checkpoint, resolve, save_checkpoint, write_safetensors
-from lanecast.models.metrics import displacement_errors, rmse
-from lanecast.models.predict import STCNNForecaster
-from lanecast.models.stcnn import STCNN, count_parameters
-from lanecast.models.train import (
-    TrainConfig,
+from lanecast.models.losses import (
     class_weights,
     classifier_loss,
     future_stats,
     horizon_weights,
-    labelled,
-    lr_factor,
     regressor_loss,
-    select_epoch,
-    train,
 )
+from lanecast.models.metrics import displacement_errors, rmse
+from lanecast.models.predict import STCNNForecaster
+from lanecast.models.stcnn import STCNN, count_parameters
+from lanecast.models.train import TrainConfig, labelled, lr_factor, select_epoch, train
 
 
 @pytest.fixture(scope="module")
