@@ -44,7 +44,7 @@ def main() -> int:
     args = ap.parse_args()
 
     import numpy as np
-    from train_shipped import MEASURED_ID_OFFSET, MIX, recordings, scenario_of_windows
+    from train_shipped import INTERPOLATED_ID_OFFSET, MEASURED_ID_OFFSET, MIX, recordings, scenario_of_windows
 
     from lanecast.io_adapters.contracts.windows import load_windows, subset
     from lanecast.models.baselines import constant_velocity
@@ -58,9 +58,9 @@ def main() -> int:
     train_recs, test_recs = recordings()
     windows = load_windows(args.work / "windows-train")
     held_out = load_windows(args.work / "windows-test")
-    # a training recording and its measured copy (id + MEASURED_ID_OFFSET) are the same scenario
-    train_ids = [(n, r, s, m) for n, r, s, m in train_recs]
-    train_ids += [(n, r + MEASURED_ID_OFFSET, s, m) for n, r, s, m in train_recs]
+    # a training recording and its measured copies (ids + the offsets) are the same scenario
+    offsets = (0, MEASURED_ID_OFFSET, INTERPOLATED_ID_OFFSET)
+    train_ids = [(n, r + k, s, m) for k in offsets for n, r, s, m in train_recs]
     train_scen = scenario_of_windows(windows, train_ids)
     test_scen = scenario_of_windows(held_out, test_recs)
     net, card = load_checkpoint(args.model)
