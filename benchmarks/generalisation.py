@@ -44,29 +44,18 @@ def main() -> int:
     args = ap.parse_args()
 
     import numpy as np
-    from train_shipped import INTERPOLATED_ID_OFFSET, MEASURED_ID_OFFSET, MIX, recordings, scenario_of_windows
+    from train_shipped import MIX, cached_windows, mix_model
 
-    from lanecast.io_adapters.contracts.windows import load_windows, subset
+    from lanecast.io_adapters.contracts.windows import subset
     from lanecast.models.baselines import constant_velocity
-    from lanecast.models.checkpoint import load_checkpoint
     from lanecast.models.evaluation import evaluate
     from lanecast.models.predict import STCNNForecaster
-    from lanecast.models.train import TrainConfig, train
+    from lanecast.models.train import train
 
     started = time.perf_counter()
     print(f"load average before: {os.getloadavg()}", flush=True)
-    train_recs, test_recs = recordings()
-    windows = load_windows(args.work / "windows-train")
-    held_out = load_windows(args.work / "windows-test")
-    # a training recording and its measured copies (ids + the offsets) are the same scenario
-    offsets = (0, MEASURED_ID_OFFSET, INTERPOLATED_ID_OFFSET)
-    train_ids = [(n, r + k, s, m) for k in offsets for n, r, s, m in train_recs]
-    train_scen = scenario_of_windows(windows, train_ids)
-    test_scen = scenario_of_windows(held_out, test_recs)
-    net, card = load_checkpoint(args.model)
-    shipped = STCNNForecaster(net, card, "mix")
-    config = TrainConfig.from_dict(card["training"]["config"])
-    config = dataclasses.replace(config, epochs=args.epochs, threads=args.threads)
+    windows, held_out, train_scen, test_scen = cached_windows(args.work)
+    shipped, config = mix_model(args.model, args.epochs, args.threads)
 
     keep = ~np.isin(train_scen, CONGESTED)
     left_out = train(subset(windows, keep), config)

@@ -15,7 +15,6 @@ Uses the windows cached by ``benchmarks/train_shipped.py --work WORK`` (run that
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import os
 import sys
 import time
@@ -36,32 +35,18 @@ def main() -> int:
     args = ap.parse_args()
 
     import numpy as np
-    from train_shipped import INTERPOLATED_ID_OFFSET, MEASURED_ID_OFFSET, recordings, scenario_of_windows
+    from train_shipped import cached_windows, mix_model
 
-    from lanecast.io_adapters.contracts.windows import load_windows, subset
+    from lanecast.io_adapters.contracts.windows import subset
     from lanecast.models.baselines import constant_velocity, reference_offsets
-    from lanecast.models.checkpoint import load_checkpoint
     from lanecast.models.evaluation import evaluate
     from lanecast.models.predict import STCNNForecaster
-    from lanecast.models.train import TrainConfig, train
+    from lanecast.models.train import train
 
     started = time.perf_counter()
     print(f"load average before: {os.getloadavg()}", flush=True)
-    train_recs, test_recs = recordings()
-    windows = load_windows(args.work / "windows-train")
-    held_out = load_windows(args.work / "windows-test")
-    copies = [
-        (n, r + offset, s, m)
-        for offset in (0, MEASURED_ID_OFFSET, INTERPOLATED_ID_OFFSET)
-        for n, r, s, m in train_recs
-    ]
-    train_scen = scenario_of_windows(windows, copies)
-    test_scen = scenario_of_windows(held_out, test_recs)
-    net, card = load_checkpoint(args.model)
-    mix = STCNNForecaster(net, card, "mix")
-    config = dataclasses.replace(
-        TrainConfig.from_dict(card["training"]["config"]), epochs=args.epochs, threads=args.threads
-    )
+    windows, held_out, train_scen, test_scen = cached_windows(args.work)
+    mix, config = mix_model(args.model, args.epochs, args.threads)
     print("RMSE at 1 s and 5 s (m) on the held-out recording; ratio to CV at 5 s:")
     for name in args.scenarios:
         t0 = time.perf_counter()

@@ -195,6 +195,31 @@ def scenario_of_windows(windows: Any, test: list[tuple[str, int, int, float]]) -
     return out.astype(str)
 
 
+def cached_windows(work: Path) -> tuple[Any, Any, Any, Any]:
+    """(training windows, held-out windows, scenario of every training window, of every held-out one)
+    as a run of this script left them in ``work``; a measured copy's windows are its scenario's."""
+    from lanecast.io_adapters.contracts.windows import load_windows
+
+    train, test = recordings()
+    copies = [
+        (n, r + k, s, m) for k in (0, MEASURED_ID_OFFSET, INTERPOLATED_ID_OFFSET) for n, r, s, m in train
+    ]
+    windows, held_out = load_windows(work / "windows-train"), load_windows(work / "windows-test")
+    return windows, held_out, scenario_of_windows(windows, copies), scenario_of_windows(held_out, test)
+
+
+def mix_model(model: Path | None, epochs: int, threads: int) -> tuple[Any, Any]:
+    """(the mix model ``model`` as a forecaster named "mix" (None: the shipped one), its training
+    config with ``epochs`` and ``threads``): the recipe the other benchmarks retrain with."""
+    from lanecast.models.checkpoint import load_checkpoint
+    from lanecast.models.predict import STCNNForecaster
+    from lanecast.models.train import TrainConfig
+
+    net, card = load_checkpoint(model)
+    config = TrainConfig.from_dict(card["training"]["config"])
+    return STCNNForecaster(net, card, "mix"), dataclasses.replace(config, epochs=epochs, threads=threads)
+
+
 def peachtree_check(models: list[Any], work: Path) -> dict[str, Any] | None:
     """Metrics on the real NGSIM Peachtree sample (all windows; never trained on), or None without it."""
     from lanecast.io_adapters import registry
@@ -363,6 +388,13 @@ def main() -> int:
         help="m; a second measured copy of every training recording, by an interpolating tracker "
         "(NGSIM-like held speeds and saturating accelerations), at these levels in turn (none: no copies)",
     )
+    ap.add_argument(
+        "--interpolated-standing-jitter",
+        nargs="*",
+        default=sorted(STANDING_JITTER),
+        metavar="SCENARIO",
+        help="scenarios whose interpolated copy lets standing vehicles jitter (the others hold them still)",
+    )
     ap.add_argument("--max-test-windows", type=int, default=6000, help="per held-out recording")
     ap.add_argument("--jobs", type=int, default=2, help="simulations in parallel")
     args = ap.parse_args()
@@ -409,7 +441,7 @@ def main() -> int:
             r[1],
             r[2],
             ilevels[i % len(ilevels)],
-            hold=r[0] not in STANDING_JITTER,
+            hold=r[0] not in args.interpolated_standing_jitter,
             interpolating=True,
         )
         for i, r in enumerate(train_recs)
@@ -486,6 +518,7 @@ def main() -> int:
             "interpolating_tracker": {
                 "recording_id_offset": INTERPOLATED_ID_OFFSET,
                 "tracking_error_levels_m": ilevels,
+                "standing_vehicles_jitter_in": sorted(args.interpolated_standing_jitter),
                 "what": "each training recording a third time, measured in a random share of frames "
                 "(15-100 % per track) and interpolated between, speeds and accelerations forward "
                 "differences clipped to +-11.2 ft/s2: NGSIM's held speeds and saturating accelerations",
