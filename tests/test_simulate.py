@@ -196,7 +196,8 @@ def test_subscription_constants_are_tracis() -> None:
 
 @pytest.mark.slow
 def test_same_seed_same_bytes_through_the_command(tmp_path: Path) -> None:
-    """One run through the API, one through `lanecast simulate`: identical files; another seed differs."""
+    """One run through the API, one through `lanecast simulate` with SUMO's raw motion: identical files;
+    another seed differs."""
     args = {
         "minutes": 0.2,
         "lanes_per_direction": 2,
@@ -209,7 +210,8 @@ def test_same_seed_same_bytes_through_the_command(tmp_path: Path) -> None:
     b = tmp_path / "b"
     status = cli.main(
         ["simulate", "--out", str(b), "--minutes", "0.2", "--seed", "3", "--lanes-per-direction", "2",
-         "--density", "high", "--section-length", "200", "--approach-length", "200"]
+         "--density", "high", "--section-length", "200", "--approach-length", "200",
+         "--lane-change-duration", "3", "--lateral-smoothing", "0", "--weave", "0", "--drivers", "uniform"]
     )  # fmt: skip
     assert status == 0
     for name in FILES:
@@ -218,6 +220,26 @@ def test_same_seed_same_bytes_through_the_command(tmp_path: Path) -> None:
     lanes = np.unique(_csv(a / "01_tracks.csv").column("laneId").to_numpy())
     assert set(lanes) <= {2, 3, 5, 6}  # 2 lanes per direction: upper 2, 3; lower 5, 6
     assert sorted(p.name for p in a.iterdir()) == sorted(FILES)  # no temporary left behind
+
+
+def test_the_command_smooths_lane_changes_by_default(tmp_path: Path) -> None:
+    """`lanecast simulate` without a scenario drives as the scenarios do (scenarios.DRIVING): lane
+    changes are S-curves, not SUMO's constant sideways speed with lateral-acceleration spikes at
+    their ends, and drivers weave inside their lane."""
+    common = ["--minutes", "1", "--seed", "2", "--density", "high", "--section-length", "400",
+              "--approach-length", "300"]  # fmt: skip
+    assert cli.main(["simulate", "--out", str(tmp_path / "smooth"), *common]) == 0
+    raw = ["--lateral-smoothing", "0", "--weave", "0", "--drivers", "uniform"]
+    assert cli.main(["simulate", "--out", str(tmp_path / "raw"), *common, *raw]) == 0
+    tables = {k: _csv(tmp_path / k / "01_tracks.csv") for k in ("smooth", "raw")}
+    lat_acc = {k: np.abs(t.column("yAcceleration").to_numpy()) for k, t in tables.items()}
+    lat_vel = {k: np.abs(t.column("yVelocity").to_numpy()) for k, t in tables.items()}
+    assert lat_acc["raw"].max() > 10.0  # SUMO's raw lane changes: spikes of 15-30 m/s^2
+    assert lat_acc["smooth"].max() < 2.0
+    assert np.median(lat_vel["raw"]) == 0.0 < np.median(lat_vel["smooth"])  # the weave
+    for t in tables.values():  # both have lane changes (lane id changes within a track)
+        same_track = np.diff(t.column("id").to_numpy()) == 0
+        assert np.count_nonzero(same_track & (np.diff(t.column("laneId").to_numpy()) != 0)) > 0
 
 
 def test_existing_directory_keeps_other_files_and_a_recording_is_never_overwritten(tmp_path: Path) -> None:

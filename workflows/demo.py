@@ -14,7 +14,8 @@ from pathlib import Path
 from lanecast.io_adapters import registry
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.datasets import highd
-from lanecast.io_adapters.sim.sumo_highway import simulate
+from lanecast.io_adapters.sim.scenarios import DRIVING
+from lanecast.io_adapters.sim.sumo_highway import HighwayConfig, simulate
 from lanecast.workflows.annotate_log import AnnotateOptions
 from lanecast.workflows.bulk import run_bulk
 from lanecast.workflows.log_report import report_logs
@@ -61,9 +62,9 @@ def run(args: argparse.Namespace) -> int:
         out / "highd",
         minutes=args.minutes,
         seed=args.seed,
-        density=args.density,
         show_progress=True,
         overwrite=True,  # the demo owns its folder: a rerun makes it again
+        config=HighwayConfig(minutes=args.minutes, seed=args.seed, density=args.density, **DRIVING),
     )
     table = highd.read([sim_dir])
     rows = summarise(table)

@@ -7,7 +7,7 @@ import time
 from pathlib import Path
 
 from lanecast.io_adapters.sim import scenarios, sumo_highway
-from lanecast.io_adapters.sim.scenarios import SCENARIOS
+from lanecast.io_adapters.sim.scenarios import DRIVING, SCENARIOS
 from lanecast.workflows.vocabulary import HelpFormatter
 
 DENSITIES = ("low", "medium", "high")
@@ -19,7 +19,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="simulate highway traffic with SUMO and write it as a highD recording",
         description=(
             "Drive Eclipse SUMO (libsumo) on a straight highway with two carriageways, cars and trucks with "
-            "spread desired speeds and continuous lane changes, and write the recorded middle section as "
+            "spread desired speeds and mixed driving styles, lane changes smoothed into S-curves and a slow weave "
+            "inside the lane (--lateral-smoothing 0 --weave 0 --drivers uniform: SUMO's raw motion), and write "
+            "the recorded middle section as "
             "highD's three CSV files (NN_tracks.csv, NN_tracksMeta.csv, NN_recordingMeta.csv; 25 Hz) into "
             "OUT_DIR. Neighbour ids come from SUMO. The same arguments give byte-identical files; about 15 "
             "minutes at medium density give a recording of highD's size (about 1,000 vehicles). "
@@ -67,32 +69,54 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--lane-change-duration",
         type=float,
-        default=3.0,
+        default=DRIVING["lane_change_duration_s"],
         metavar="S",
         help="seconds a lane change takes, moving continuously sideways",
+    )
+    p.add_argument(
+        "--lateral-smoothing",
+        type=float,
+        default=DRIVING["lateral_smoothing_s"],
+        metavar="S",
+        help="width of the kernel that smooths lateral motion into S-curves (0: SUMO's constant sideways "
+        "speed, with lateral-acceleration spikes at the ends of every lane change)",
+    )
+    p.add_argument(
+        "--weave",
+        type=float,
+        default=DRIVING["lateral_wander_m"],
+        metavar="M",
+        help="std of each driver's slow weave inside the lane (0: SUMO's exact lane centre)",
+    )
+    p.add_argument(
+        "--drivers",
+        choices=("uniform", "mixed"),
+        default=DRIVING["drivers"],
+        help="one car and one truck behaviour, or three driving styles (IDM and Krauss)",
     )
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
-    config = (
-        scenarios.scenario_config(args.scenario, minutes=args.minutes, seed=args.seed)
-        if args.scenario
-        else None
-    )
+    if args.scenario:
+        config = scenarios.scenario_config(args.scenario, minutes=args.minutes, seed=args.seed)
+    else:
+        config = sumo_highway.HighwayConfig(
+            minutes=args.minutes,
+            seed=args.seed,
+            lanes_per_direction=args.lanes_per_direction,
+            density=args.density,
+            truck_share=args.truck_share,
+            section_length_m=args.section_length,
+            approach_length_m=args.approach_length,
+            lane_change_duration_s=args.lane_change_duration,
+            lateral_smoothing_s=args.lateral_smoothing,
+            lateral_wander_m=args.weave,
+            drivers=args.drivers,
+        )
     out = sumo_highway.simulate(
-        args.out,
-        minutes=args.minutes,
-        seed=args.seed,
-        lanes_per_direction=args.lanes_per_direction,
-        density=args.density,
-        truck_share=args.truck_share,
-        recording_id=args.recording_id,
-        section_length_m=args.section_length,
-        approach_length_m=args.approach_length,
-        lane_change_duration_s=args.lane_change_duration,
-        config=config,
+        args.out, minutes=args.minutes, seed=args.seed, recording_id=args.recording_id, config=config
     )
     names = sumo_highway.file_names(args.recording_id)
     summary = sumo_highway.summary(out / names["tracksMeta"])

@@ -21,16 +21,22 @@ from typing import Any
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.sim.sumo_highway import HighwayConfig
 
-#: Shared by every scenario: a 600 m filmed section (highD films ~420 m; longer gives more windows
-#: per vehicle), 4 s lane changes smoothed by a 3 s kernel, in-lane weave, mixed drivers.
-COMMON: dict[str, Any] = {
-    "section_length_m": 600.0,
-    "approach_length_m": 800.0,
-    "frame_rate": 10.0,
+#: How drivers move, in every scenario and in ``lanecast simulate`` without one: 4 s lane changes
+#: smoothed by a 3 s kernel (no lateral-acceleration spikes), in-lane weave, mixed drivers.
+DRIVING: dict[str, Any] = {
     "lane_change_duration_s": 4.0,
     "lateral_smoothing_s": 3.0,
     "lateral_wander_m": 0.15,
     "drivers": "mixed",
+}
+
+#: Shared by every scenario: a 600 m filmed section (highD films ~420 m; longer gives more windows
+#: per vehicle), 10 Hz, and ``DRIVING``.
+COMMON: dict[str, Any] = {
+    "section_length_m": 600.0,
+    "approach_length_m": 800.0,
+    "frame_rate": 10.0,
+    **DRIVING,
 }
 
 #: name -> (one-line description, parameters). Demand is vehicles/s per carriageway.
