@@ -20,15 +20,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-TXT_COLUMNS = ["Vehicle_ID", "Frame_ID", "Total_Frames", "Global_Time", "Local_X", "Local_Y", "Global_X",
-               "Global_Y", "v_Length", "v_Width", "v_Class", "v_Vel", "v_Acc", "Lane_ID", "Preceding",
-               "Following", "Space_Headway", "Time_Headway"]  # fmt: skip
+from lanecast.io_adapters.datasets.ngsim import TXT_COLUMNS
 
 
 def derivative_statistics(path: Path) -> dict[str, float]:
     """The statistics of the module docstring for one NGSIM .csv (with header) or .txt file."""
     if path.suffix == ".txt":
-        d = pd.read_csv(path, sep=r"\s+", header=None, names=TXT_COLUMNS, usecols=range(18))
+        d = pd.read_csv(path, sep=r"\s+", header=None, names=list(TXT_COLUMNS), usecols=range(18))
     else:
         d = pd.read_csv(path, usecols=["Vehicle_ID", "Frame_ID", "v_Vel", "v_Acc"])
     d = d.sort_values(["Vehicle_ID", "Frame_ID"]).drop_duplicates(["Vehicle_ID", "Frame_ID"])

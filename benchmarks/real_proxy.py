@@ -49,6 +49,7 @@ from lanecast.io_adapters.datasets.highd import read as read_highd  # noqa: E402
 from lanecast.io_adapters.sim.scenarios import scenario_config  # noqa: E402
 from lanecast.io_adapters.sim.sumo_highway import simulate  # noqa: E402
 from lanecast.io_adapters.sim.tracking_errors import (  # noqa: E402
+    NGSIM_MAX_ACC,
     STANDING_MS,
     central_difference,
     forward_difference,
@@ -107,10 +108,10 @@ def write_ngsim_txt(table, path: Path, *, noisy: bool, args: argparse.Namespace,
         measured = keyframes(run, first, last, rng)
         front, lateral = interpolate_between(front, measured), interpolate_between(lateral, measured)
         speed = np.maximum(forward_difference(front, first, last, 0.1), 0.0)
-        acc = np.clip(forward_difference(speed, first, last, 0.1), -11.2 * FT, 11.2 * FT)
+        acc = np.clip(forward_difference(speed, first, last, 0.1), -NGSIM_MAX_ACC, NGSIM_MAX_ACC)
     else:
         speed = np.maximum(central_difference(front, first, last, 2, 0.1), 0.0)
-        acc = np.clip(central_difference(speed, first, last, 2, 0.1), -11.2 * FT, 11.2 * FT)
+        acc = np.clip(central_difference(speed, first, last, 2, 0.1), -NGSIM_MAX_ACC, NGSIM_MAX_ACC)
     # NGSIM lanes: 1 = left-most; the highD lane ids of one carriageway ordered by mean lateral position.
     lanes = np.unique(lane[lane > 0])
     mean_lat = np.array([lateral[lane == k].mean() for k in lanes])
