@@ -39,7 +39,8 @@ def row_extent(new: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     starts = np.flatnonzero(new)
     length = np.diff(np.append(starts, n))
     first = np.repeat(starts, length)
-    last = np.repeat(np.append(starts[1:], n) - 1, length)
+    ends = np.append(starts[1:], n) if n else starts  # no rows: no runs
+    last = np.repeat(ends - 1, length)
     return first.astype(np.int64), last.astype(np.int64)
 
 

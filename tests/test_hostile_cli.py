@@ -1,0 +1,81 @@
+"""Semantically malformed inputs through the real commands: syntactically valid files whose
+content cannot be right. Each gets exit status 2 and one line naming the file, the line or offset
+and what was expected, and leaves no output behind; or, where the input is valid, a correct one."""
+
+from __future__ import annotations
+
+import shutil
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+from lanecast.workflows.cli import main
+
+REPO = Path(__file__).resolve().parents[1]
+HIGHD = REPO / "tests" / "data" / "highd"
+
+
+def run(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str]:
+    """Exit status and the last line of stderr (progress lines come before it)."""
+    status = main(args)
+    err = capsys.readouterr().err.strip()
+    assert "Traceback" not in err
+    return status, err.splitlines()[-1] if err else ""
+
+
+def refused(args: list[str], capsys: pytest.CaptureFixture[str], *names: str) -> str:
+    """Run a command that must refuse its input: status 2, one error line naming ``names``."""
+    status, line = run(args, capsys)
+    assert status == 2, line
+    assert line.startswith(f"lanecast {args[0]}: error: "), line
+    for name in names:
+        assert name in line, line
+    return line
+
+
+def highd_copy(tmp_path: Path, kind: str = "", edit: Callable[[list[str]], list[str]] | None = None) -> Path:
+    """The highD fixture in ``tmp_path/rec`` with ``01_<kind>.csv`` edited line by line."""
+    rec = tmp_path / "rec"
+    rec.mkdir()
+    for src in HIGHD.glob("01_*.csv"):
+        shutil.copy(src, rec / src.name)
+    if edit is not None:
+        path = rec / f"01_{kind}.csv"
+        path.write_text("".join(line + "\n" for line in edit(path.read_text().splitlines())))
+    return rec
+
+
+def set_cell(
+    column: str, value: str | Callable[[str], str], lines: set[int] | None = None
+) -> Callable[[list[str]], list[str]]:
+    """An edit setting ``column`` on the given 1-based ``lines`` (every data line by default)."""
+
+    def edit(rows: list[str]) -> list[str]:
+        index = rows[0].split(",").index(column)
+        out = [rows[0]]
+        for number, row in enumerate(rows[1:], start=2):
+            cells = row.split(",")
+            if lines is None or number in lines:
+                cells[index] = value(cells[index]) if callable(value) else value
+            out.append(",".join(cells))
+        return out
+
+    return edit
+
+
+def no_output(out: Path) -> None:
+    assert not out.exists()
+    assert not [p for p in out.parent.iterdir() if p.name.startswith(f".{out.name}")]
+
+
+# ------------------------------------------------------------------------------------------ highD
+
+
+def test_windows_of_tracks_without_a_10hz_sample(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """At 1 MHz every track of the fixture lasts microseconds: no sample at 10 Hz, so no windows
+    (resampling gave an empty table, which crashed the lane-change labels)."""
+    rec = highd_copy(tmp_path, "recordingMeta", set_cell("frameRate", "1000000"))
+    out = tmp_path / "win"
+    refused(["windows", str(rec), "--out", str(out)], capsys, "no windows", "no rows at 10 Hz")
+    no_output(out)
