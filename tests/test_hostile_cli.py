@@ -79,3 +79,19 @@ def test_windows_of_tracks_without_a_10hz_sample(tmp_path: Path, capsys: pytest.
     out = tmp_path / "win"
     refused(["windows", str(rec), "--out", str(out)], capsys, "no windows", "no rows at 10 Hz")
     no_output(out)
+
+
+def test_driving_direction_against_the_motion(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Vehicle 2 drives towards +x (xVelocity 20 m/s) but tracksMeta says drivingDirection 1: it
+    was converted into a vehicle driving backwards in the upper recording's road frame."""
+    rec = highd_copy(tmp_path, "tracksMeta", set_cell("drivingDirection", "1", {3}))
+    out = tmp_path / "out.parquet"
+    line = refused(
+        ["convert", str(rec), "--out", str(out)],
+        capsys,
+        f"{rec / '01_tracksMeta.csv'}, line 3, column 'drivingDirection'",
+        "vehicle 2",
+        "20.00 m/s",
+    )
+    assert "expected 2" in line
+    no_output(out)

@@ -557,6 +557,34 @@ def _check_meta(
     return row_meta, direction[row_meta]
 
 
+WRONG_WAY_MPS = 1.0  # a track whose mean speed along its road frame's x is below minus this drives backwards
+
+
+def _check_direction(
+    rec: Recording, cols: dict[str, np.ndarray], row_meta: np.ndarray, direction: np.ndarray
+) -> None:
+    """Refuse a vehicle whose drivingDirection contradicts its xVelocity: in its road frame it would
+    drive backwards (a tracksMeta row that disagrees with the tracks, never a real vehicle).
+
+    ``cols`` sorted by (id, frame), ``row_meta`` and ``direction`` [N] per row (``_check_meta``)."""
+    starts = run_bounds(cols["id"])[:-1]
+    sign = np.where(direction[starts] == LOWER, 1.0, -1.0)
+    mean_vx = np.add.reduceat(cols["xVelocity"], starts) / np.diff(np.append(starts, row_meta.size))
+    wrong = np.flatnonzero(sign * mean_vx < -WRONG_WAY_MPS)
+    if wrong.size:
+        k = int(starts[wrong[0]])
+        meta_path, d = rec.path("tracksMeta"), int(direction[k])
+        raise InputError(
+            meta_path,
+            f"drivingDirection {d} ({DIRECTION_NAMES[d]} lanes, towards {'+' if d == LOWER else '−'}x) for "
+            f"vehicle {cols['id'][k]}, but its mean xVelocity in {rec.path('tracks').name} is "
+            f"{mean_vx[wrong[0]]:.2f} m/s",
+            line=_line(meta_path, int(row_meta[k])),
+            column="drivingDirection",
+            expected=f"{UPPER if d == LOWER else LOWER}, the direction the vehicle drives",
+        )
+
+
 def _classes(meta_table: pa.Table) -> tuple[list[str], np.ndarray]:
     """Lower-cased class names (``Car`` → ``car``) as (dictionary, code int32 [M] per meta row)."""
     lowered = pc.utf8_lower(pc.utf8_trim_whitespace(meta_table.column("class").combine_chunks()))
@@ -624,6 +652,7 @@ def convert_tracks(
     cols, source_row = _dedupe(tracks_path, _numpy(tracks, TRACKS_COLUMNS))
     _check_ranges(tracks_path, cols, source_row, meta.frame_rate)
     row_meta, direction = _check_meta(rec, meta_table, cols, source_row, all_tracks)
+    _check_direction(rec, cols, row_meta, direction)
     class_names, class_codes = _classes(meta_table)
 
     length, width = cols["width"], cols["height"]
