@@ -4,6 +4,7 @@ and what was expected, and leaves no output behind; or, where the input is valid
 
 from __future__ import annotations
 
+import gzip
 import shutil
 from collections.abc import Callable
 from pathlib import Path
@@ -95,3 +96,28 @@ def test_driving_direction_against_the_motion(tmp_path: Path, capsys: pytest.Cap
     )
     assert "expected 2" in line
     no_output(out)
+
+
+@pytest.mark.parametrize(
+    ("damage", "message"),
+    [
+        (lambda data: b"", "line 1: empty file"),
+        (lambda data: data.decode().encode("utf-16"), "offset 0: the file is UTF-16 text"),
+        (lambda data: gzip.compress(data), "offset 0: the file is gzip-compressed"),
+        (lambda data: data.replace(b",", b";"), "line 1: the header is separated by ';'"),
+        (lambda data: data.replace(b",", b"\t"), "line 1: the header is separated by tabs"),
+    ],
+)
+def test_damaged_tracks_file_of_a_highd_directory_is_named(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], damage: Callable[[bytes], bytes], message: str
+) -> None:
+    """A recording directory whose 01_tracks.csv is empty, UTF-16, compressed or not comma-separated
+    was 'format not recognised' for the directory; its companions make it highD, and the reader
+    names the file and what is wrong with it."""
+    rec = highd_copy(tmp_path)
+    tracks = rec / "01_tracks.csv"
+    tracks.write_bytes(damage(tracks.read_bytes()))
+    out = tmp_path / "out.parquet"
+    for target in (rec, tracks):
+        refused(["convert", str(target), "--out", str(out)], capsys, f"{tracks}, {message}")
+        no_output(out)

@@ -16,6 +16,30 @@ import numpy as np
 
 from lanecast.io_adapters.errors import InputError
 
+# What a file that is not a plain text table starts with (its first bytes), and what it is.
+_NOT_TEXT = (
+    (b"\xff\xfe\x00\x00", "UTF-32 text"),
+    (b"\x00\x00\xfe\xff", "UTF-32 text"),
+    (b"\xff\xfe", "UTF-16 text"),
+    (b"\xfe\xff", "UTF-16 text"),
+    (b"\x1f\x8b", "gzip-compressed"),
+    (b"PK\x03\x04", "a zip archive"),
+    (b"BZh", "bzip2-compressed"),
+    (b"\xfd7zXZ\x00", "xz-compressed"),
+    (b"\x28\xb5\x2f\xfd", "zstd-compressed"),
+)
+
+
+def check_text(path: Path, head: bytes, what: str) -> None:
+    """Refuse a file whose first bytes ``head`` show it is no UTF-8 text: another encoding, a
+    compressed file or binary data (a NUL byte). ``what`` names the table expected."""
+    for magic, kind in _NOT_TEXT:
+        if head.startswith(magic):
+            raise InputError(path, f"the file is {kind}", offset=0, expected=f"{what} as UTF-8 text")
+    if b"\x00" in head:
+        at = head.index(b"\x00")
+        raise InputError(path, "a NUL byte: binary data", offset=at, expected=f"{what} as UTF-8 text")
+
 
 def line_spans(data: bytes) -> tuple[np.ndarray, np.ndarray]:
     """Start and end (exclusive, without the newline and any CR) byte offsets of every line [L]."""

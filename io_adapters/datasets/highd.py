@@ -35,7 +35,7 @@ import pyarrow.csv as pacsv
 
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.contracts.track_runs import run_bounds
-from lanecast.io_adapters.datasets.csv_errors import check_field_counts, record_lines
+from lanecast.io_adapters.datasets.csv_errors import check_field_counts, check_text, record_lines
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import progress
 
@@ -154,13 +154,28 @@ def _looks_like(path: Path, kind: str) -> bool:
     return len(names & set(required)) * 2 >= len(required)
 
 
+def _with_companions(path: Path, prefix: str) -> bool:
+    """All three files of recording ``prefix`` are beside ``path``."""
+    return all((path.parent / f"{prefix}_{kind}.csv").is_file() for kind in KINDS)
+
+
 def sniff(path: Path) -> bool:
-    """A highD file (by name ``NN_tracks.csv`` etc. and header) or a directory holding one."""
+    """A highD file (by name ``NN_tracks.csv`` etc., and its header or its two companion files) or
+    a directory holding one: a recording whose file is damaged (empty, UTF-16, another separator)
+    is still highD, for the reader to name what is wrong with it."""
     path = Path(path)
     if path.is_dir():
-        return any(_looks_like(p, "tracks") for p in sorted(path.glob("*_tracks.csv")) if p.is_file())
+        return any(
+            _looks_like(p, "tracks") or _with_companions(p, p.name[: -len("_tracks.csv")])
+            for p in sorted(path.glob("*_tracks.csv"))
+            if p.is_file()
+        )
     match = _NAME.match(path.name)
-    return match is not None and path.is_file() and _looks_like(path, match.group("kind"))
+    return (
+        match is not None
+        and path.is_file()
+        and (_looks_like(path, match.group("kind")) or _with_companions(path, match.group("prefix")))
+    )
 
 
 def recordings(paths: Sequence[str | Path]) -> list[Recording]:
@@ -213,11 +228,16 @@ def _read_csv(
     if path.stat().st_size == 0:
         raise InputError(path, "empty file", line=1, expected=f"a {what} header line")
     try:
+        with path.open("rb") as fh:
+            check_text(path, fh.read(4096), f"a highD {what} CSV")
         names = _header_names(path)
     except OSError as exc:
         raise InputError(path, f"cannot read: {exc}") from exc
     if not names:
         raise InputError(path, "empty header line", line=1, expected=f"a {what} header line")
+    if len(names) == 1 and (";" in names[0] or "\t" in names[0]):
+        sep = "';'" if ";" in names[0] else "tabs"
+        raise InputError(path, f"the header is separated by {sep}", line=1, expected="comma-separated fields")
     for name in columns:
         if name not in names:
             close = difflib.get_close_matches(name, names, n=1)
