@@ -145,6 +145,7 @@ class ProgressLines(tqdm):
 
     _last_line_at = -float("inf")
     _closing = False
+    final_line = True  # False: close without the last count (the work stopped on an error)
 
     def display(self, msg: str | None = None, pos: int | None = None) -> bool:  # type: ignore[override]
         if msg == "":  # tqdm clearing its line: nothing to clear in a log
@@ -169,7 +170,7 @@ class ProgressLines(tqdm):
         super().set_postfix_str(s, refresh=False)
 
     def close(self) -> None:
-        if not self.disable and getattr(self, "last_print_n", self.n) != self.n:
+        if self.final_line and not self.disable and getattr(self, "last_print_n", self.n) != self.n:
             self._closing = True
             self.display()  # the final count, unless the last line already said it
         super().close()
@@ -192,9 +193,16 @@ def progress(iterable: Iterable[T], *, desc: str, total: int | None = None, unit
     if total is None and hasattr(iterable, "__len__"):
         total = len(iterable)  # type: ignore[arg-type]
     with bar(desc=desc, total=total, unit=unit) as shown:
-        for item in iterable:
-            yield item
-            shown.update(1)
+        try:
+            for item in iterable:
+                yield item
+                shown.update(1)
+        except GeneratorExit:
+            # The consumer stopped, on an error whose message may already be out: a count printed
+            # now (when the abandoned generator is collected) would follow it as stderr's last line.
+            if isinstance(shown, ProgressLines):
+                shown.final_line = False
+            raise
 
 
 def bar(*, desc: str, total: int | float | None = None, unit: str = "it") -> tqdm:

@@ -121,3 +121,20 @@ def test_damaged_tracks_file_of_a_highd_directory_is_named(
     for target in (rec, tracks):
         refused(["convert", str(target), "--out", str(out)], capsys, f"{tracks}, {message}")
         no_output(out)
+
+
+# ------------------------------------------------------------------------------------------ NGSIM
+
+US101 = REPO / "tests" / "data" / "ngsim" / "us-101" / "trajectories-fixture.txt"
+
+
+def test_error_is_the_last_line_after_progress(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The second file of a folder is cut short: the error line ends stderr (the abandoned progress
+    used to print its count after it, when the reader's generator was collected)."""
+    folder = tmp_path / "us-101"
+    folder.mkdir()
+    (folder / "trajectories-a.txt").write_bytes(US101.read_bytes())
+    (folder / "trajectories-b.txt").write_bytes(US101.read_bytes()[:-40])
+    out = tmp_path / "out.parquet"
+    refused(["convert", str(folder), "--out", str(out)], capsys, "trajectories-b.txt, line 15", "truncated")
+    no_output(out)
