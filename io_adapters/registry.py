@@ -17,6 +17,7 @@ from typing import Any
 import pyarrow as pa
 
 from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.datasets.csv_errors import not_text
 from lanecast.io_adapters.errors import FormatNotRecognisedError
 from lanecast.io_adapters.files import check_input
 
@@ -66,11 +67,18 @@ def detect(path: str | Path) -> str:
     for fmt in READERS:
         if reader(fmt).sniff(path):
             return fmt
-    raise FormatNotRecognisedError(
-        path,
-        "format not recognised",
-        expected="a highD or NGSIM CSV, an NGSIM .txt, Parquet, MCAP or a ROS bag",
-    )
+    expected = "a highD or NGSIM CSV, an NGSIM .txt, Parquet, MCAP or a ROS bag"
+    if path.is_file():  # say what it is where that is plain from its first bytes
+        with path.open("rb") as fh:
+            head = fh.read(4096)
+        if not head.strip():
+            raise FormatNotRecognisedError(path, "empty file", offset=0, expected=expected)
+        kind = not_text(head)
+        if kind is not None:
+            raise FormatNotRecognisedError(
+                path, f"format not recognised: the file is {kind}", offset=0, expected=expected
+            )
+    raise FormatNotRecognisedError(path, "format not recognised", expected=expected)
 
 
 def read_any(paths: Sequence[str | Path], fmt: str | None = None, **options: Any) -> pa.Table:

@@ -138,3 +138,67 @@ def test_error_is_the_last_line_after_progress(tmp_path: Path, capsys: pytest.Ca
     out = tmp_path / "out.parquet"
     refused(["convert", str(folder), "--out", str(out)], capsys, "trajectories-b.txt, line 15", "truncated")
     no_output(out)
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        (b"", "line 1: empty file"),
+        (b"\n  \n", "line 1: empty file"),
+        (US101.read_text().encode("utf-16"), "offset 0: the file is UTF-16 text"),
+        (gzip.compress(US101.read_bytes()), "offset 0: the file is gzip-compressed"),
+        (b"Vehicle_ID Frame_ID\n1 2\n", "line 1: not an NGSIM file"),
+    ],
+)
+def test_damaged_file_in_an_ngsim_folder_is_refused_not_left_out(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], content: bytes, message: str
+) -> None:
+    """Beside a good file, an empty, UTF-16, compressed or garbled trajectories-b.txt was silently
+    left out of the folder: the table lacked a third of the data and nothing said so."""
+    folder = tmp_path / "us-101"
+    folder.mkdir()
+    (folder / "trajectories-a.txt").write_bytes(US101.read_bytes())
+    (folder / "trajectories-b.txt").write_bytes(content)
+    out = tmp_path / "out.parquet"
+    refused(
+        ["convert", str(folder), "--out", str(out)], capsys, f"{folder / 'trajectories-b.txt'}, {message}"
+    )
+    no_output(out)
+
+
+def test_other_text_files_in_an_ngsim_folder_are_named_on_stderr(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    folder = tmp_path / "us-101"
+    folder.mkdir()
+    (folder / "trajectories-a.txt").write_bytes(US101.read_bytes())
+    (folder / "README.txt").write_text("US-101, 2005-06-15\n")
+    out = tmp_path / "out.parquet"
+    assert main(["convert", str(folder), "--out", str(out)]) == 0
+    assert f"{folder / 'README.txt'}: not an NGSIM file, left out" in capsys.readouterr().err
+    assert out.is_file()
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        (b"", "offset 0: empty file"),
+        (
+            "Vehicle_ID,Frame_ID\n".encode("utf-16"),
+            "offset 0: format not recognised: the file is UTF-16 text",
+        ),
+        (
+            gzip.compress(b"Vehicle_ID,Frame_ID\n"),
+            "offset 0: format not recognised: the file is gzip-compressed",
+        ),
+    ],
+)
+def test_unrecognised_file_says_what_it_is(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], content: bytes, message: str
+) -> None:
+    path = tmp_path / "trajectories.csv"
+    path.write_bytes(content)
+    out = tmp_path / "out.parquet"
+    for command in (["convert", str(path), "--out", str(out)], ["info", str(path)]):
+        refused(command, capsys, f"{path}, {message}")
+    no_output(out)

@@ -30,12 +30,18 @@ _NOT_TEXT = (
 )
 
 
+def not_text(head: bytes) -> str | None:
+    """What a file is whose first bytes ``head`` show it is no UTF-8 text (another encoding, a
+    compressed file), or None."""
+    return next((kind for magic, kind in _NOT_TEXT if head.startswith(magic)), None)
+
+
 def check_text(path: Path, head: bytes, what: str) -> None:
     """Refuse a file whose first bytes ``head`` show it is no UTF-8 text: another encoding, a
     compressed file or binary data (a NUL byte). ``what`` names the table expected."""
-    for magic, kind in _NOT_TEXT:
-        if head.startswith(magic):
-            raise InputError(path, f"the file is {kind}", offset=0, expected=f"{what} as UTF-8 text")
+    kind = not_text(head)
+    if kind is not None:
+        raise InputError(path, f"the file is {kind}", offset=0, expected=f"{what} as UTF-8 text")
     if b"\x00" in head:
         at = head.index(b"\x00")
         raise InputError(path, "a NUL byte: binary data", offset=at, expected=f"{what} as UTF-8 text")

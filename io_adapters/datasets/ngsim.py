@@ -62,7 +62,7 @@ import pyarrow.csv as pacsv
 
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.contracts.track_runs import along_track_derivative, row_extent, run_starts
-from lanecast.io_adapters.datasets.csv_errors import check_field_counts, line_spans, record_lines
+from lanecast.io_adapters.datasets.csv_errors import check_field_counts, check_text, line_spans, record_lines
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import progress
 
@@ -189,6 +189,32 @@ def files_in(folder: Path) -> list[Path]:
     ]
 
 
+def _folder_files(folder: Path) -> list[Path]:
+    """:func:`files_in`, refusing a damaged NGSIM file there instead of leaving it out: an empty or
+    non-text ``.txt``/``.csv``, or one named ``trajectories*`` that is not NGSIM. Other text files
+    (notes, other tables) are left out with a line on stderr."""
+    found = files_in(folder)
+    for p in sorted(Path(folder).rglob("*")):
+        if (
+            p in found
+            or p.suffix.lower() not in (".txt", ".csv")
+            or any(part.startswith(".") for part in p.relative_to(folder).parts)
+            or not p.is_file()
+        ):
+            continue
+        with p.open("rb") as fh:
+            head = fh.read(4096)
+        check_text(p, head, "an NGSIM .txt or CSV file")
+        if not head.strip():
+            raise InputError(p, "empty file", line=1, expected="NGSIM trajectory rows")
+        if p.name.lower().startswith("trajectories"):
+            raise InputError(
+                p, "not an NGSIM file: neither 18 numbers a line nor an NGSIM CSV header", line=1
+            )
+        print(f"lanecast: {p}: not an NGSIM file, left out", file=sys.stderr)
+    return found
+
+
 # ---------------------------------------------------------------------------------------------- read
 
 
@@ -205,7 +231,7 @@ def read(paths: Sequence[Path] | Path | str, **options: Any) -> pa.Table:
         paths = [Path(paths)]
     expanded: list[Path] = []
     for p in map(Path, paths):
-        found = files_in(p) if p.is_dir() else [p]
+        found = _folder_files(p) if p.is_dir() else [p]
         if not found:
             raise InputError(p, "no NGSIM files in this directory", expected="NGSIM .txt or .csv files")
         expanded += found
