@@ -202,3 +202,25 @@ def test_unrecognised_file_says_what_it_is(
     for command in (["convert", str(path), "--out", str(out)], ["info", str(path)]):
         refused(command, capsys, f"{path}, {message}")
     no_output(out)
+
+
+PEACHTREE = REPO / "tests" / "data" / "ngsim" / "peachtree_sample.csv"
+
+
+@pytest.mark.parametrize(("extra", "named"), [("Local_Y", "Local_Y"), ("vehicle_id", "vehicle_id")])
+def test_ngsim_csv_with_a_column_twice(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], extra: str, named: str
+) -> None:
+    """A second Local_Y (zeros) was ignored in favour of the first without a word: which one holds
+    the data cannot be known, as highD's reader already says."""
+    lines = PEACHTREE.read_text().splitlines()[:200]
+    path = tmp_path / "peachtree.csv"
+    path.write_text("".join(f"{line},{extra if i == 0 else '0'}\n" for i, line in enumerate(lines)))
+    out = tmp_path / "out.parquet"
+    refused(
+        ["convert", str(path), "--out", str(out)],
+        capsys,
+        f"{path}, line 1, column '{named}'",
+        "appears twice",
+    )
+    no_output(out)

@@ -326,6 +326,14 @@ def _parse_csv(path: Path, first: str, location: str | None) -> _Parsed:
     header = [name.strip() for name in raw_header]
     by_lower: dict[str, str] = {}  # lower-case stripped name -> the name as pyarrow sees it
     for raw, name in zip(raw_header, header, strict=True):
+        if name.lower() in by_lower and name.lower() in (*USED_COLUMNS, "location", "direction"):
+            raise InputError(
+                path,
+                f"column {name!r} appears twice (as {by_lower[name.lower()].strip()!r} too)",
+                line=1,
+                column=name,
+                expected="each NGSIM column once (names match in any case)",
+            )
         by_lower.setdefault(name.lower(), raw)
     for name in USED_COLUMNS:
         if name not in by_lower:

@@ -68,6 +68,8 @@ def _layout(path: Path) -> tuple[str, dict[str, str], list[str], dict[str, pa.Da
     raw_header = first.lstrip("\ufeff").rstrip("\r").split(",")
     by_lower: dict[str, str] = {}
     for raw in raw_header:
+        if raw.strip().lower() in by_lower and raw.strip().lower() in (*ngsim.USED_COLUMNS, "location"):
+            raise ValueError("a column appears twice")  # ngsim.read names it
         by_lower.setdefault(raw.strip().lower(), raw)
     missing = [n for n in ngsim.USED_COLUMNS if n not in by_lower]
     if missing or "location" not in by_lower:
