@@ -224,3 +224,24 @@ def test_ngsim_csv_with_a_column_twice(
         "appears twice",
     )
     no_output(out)
+
+
+def test_ngsim_in_metres_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A metric re-export (lengths, widths, positions and speeds in m) was read as feet: every car
+    1.4 m long and every speed 3.3 times too low, with exit 0."""
+    rows = [line.split() for line in US101.read_text().splitlines()]
+    for row in rows:
+        for i in (4, 5, 8, 9, 11, 12):  # Local_X, Local_Y, v_Length, v_Width, v_Vel, v_Acc
+            row[i] = f"{float(row[i]) * 0.3048:.3f}"
+    path = tmp_path / "us-101" / "trajectories-0750am-0805am.txt"
+    path.parent.mkdir()
+    path.write_text("".join("  ".join(row) + "\n" for row in rows))
+    out = tmp_path / "out.parquet"
+    refused(
+        ["convert", str(path), "--out", str(out)],
+        capsys,
+        f"{path}, line 1, column 'v_Length'",
+        "look like metres",
+        "expected NGSIM's feet",
+    )
+    no_output(out)

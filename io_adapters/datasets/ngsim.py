@@ -82,6 +82,9 @@ MIN_HEADING_SPEED = 1.0
 GRADIENT_SPAN = 5  # rows either side for velocity directions: differences over ±0.5 s
 MAX_TURN_FROM_DIRECTION = math.radians(135)  # motion further from the stated Direction is a glitch
 
+# ft: no car is shorter (a Smart Fortwo is 8.8 ft); a file whose median car is, is in metres
+MIN_MEDIAN_CAR_FT = 8.0
+
 FREEWAYS = ("us-101", "i-80")
 ARTERIALS = ("lankershim", "peachtree")
 UNKNOWN_LOCATION = "unknown"
@@ -585,11 +588,34 @@ def _checked_ranges(
         for name in ("local_x", "local_y"):  # differences over 0.1 s must stay float32 speeds
             flag(name, np.abs(out[name]) > MAX_POSITION_FT, f"a position within ±{MAX_POSITION_FT:g} ft")
     if not bad_rows:
+        _check_feet(path, out, names, header=header)
         return out
     row, name, expected = min(bad_rows)
     line = int(record_lines(path.read_bytes(), whitespace=not header)[0][row + (1 if header else 0)])
     column = next(n for n in names if n.strip().lower() == name)
     raise InputError(path, f"{column} is {columns[name][row]}", line=line, column=column, expected=expected)
+
+
+def _check_feet(path: Path, columns: dict[str, np.ndarray], names: Sequence[str], *, header: bool) -> None:
+    """Refuse a file whose vehicle lengths are metres, not NGSIM's feet: cars (``v_Class`` 2; all
+    vehicles if none is) shorter than ``MIN_MEDIAN_CAR_FT`` at the median would be read 3.3 times
+    too small, and their positions and speeds with them. InputError at the first such car's line."""
+    length = columns["v_length"]
+    cars = columns["v_class"] == 2
+    pool = cars if cars.any() else np.ones(length.size, dtype=bool)
+    median = float(np.median(length[pool])) if pool.any() else MIN_MEDIAN_CAR_FT
+    if median >= MIN_MEDIAN_CAR_FT:
+        return
+    row = int(np.flatnonzero(pool & (length < MIN_MEDIAN_CAR_FT))[0])
+    line = int(record_lines(path.read_bytes(), whitespace=not header)[0][row + (1 if header else 0)])
+    raise InputError(
+        path,
+        f"the median {'car' if cars.any() else 'vehicle'} length is {median:g}, no car is under "
+        f"{MIN_MEDIAN_CAR_FT:g} ft: lengths (and so positions and speeds) look like metres",
+        line=line,
+        column=next(n for n in names if n.strip().lower() == "v_length"),
+        expected=f"NGSIM's feet (cars of {MIN_MEDIAN_CAR_FT:g} ft and more)",
+    )
 
 
 # ------------------------------------------------------------------------------------------ assembly
