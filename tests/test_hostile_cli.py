@@ -245,3 +245,46 @@ def test_ngsim_in_metres_is_refused(tmp_path: Path, capsys: pytest.CaptureFixtur
         "expected NGSIM's feet",
     )
     no_output(out)
+
+
+def test_ngsim_csv_with_quoted_fields_reads_as_unquoted(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Every field in double quotes (a valid CSV) was 'format not recognised'."""
+    import pyarrow.parquet as pq
+
+    from lanecast.io_adapters import streaming
+
+    lines = PEACHTREE.read_text().splitlines()[:300]
+    plain, quoted = tmp_path / "plain" / "peachtree.csv", tmp_path / "quoted" / "peachtree.csv"
+    for path, text in (
+        (plain, lines),
+        (quoted, [",".join(f'"{c}"' for c in line.split(",")) for line in lines]),
+    ):
+        path.parent.mkdir()
+        path.write_text("".join(line + "\n" for line in text))
+    assert main(["convert", str(plain), "--out", str(tmp_path / "plain.parquet")]) == 0
+    expected = pq.read_table(tmp_path / "plain.parquet")
+    for stream_bytes in (streaming.STREAM_BYTES, 0):  # whole, and the streaming reader of large exports
+        monkeypatch.setattr(streaming, "STREAM_BYTES", stream_bytes)
+        out = tmp_path / f"quoted-{stream_bytes}.parquet"
+        assert main(["convert", str(quoted), "--out", str(out)]) == 0, capsys.readouterr().err
+        assert pq.read_table(out).to_pydict() == expected.to_pydict()  # the streaming spill chunks differ
+
+
+@pytest.mark.parametrize("column", ["Vehicle_ID", "Local_Y"])
+def test_ngsim_csv_without_a_key_column_names_it(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], column: str
+) -> None:
+    """A CSV export without Vehicle_ID (or with Local_Y misnamed) was 'format not recognised'."""
+    lines = PEACHTREE.read_text().splitlines()[:50]
+    path = tmp_path / "peachtree.csv"
+    path.write_text("".join(line.replace(column, f"{column}X", 1) + "\n" for line in lines))
+    out = tmp_path / "out.parquet"
+    refused(
+        ["convert", str(path), "--out", str(out)],
+        capsys,
+        f"{path}, line 1, column '{column.lower()}'",
+        "missing column",
+    )
+    no_output(out)

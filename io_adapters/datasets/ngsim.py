@@ -168,8 +168,11 @@ def sniff(path: Path) -> bool:
         return False
     first = head.split(b"\n", 1)[0].decode("utf-8", errors="replace").lstrip("\ufeff").strip()
     if "," in first:
-        names = {name.strip().lower() for name in first.split(",")}
-        return {"vehicle_id", "frame_id", "local_x", "local_y"} <= names
+        names = {_unquoted(name).strip().lower() for name in first.split(",")}
+        # the key columns, or most of the used ones (the reader then names what is missing)
+        return {"vehicle_id", "frame_id", "local_x", "local_y"} <= names or 2 * len(
+            names & set(USED_COLUMNS)
+        ) > len(USED_COLUMNS)
     tokens = first.split()
     if len(tokens) != len(TXT_COLUMNS):
         return False
@@ -178,6 +181,12 @@ def sniff(path: Path) -> bool:
     except ValueError:
         return False
     return True
+
+
+def _unquoted(name: str) -> str:
+    """A header field without the double quotes around it, as the CSV parser reads it."""
+    stripped = name.strip()
+    return stripped[1:-1] if len(stripped) >= 2 and stripped[0] == stripped[-1] == '"' else name
 
 
 def files_in(folder: Path) -> list[Path]:
@@ -325,7 +334,8 @@ def _parse_txt(path: Path, location: str | None) -> _Parsed:
 
 def _parse_csv(path: Path, first: str, location: str | None) -> _Parsed:
     """The 25-column CSV export (header; names matched case-insensitively)."""
-    raw_header = first.lstrip("\ufeff").rstrip("\r").split(",")  # pyarrow drops a BOM, keeps spaces
+    # pyarrow drops a BOM and the quotes around a name, keeps spaces
+    raw_header = [_unquoted(raw) for raw in first.lstrip("\ufeff").rstrip("\r").split(",")]
     header = [name.strip() for name in raw_header]
     by_lower: dict[str, str] = {}  # lower-case stripped name -> the name as pyarrow sees it
     for raw, name in zip(raw_header, header, strict=True):

@@ -58,14 +58,14 @@ def streamable(path: Path) -> bool:
         first = fh.readline(1 << 16).decode("utf-8", errors="replace")
     if "," not in first:
         return False
-    return "location" in {name.strip().lower() for name in first.lstrip("\ufeff").split(",")}
+    return "location" in {ngsim._unquoted(name).strip().lower() for name in first.lstrip("\ufeff").split(",")}
 
 
 def _layout(path: Path) -> tuple[str, dict[str, str], list[str], dict[str, pa.DataType]]:
     """(first line, lower-case name -> CSV name, columns to read, their types) as ngsim.read reads them."""
     with path.open("rb") as fh:
         first = fh.readline(1 << 16).decode("utf-8", errors="replace").rstrip("\n")
-    raw_header = first.lstrip("\ufeff").rstrip("\r").split(",")
+    raw_header = [ngsim._unquoted(raw) for raw in first.lstrip("\ufeff").rstrip("\r").split(",")]
     by_lower: dict[str, str] = {}
     for raw in raw_header:
         if raw.strip().lower() in by_lower and raw.strip().lower() in (*ngsim.USED_COLUMNS, "location"):
