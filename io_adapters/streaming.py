@@ -130,7 +130,10 @@ def uncut(pieces: Sequence[Piece], keep_whole: Callable[[Chunk], bool]) -> list[
 def _with_meta(table: pa.Table, pf: pq.ParquetFile, path: Path) -> pa.Table:
     """``table`` (rows of the Parquet track table ``pf``) validated, with the metadata of its
     recordings only."""
-    meta = track_table.read_meta(track_table.file_schema(pf))
+    try:
+        meta = track_table.read_meta(track_table.file_schema(pf))
+    except TrackTableError as exc:
+        raise TrackTableError(f"{path}: {exc}") from exc
     names = track_table.recording_codes(table)[0]
     meta = track_table.restrict_meta(meta, names.tolist())
     table = table.replace_schema_metadata({track_table.META_KEY: meta.to_json().encode()})
@@ -357,8 +360,10 @@ class TrackTableWriter:
                 self._finish()
             elif self._writer is not None:
                 self._writer.close()
-        finally:
-            self._stack.__exit__(kind, exc, tb)
+        except BaseException as error:  # e.g. no rows: the temporary output is removed, never renamed
+            self._stack.__exit__(type(error), error, error.__traceback__)
+            raise
+        self._stack.__exit__(kind, exc, tb)
 
     def part_root(self) -> Path:
         """The temporary directory output, where workers write their ``part-NNNNN.parquet``."""

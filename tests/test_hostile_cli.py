@@ -9,6 +9,8 @@ import shutil
 from collections.abc import Callable
 from pathlib import Path
 
+import pyarrow as pa
+import pyarrow.parquet as pq
 import pytest
 
 from lanecast.workflows.cli import main
@@ -287,4 +289,58 @@ def test_ngsim_csv_without_a_key_column_names_it(
         f"{path}, line 1, column '{column.lower()}'",
         "missing column",
     )
+    no_output(out)
+
+
+# ---------------------------------------------------------------------------------------- Parquet
+
+
+def track_table_copy(tmp_path: Path, edit: Callable[[pa.Table], pa.Table] | None = None) -> Path:
+    """The highD fixture as a Parquet track table (``edit``ed, written as is) in ``tmp_path``."""
+    from lanecast.io_adapters import registry
+
+    table = registry.read_any([HIGHD])
+    path = tmp_path / "table.parquet"
+    pq.write_table(table if edit is None else edit(table), path)
+    return path
+
+
+@pytest.mark.parametrize("partition", [False, True])
+def test_a_table_without_rows_leaves_no_output(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], partition: bool
+) -> None:
+    """A track table of zero rows: 'no rows to write', but the empty temporary output was renamed
+    into place anyway (the writer's own refusal did not reach the atomic write)."""
+    path = track_table_copy(tmp_path, lambda t: t.slice(0, 0))
+    out = tmp_path / ("out" if partition else "out.parquet")
+    refused(
+        ["convert", str(path), "--out", str(out), *(["--partition"] if partition else [])], capsys, "no rows"
+    )
+    no_output(out)
+
+
+@pytest.mark.parametrize(
+    ("edit", "words"),
+    [
+        (lambda t: t.replace_schema_metadata(None), "no 'lanecast' schema metadata"),
+        (lambda t: t.replace_schema_metadata({b"lanecast": b"{"}), "not JSON"),
+        (
+            lambda t: t.replace_schema_metadata(
+                {
+                    b"lanecast": t.schema.metadata[b"lanecast"].replace(
+                        b'"frame_rate": 25.0', b'"frame_rate": 0'
+                    )
+                }
+            ),
+            "frame_rate': 0",
+        ),
+    ],
+)
+def test_bad_metadata_of_a_track_table_names_the_file(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], edit: Callable[[pa.Table], pa.Table], words: str
+) -> None:
+    """Through convert's streaming reader the metadata errors named no file."""
+    path = track_table_copy(tmp_path, edit)
+    out = tmp_path / "out.parquet"
+    refused(["convert", str(path), "--out", str(out)], capsys, f"error: {path}: ", words)
     no_output(out)
