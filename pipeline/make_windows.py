@@ -711,8 +711,9 @@ def _index_and_manifest(
             timings[k] += v
     if index.num_rows == 0 and not allow_empty:
         reasons = "; ".join(f"{name}: {why}" for name, why in skipped.items()) or "no tracks"
+        inputs = (sources or {}).get("inputs") or meta.source_files  # what was given, not its sources
         raise InputError(
-            ", ".join(meta.source_files) or None,
+            ", ".join(map(str, inputs)) or None,
             f"no windows: {reasons}",
             expected=f"tracks with {HISTORY / RATE_HZ:g} s of gap-free history"
             + (f" and {wt.FUTURE / RATE_HZ:g} s of future" if options.require_future else ""),

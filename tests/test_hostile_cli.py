@@ -344,3 +344,15 @@ def test_bad_metadata_of_a_track_table_names_the_file(
     out = tmp_path / "out.parquet"
     refused(["convert", str(path), "--out", str(out)], capsys, f"error: {path}: ", words)
     no_output(out)
+
+
+def test_no_windows_names_the_table_given(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A converted table without windows blamed the highD CSVs it was once converted from (its
+    metadata's source files), which may not even exist here; an empty one said '<input>'."""
+    for name, edit in (("short", None), ("empty", lambda t: t.slice(0, 0))):
+        (tmp_path / name).mkdir()
+        path = track_table_copy(tmp_path / name, edit)
+        out = tmp_path / name / "win"
+        line = refused(["windows", str(path), "--out", str(out)], capsys, f"error: {path}: no windows")
+        assert "01_tracks.csv" not in line
+        no_output(out)
