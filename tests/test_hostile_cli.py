@@ -356,3 +356,40 @@ def test_no_windows_names_the_table_given(tmp_path: Path, capsys: pytest.Capture
         line = refused(["windows", str(path), "--out", str(out)], capsys, f"error: {path}: no windows")
         assert "01_tracks.csv" not in line
         no_output(out)
+
+
+def _set_row(name: str, row: int, value: float) -> Callable[[pa.Table], pa.Table]:
+    def edit(table: pa.Table) -> pa.Table:
+        values = table.column(name).to_numpy().copy()
+        values[row] = value
+        index = table.schema.get_field_index(name)
+        return table.set_column(
+            index, table.schema.field(name), pa.array(values, table.schema.field(name).type)
+        )
+
+    return edit
+
+
+@pytest.mark.parametrize(
+    ("name", "value", "expected"),
+    [
+        ("x", 1e300, "a position within ±1e+09 m"),
+        ("y", -1e12, "a position within ±1e+09 m"),
+        ("width", -1.8, "a size >= 0 m"),
+    ],
+)
+def test_impossible_values_in_a_track_table_are_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], name: str, value: float, expected: str
+) -> None:
+    """x = 1e300 in one row of a Parquet table (finite, so accepted) became inf in the windows'
+    inputs.npy with exit 0; a negative width was taken as it was."""
+    path = track_table_copy(tmp_path, _set_row(name, 3, value))
+    for command in ("convert", "windows"):
+        out = tmp_path / f"{command}-out"
+        refused(
+            [command, str(path), "--out", str(out)],
+            capsys,
+            f"{path}: row 3: column '{name}'",
+            f"expected {expected}",
+        )
+        no_output(out)

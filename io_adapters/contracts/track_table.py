@@ -73,6 +73,16 @@ UNITS: dict[str, str] = {
 # Columns that must never hold NaN, inf or null.
 FINITE_COLUMNS: tuple[str, ...] = ("x", "y", "heading", "vx", "vy", "ax", "ay", "length", "width")
 _FIELDS_BY_NAME = {f.name: f for f in REQUIRED_FIELDS + OPTIONAL_FIELDS}
+# Finite values that still cannot be: positions so far out that differences of them overflow the
+# float32 windows (inf in inputs.npy), negative sizes. (column, limit, expected): |value| <= a
+# positive limit, value >= a limit of 0.
+MAX_POSITION_M = 1e9
+RANGES: tuple[tuple[str, float, str], ...] = (
+    ("x", MAX_POSITION_M, f"a position within ±{MAX_POSITION_M:g} m"),
+    ("y", MAX_POSITION_M, f"a position within ±{MAX_POSITION_M:g} m"),
+    ("length", 0.0, "a size >= 0 m"),
+    ("width", 0.0, "a size >= 0 m"),
+)
 
 
 @dataclass
@@ -225,7 +235,7 @@ def validate(table: pa.Table, source: str | Path | None = None) -> None:
     """Check a table against the contract; raise TrackTableError naming the first violation.
 
     Checks: columns and types, units in the field metadata, recording metadata with a frame rate,
-    no NaN/inf/null in required columns, unique (recording, track_id, frame), rows sorted by
+    no NaN/inf/null in required columns, positions within ±1e9 m and sizes >= 0, unique (recording, track_id, frame), rows sorted by
     (recording, track_id, frame), and time strictly increasing along every track.
     """
     where = f"{source}: " if source is not None else ""
@@ -273,6 +283,12 @@ def validate(table: pa.Table, source: str | Path | None = None) -> None:
             raise TrackTableError(
                 f"{where}row {row}: column {name!r} is {values[row]}, expected a finite number"
             )
+    for name, limit, expected in RANGES:
+        values = table.column(name).to_numpy()
+        bad = np.abs(values) > limit if limit > 0 else values < limit
+        if bad.any():
+            row = int(np.flatnonzero(bad)[0])
+            raise TrackTableError(f"{where}row {row}: column {name!r} is {values[row]}, expected {expected}")
     assert rec_codes is not None  # a null recording was refused above
     track = table.column("track_id").to_numpy()
     frame = table.column("frame").to_numpy()
