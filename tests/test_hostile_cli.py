@@ -393,3 +393,35 @@ def test_impossible_values_in_a_track_table_are_refused(
             f"expected {expected}",
         )
         no_output(out)
+
+
+def test_times_a_log_cannot_hold(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Negative times (valid int64) crashed the MCAP writer with struct.error; times after 2038
+    crashed the ROS bag writers (a header's seconds are int32). Refused before writing."""
+    early = track_table_copy(tmp_path, lambda t: _set_row("time_ns", 0, -1)(t))
+    out = tmp_path / "out.mcap"
+    refused(
+        ["convert", str(early), "--out", str(out)],
+        capsys,
+        f"{early}: row 0: column 'time_ns' is -1",
+        ">= 0 ns",
+    )
+    no_output(out)
+    late = tmp_path / "late"
+    late.mkdir()
+    later = pa.scalar(2**62, pa.int64())
+
+    def shifted(table: pa.Table) -> pa.Table:
+        index = table.schema.get_field_index("time_ns")
+        return table.set_column(
+            index, table.schema.field("time_ns"), pa.compute.add(table.column("time_ns"), later)
+        )
+
+    path = track_table_copy(late, shifted)
+    for target in (["--out", str(tmp_path / "out.bag")], ["--to", "ros2", "--out", str(tmp_path / "bag2")]):
+        refused(
+            ["convert", str(path), *target],
+            capsys,
+            f"{target[-1]}, column 'time_ns': cannot be a ROS bag: row 0",
+        )
+        no_output(Path(target[-1]))

@@ -74,14 +74,16 @@ UNITS: dict[str, str] = {
 FINITE_COLUMNS: tuple[str, ...] = ("x", "y", "heading", "vx", "vy", "ax", "ay", "length", "width")
 _FIELDS_BY_NAME = {f.name: f for f in REQUIRED_FIELDS + OPTIONAL_FIELDS}
 # Finite values that still cannot be: positions so far out that differences of them overflow the
-# float32 windows (inf in inputs.npy), negative sizes. (column, limit, expected): |value| <= a
-# positive limit, value >= a limit of 0.
+# float32 windows (inf in inputs.npy), negative sizes, times before 0 (which no log or dataset has,
+# and no log can be written with). (column, limit, expected): |value| <= a positive limit, value >= a
+# limit of 0.
 MAX_POSITION_M = 1e9
 RANGES: tuple[tuple[str, float, str], ...] = (
     ("x", MAX_POSITION_M, f"a position within ±{MAX_POSITION_M:g} m"),
     ("y", MAX_POSITION_M, f"a position within ±{MAX_POSITION_M:g} m"),
     ("length", 0.0, "a size >= 0 m"),
     ("width", 0.0, "a size >= 0 m"),
+    ("time_ns", 0, "a time >= 0 ns (a log time, or frame / rate)"),
 )
 
 
@@ -235,7 +237,7 @@ def validate(table: pa.Table, source: str | Path | None = None) -> None:
     """Check a table against the contract; raise TrackTableError naming the first violation.
 
     Checks: columns and types, units in the field metadata, recording metadata with a frame rate,
-    no NaN/inf/null in required columns, positions within ±1e9 m and sizes >= 0, unique (recording, track_id, frame), rows sorted by
+    no NaN/inf/null in required columns, positions within ±1e9 m, sizes and times >= 0, unique (recording, track_id, frame), rows sorted by
     (recording, track_id, frame), and time strictly increasing along every track.
     """
     where = f"{source}: " if source is not None else ""

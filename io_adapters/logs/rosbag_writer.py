@@ -20,13 +20,14 @@ import pyarrow as pa
 
 from lanecast.io_adapters.annotations.bag_copy import compress_bag_storage
 from lanecast.io_adapters.contracts import track_table
-from lanecast.io_adapters.errors import InputError
+from lanecast.io_adapters.errors import InputError, OutputError
 from lanecast.io_adapters.files import atomic_path, bar
 from lanecast.io_adapters.logs import log_conventions as conv
 from lanecast.io_adapters.logs import ros_types
 from lanecast.io_adapters.logs import tracked_objects as to
 
 STORAGES = ("mcap", "sqlite3")
+MAX_ROS_TIME_NS = (2**31 - 1) * 1_000_000_000 + 999_999_999  # a header stamp's sec is an int32
 
 
 class _Builder:
@@ -185,6 +186,16 @@ def write(table: pa.Table, out: Path, fmt: str = "ros2", *, storage: str = "mcap
     if track_ids.size and (track_ids.min() < -(2**31) or track_ids.max() >= 2**31):
         raise InputError(
             out, "track ids do not fit the int32 marker id", column="track_id", expected="ids < 2**31"
+        )
+    times = table.column("time_ns").to_numpy()
+    if times.size and times.max() > MAX_ROS_TIME_NS:
+        row = int(np.flatnonzero(times > MAX_ROS_TIME_NS)[0])
+        raise OutputError(
+            out,
+            f"cannot be a ROS bag: row {row} of the table has time_ns {times[row]}, after what a ROS time "
+            "holds (int32 seconds: 2038-01-19)",
+            column="time_ns",
+            expected=f"times up to {MAX_ROS_TIME_NS} ns, or an MCAP log (--to mcap)",
         )
     meta = track_table.read_meta(table)
     names = sorted(meta.recordings)
