@@ -50,6 +50,15 @@ class InputError(LanecastError):
             text += f" (expected {expected})"
         super().__init__(text)
 
+    def naming(self, path: str | Path) -> InputError:
+        """This error, naming ``path`` if it names no file (a check of data a command read from
+        ``path``, made by code that never saw the path)."""
+        if self.path is not None:
+            return self
+        return type(self)(
+            path, self.reason, line=self.line, offset=self.offset, column=self.column, expected=self.expected
+        )
+
     def __reduce__(self) -> tuple[object, ...]:
         # Picklable across worker processes (bulk runs), keyword arguments included.
         return (

@@ -9,6 +9,7 @@ import shutil
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
@@ -425,3 +426,74 @@ def test_times_a_log_cannot_hold(tmp_path: Path, capsys: pytest.CaptureFixture[s
             f"{target[-1]}, column 'time_ns': cannot be a ROS bag: row 0",
         )
         no_output(Path(target[-1]))
+
+
+# -------------------------------------------------------------------------------- windows datasets
+
+
+def windows_copy(tmp_path: Path, damage: Callable[[Path], object]) -> Path:
+    """A small windows dataset in ``tmp_path/win``, then ``damage``d."""
+    from conftest import synthetic_windows
+
+    from lanecast.io_adapters.contracts.windows import save_windows
+
+    directory = save_windows(synthetic_windows(60), tmp_path / "win")
+    damage(directory)
+    return directory
+
+
+def _edit_npy(name: str, edit: Callable[[np.ndarray], np.ndarray]) -> Callable[[Path], None]:
+    def damage(directory: Path) -> None:
+        path = directory / f"{name}.npy"
+        np.save(path, edit(np.load(path)))
+
+    return damage
+
+
+def _set_first(value: float) -> Callable[[np.ndarray], np.ndarray]:
+    def edit(array: np.ndarray) -> np.ndarray:
+        array.reshape(-1)[7] = value
+        return array
+
+    return edit
+
+
+def _drop_split(directory: Path) -> None:
+    pq.write_table(
+        pq.read_table(directory / "windows.parquet").drop_columns(["split"]), directory / "windows.parquet"
+    )
+
+
+WINDOWS_DAMAGE: dict[str, tuple[Callable[[Path], object], str, str]] = {
+    # case: (damage, file named, words): each was a traceback, a silent result or named no file
+    "empty inputs.npy": (lambda d: (d / "inputs.npy").write_bytes(b""), "inputs.npy", "not a readable .npy array"),
+    "manifest a list": (lambda d: (d / "manifest.json").write_text("[]"), "manifest.json", "not a JSON object"),
+    "index without split": (_drop_split, "windows.parquet, column 'split'", "no column 'split'"),
+    "maneuver 7": (_edit_npy("maneuver", _set_first(7)), "maneuver.npy", "window 1 holds 7"),
+    "NaN input": (_edit_npy("inputs", _set_first(np.nan)), "inputs.npy", "window 0 holds nan"),
+    "infinite future": (_edit_npy("future", _set_first(np.inf)), "future.npy", "window 0 holds inf"),
+    "inputs short": (_edit_npy("inputs", lambda a: a[:-5]), "inputs.npy", "float32[55, 4, 8, 30]"),
+    "no labelled windows": (_edit_npy("future", lambda a: a * np.nan), "win: no labelled", "known futures"),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("case", sorted(WINDOWS_DAMAGE))
+def test_damaged_windows_dataset(tmp_path: Path, capsys: pytest.CaptureFixture[str], case: str) -> None:
+    damage, named, words = WINDOWS_DAMAGE[case]
+    directory = windows_copy(tmp_path, damage)
+    out = tmp_path / "report"
+    refused(["evaluate", str(directory), "--out", str(out), "--split", "all"], capsys, named, words)
+    no_output(out)
+
+
+def test_training_on_a_bad_label_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """maneuver 7 crashed training with an IndexError in the loss (exit 1, a traceback)."""
+    directory = windows_copy(tmp_path, _edit_npy("maneuver", _set_first(7)))
+    out = tmp_path / "model"
+    refused(
+        ["train", str(directory), "--out", str(out), "--epochs", "1"],
+        capsys,
+        "maneuver.npy",
+        "window 1 holds 7",
+    )
+    no_output(out)

@@ -92,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
     if args.epochs is not None:
         config.epochs = args.epochs
 
-    windows = load_windows(args.windows)
+    windows = load_windows(args.windows, check_values=True)
     if max_train is not None:
         train_idx = labelled(windows, ("train",))
         if len(train_idx) > max_train:

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from lanecast.io_adapters.contracts.windows import load_windows
+from lanecast.io_adapters.errors import InputError
 from lanecast.models.baselines import constant_acceleration, constant_velocity
 from lanecast.models.card import resolve
 from lanecast.models.evaluation import (
@@ -65,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
     from lanecast.models.predict import STCNNForecaster
 
     torch.set_num_threads(max(1, min(2, torch.get_num_threads())))
-    windows = load_windows(args.windows)
+    windows = load_windows(args.windows, check_values=True)
     forecasters: list[Forecaster] = [
         STCNNForecaster.load(args.model, "stcnn"),
         constant_velocity(),
@@ -73,9 +74,12 @@ def run(args: argparse.Namespace) -> int:
     ]
     if args.regression_only is not None:
         forecasters.append(STCNNForecaster.load(args.regression_only, "stcnn_regression_only"))
-    metrics, preds, idx = evaluate(
-        windows, forecasters, splits=SPLITS[args.split], top_k=args.top_k, batch_size=args.batch_size
-    )
+    try:
+        metrics, preds, idx = evaluate(
+            windows, forecasters, splits=SPLITS[args.split], top_k=args.top_k, batch_size=args.batch_size
+        )
+    except InputError as exc:  # e.g. no labelled windows in the split: in the dataset given
+        raise exc.naming(args.windows) from exc
     meta = {
         "windows": str(args.windows),
         "split": args.split,

@@ -103,7 +103,7 @@ def train_and_save(
     from lanecast.models.predict import STCNNForecaster
     from lanecast.models.train import train
 
-    windows = load_windows(windows_dir)
+    windows = load_windows(windows_dir, check_values=True)
     data = {
         "windows": str(windows_dir),
         "sources": windows.manifest.get("sources"),
@@ -116,7 +116,10 @@ def train_and_save(
         init_from = load_checkpoint(None if init == "default" else init)
         config = dataclasses.replace(config, model=init_from[0].config)
         data["init"] = "shipped model" if init == "default" else str(init)
-    result = train(windows, config, data_card=data, init_from=init_from)
+    try:
+        result = train(windows, config, data_card=data, init_from=init_from)
+    except InputError as exc:  # e.g. no labelled training windows: in the dataset given
+        raise exc.naming(windows_dir) from exc
     forecaster = STCNNForecaster(result.model, result.card)
     metrics: dict[str, Any] = {}
     for name, splits in (("validation", ("val",)), ("test", ("test",))):

@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from lanecast.io_adapters.errors import InputError
@@ -95,25 +96,51 @@ class Windows:
     def __len__(self) -> int:
         return int(self.inputs.shape[0])
 
-    def check(self) -> None:
-        """Raise InputError if the arrays disagree with each other or with the contract."""
-        n = len(self)
-        expected = {
-            "inputs": ((n, 4, 8, HISTORY), np.float32),
-            "present": ((n, 8, HISTORY), np.bool_),
-            "future": ((n, HORIZONS, 2), np.float32),
-            "maneuver": ((n, HORIZONS), np.int64),
-        }
-        for name, (shape, dtype) in expected.items():
+    def check(self, directory: Path | None = None) -> None:
+        """Raise InputError if the arrays disagree with each other or with the contract; with the
+        dataset's ``directory``, naming the file at fault (an array whose length differs from the
+        others', or windows.parquet when the arrays agree)."""
+        lengths = [getattr(self, name).shape[0] if getattr(self, name).ndim else -1 for name in _ARRAYS]
+        n = max(set(lengths), key=lengths.count)  # what most arrays say
+        if all(length != self.index.num_rows for length in lengths) and len(set(lengths)) == 1:
+            raise InputError(
+                None if directory is None else directory / "windows.parquet",
+                f"windows index has {self.index.num_rows} rows, the arrays {n} windows",
+                expected=f"{n} rows",
+            )
+        n = self.index.num_rows if self.index.num_rows in lengths else n
+        for name in _ARRAYS:
+            dtype, shape = ARRAY_LAYOUT[name][0], (n, *ARRAY_LAYOUT[name][1])
             arr = getattr(self, name)
             if arr.shape != shape or arr.dtype != dtype:
                 raise InputError(
-                    None,
+                    None if directory is None else directory / f"{name}.npy",
                     f"windows array {name!r} is {arr.dtype}{list(arr.shape)}",
                     expected=f"{np.dtype(dtype)}{list(shape)}",
                 )
         if self.index.num_rows != n:
             raise InputError(None, f"windows index has {self.index.num_rows} rows", expected=f"{n} rows")
+
+    def check_values(self, directory: Path | None = None) -> None:
+        """Raise InputError at the first window whose values cannot be: inputs that are not
+        finite, a future that is infinite (unknown is NaN), a maneuver label outside -1…2. Reads
+        the arrays chunk by chunk (memory-mapped datasets stay so); train and evaluate call it."""
+        checks: tuple[tuple[str, Callable[[np.ndarray], np.ndarray], str], ...] = (
+            ("inputs", lambda a: ~np.isfinite(a), "finite inputs (absent entries are 0)"),
+            ("future", np.isinf, "finite offsets, NaN where unknown"),
+            ("maneuver", lambda a: (a < -1) | (a >= len(MANEUVERS)), "labels -1 (unknown), 0, 1, 2"),
+        )
+        for name, bad_of, expected in checks:
+            array = getattr(self, name)
+            for start in range(0, len(self), _CHUNK):
+                bad = bad_of(np.asarray(array[start : start + _CHUNK]))
+                if bad.any():
+                    at = np.unravel_index(int(np.flatnonzero(bad)[0]), bad.shape)
+                    raise InputError(
+                        None if directory is None else directory / f"{name}.npy",
+                        f"window {start + int(at[0])} holds {array[start + int(at[0])][at[1:]]}",
+                        expected=expected,
+                    )
 
     def origin(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(x [N], y [N], heading [N]) of every window frame in the source frame (float64)."""
@@ -272,8 +299,10 @@ class DatasetWriter:
         return windows
 
 
-def load_windows(directory: str | Path, mmap: bool = True) -> Windows:
-    """Load a dataset written by :func:`save_windows` in one call; arrays memory-mapped (read-only)."""
+def load_windows(directory: str | Path, mmap: bool = True, check_values: bool = False) -> Windows:
+    """Load a dataset written by :func:`save_windows` in one call; arrays memory-mapped (read-only).
+    Every file is checked for its layout (and with ``check_values`` every value, a pass over the
+    arrays: see :meth:`Windows.check_values`); InputError names the file at fault."""
     directory = Path(directory)
     if not directory.is_dir():
         raise InputError(
@@ -287,16 +316,48 @@ def load_windows(directory: str | Path, mmap: bool = True) -> Windows:
         path = directory / f"{name}.npy"
         try:
             arrays[name] = np.load(path, mmap_mode="r" if mmap else None, allow_pickle=False)
-        except (ValueError, OSError) as exc:
-            raise InputError(path, f"not a readable .npy array: {exc}") from exc
+        except (ValueError, OSError, EOFError) as exc:
+            raise InputError(path, f"not a readable .npy array: {exc or 'empty file'}") from exc
     try:
         index = pq.read_table(directory / "windows.parquet")
+    except (OSError, pa.ArrowInvalid) as exc:
+        raise InputError(directory / "windows.parquet", f"damaged windows dataset: {exc}") from exc
+    _check_index(directory / "windows.parquet", index)
+    try:
         manifest = json.loads((directory / "manifest.json").read_text())
-    except (OSError, pa.ArrowInvalid, json.JSONDecodeError) as exc:
-        raise InputError(directory, f"damaged windows dataset: {exc}") from exc
+    except (OSError, ValueError) as exc:
+        raise InputError(directory / "manifest.json", f"damaged windows dataset: {exc}") from exc
+    if not isinstance(manifest, dict):
+        raise InputError(
+            directory / "manifest.json", "not a JSON object", expected="the manifest of `lanecast windows`"
+        )
     windows = Windows(index=index, manifest=manifest, **arrays)
-    windows.check()
+    windows.check(directory)
+    if check_values:
+        windows.check_values(directory)
     return windows
+
+
+def _check_index(path: Path, index: pa.Table) -> None:
+    """The windows index has INDEX_SCHEMA's columns and types, and every split is one of SPLITS."""
+    for f in INDEX_SCHEMA:
+        if f.name not in index.column_names:
+            columns = ", ".join(f"{g.name} ({g.type})" for g in INDEX_SCHEMA)
+            raise InputError(path, f"no column {f.name!r}", column=f.name, expected=f"columns {columns}")
+        if index.schema.field(f.name).type != f.type:
+            raise InputError(
+                path, f"column type {index.schema.field(f.name).type}", column=f.name, expected=str(f.type)
+            )
+    split = index.column("split")
+    bad = np.flatnonzero(~np.asarray(pc.is_in(split, value_set=pa.array(SPLITS)).fill_null(False)))
+    if bad.size:
+        row = int(bad[0])
+        raise InputError(
+            path,
+            f"row {row}: split {split[row].as_py()!r}",
+            column="split",
+            expected=f"one of {list(SPLITS)}",
+        )
 
 
 def subset(windows: Windows, mask_or_indices: np.ndarray | list[int] | slice) -> Windows:
