@@ -5,6 +5,7 @@ and what was expected, and leaves no output behind; or, where the input is valid
 from __future__ import annotations
 
 import gzip
+import json
 import shutil
 from collections.abc import Callable
 from pathlib import Path
@@ -497,3 +498,54 @@ def test_training_on_a_bad_label_is_refused(tmp_path: Path, capsys: pytest.Captu
         "window 1 holds 7",
     )
     no_output(out)
+
+
+# ------------------------------------------------------------------------------------------- logs
+
+
+@pytest.mark.parametrize("chunked", [True, False])
+def test_log_times_beyond_int64_are_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], chunked: bool
+) -> None:
+    """MCAP log times are uint64: 2^63 ns (valid MCAP) ended in 'OverflowError: Python int too large
+    to convert to C long' (exit 1) when the track table's int64 times were built."""
+    from mcap.writer import Writer
+    from test_hostile_inputs import _entity
+
+    schema = (REPO / "io_adapters/data/foxglove/jsonschema/SceneUpdate.json").read_bytes()
+    path = tmp_path / "late.mcap"
+    with path.open("wb") as f:
+        writer = Writer(f, use_chunking=chunked)
+        writer.start()
+        channel = writer.register_channel(
+            "/objects", "json", writer.register_schema("foxglove.SceneUpdate", "jsonschema", schema)
+        )
+        for i in range(5):
+            data = json.dumps({"entities": [_entity(1, 2.0 * i)]}).encode()
+            writer.add_message(channel, log_time=2**63 + i, data=data, publish_time=0)
+        writer.finish()
+    out = tmp_path / "out.parquet"
+    refused(
+        ["convert", str(path), "--out", str(out)],
+        capsys,
+        f"{path}, offset ",
+        "log time 9223372036854775808 ns",
+    )
+    no_output(out)
+
+
+def test_a_position_is_blamed_before_the_speed_derived_from_it(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """x = 1e300 in one SceneUpdate was reported as 'column 'vx' is inf' (the speed derived from it)."""
+    from test_hostile_inputs import _entity, json_log, straight_messages
+
+    messages = straight_messages(n=30)
+    messages[10][2][0] = _entity(1, 1e300)
+    path = json_log(tmp_path / "far.mcap", messages)
+    refused(
+        ["convert", str(path), "--out", str(tmp_path / "o.parquet")],
+        capsys,
+        f"{path}: row ",
+        "column 'x' is 1e+300",
+    )

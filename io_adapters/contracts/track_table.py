@@ -74,13 +74,11 @@ UNITS: dict[str, str] = {
 FINITE_COLUMNS: tuple[str, ...] = ("x", "y", "heading", "vx", "vy", "ax", "ay", "length", "width")
 _FIELDS_BY_NAME = {f.name: f for f in REQUIRED_FIELDS + OPTIONAL_FIELDS}
 # Finite values that still cannot be: positions so far out that differences of them overflow the
-# float32 windows (inf in inputs.npy), negative sizes, times before 0 (which no log or dataset has,
-# and no log can be written with). (column, limit, expected): |value| <= a positive limit, value >= a
-# limit of 0.
+# float32 windows (inf in inputs.npy; checked with the finite columns), negative sizes, times before
+# 0 (which no log or dataset has, and no log can be written with). (column, limit, expected):
+# |value| <= a positive limit, value >= a limit of 0.
 MAX_POSITION_M = 1e9
 RANGES: tuple[tuple[str, float, str], ...] = (
-    ("x", MAX_POSITION_M, f"a position within ±{MAX_POSITION_M:g} m"),
-    ("y", MAX_POSITION_M, f"a position within ±{MAX_POSITION_M:g} m"),
     ("length", 0.0, "a size >= 0 m"),
     ("width", 0.0, "a size >= 0 m"),
     ("time_ns", 0, "a time >= 0 ns (a log time, or frame / rate)"),
@@ -280,11 +278,12 @@ def validate(table: pa.Table, source: str | Path | None = None) -> None:
     for name in FINITE_COLUMNS:
         values = table.column(name).to_numpy()
         bad = ~np.isfinite(values)
+        if name in ("x", "y"):  # before the columns derived from them (a log's velocities)
+            bad |= np.abs(values) > MAX_POSITION_M
         if bad.any():
             row = int(np.flatnonzero(bad)[0])
-            raise TrackTableError(
-                f"{where}row {row}: column {name!r} is {values[row]}, expected a finite number"
-            )
+            expected = f"a position within ±{MAX_POSITION_M:g} m" if name in ("x", "y") else "a finite number"
+            raise TrackTableError(f"{where}row {row}: column {name!r} is {values[row]}, expected {expected}")
     for name, limit, expected in RANGES:
         values = table.column(name).to_numpy()
         bad = np.abs(values) > limit if limit > 0 else values < limit

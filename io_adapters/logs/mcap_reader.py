@@ -50,6 +50,7 @@ from lanecast.io_adapters.logs.mcap_walk import (
 )
 
 FORMAT = "mcap"
+MAX_LOG_TIME = 2**63 - 1  # ns: time_ns is int64 (MCAP's log times are uint64)
 SCENE_UPDATE = "foxglove.SceneUpdate"
 FRAME_TRANSFORMS = ("foxglove.FrameTransform", "foxglove.FrameTransforms")
 OBJECT_TYPES = (SCENE_UPDATE, ros_types.TRACKED_OBJECTS, ros_types.MARKER_ARRAY)
@@ -299,6 +300,13 @@ class _LogDecoder:
                 if length < MSG_HEAD.size:
                     raise ValueError(f"a Message record of {length} bytes, shorter than its header")
                 cid, _seq, log_time, _pub = unpack_msg(buf, body)
+                if log_time > MAX_LOG_TIME:
+                    raise LogError(
+                        self.path,
+                        f"a message's log time {log_time} ns is after what lanecast's int64 times hold (2262)",
+                        offset=self.offset if in_chunk else pos,  # the chunk, or the record itself
+                        expected=f"log times up to {MAX_LOG_TIME} ns",
+                    )
                 h = handlers[cid] if cid in handlers else handler(cid)
                 if h is not None:
                     if type(h) is wire.SceneUpdateBatch:
@@ -359,7 +367,10 @@ class _LogDecoder:
             if h is not None and type(h) is not wire.SceneUpdateBatch:
                 return None
             handlers[cid] = h
-        times = read_ints(raw, at + 9 + 6, "<u8").astype(np.int64)
+        times = read_ints(raw, at + 9 + 6, "<u8")
+        if (times > MAX_LOG_TIME).any():
+            return None  # the record walk names the message
+        times = times.astype(np.int64)
         for cid, h in handlers.items():
             if h is None:
                 continue
