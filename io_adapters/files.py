@@ -23,6 +23,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Iterable, Iterator
+from fnmatch import fnmatch
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -108,9 +109,25 @@ def check_output(path: str | Path, *, directory: bool = False) -> Path:
 
 
 @contextlib.contextmanager
-def atomic_path(target: str | Path, *, directory: bool = False) -> Iterator[Path]:
-    """Yield a temporary path beside ``target``; rename it onto ``target`` on success."""
+def atomic_path(
+    target: str | Path, *, directory: bool = False, replaces: tuple[str, ...] = ()
+) -> Iterator[Path]:
+    """Yield a temporary path beside ``target``; rename it onto ``target`` on success.
+
+    An existing ``target`` directory is replaced only if every entry in it matches one of the
+    name patterns ``replaces`` (what this kind of output holds: a previous run's output): a
+    directory with anything else in it (a user's files) is refused, never deleted."""
     target = check_output(target, directory=directory)
+    if directory and target.is_dir() and not target.is_symlink():
+        foreign = sorted(p.name for p in target.iterdir() if not any(fnmatch(p.name, r) for r in replaces))
+        if foreign:
+            raise OutputError(
+                target,
+                f"the directory holds {foreign[0]!r}"
+                + (f" and {len(foreign) - 1} more" if len(foreign) > 1 else "")
+                + ", which this output would delete",
+                expected="a new or empty directory, or a previous output of the same command",
+            )
     prefix = f".{target.name}.tmp-"
     try:
         target.parent.mkdir(parents=True, exist_ok=True)

@@ -130,10 +130,7 @@ def uncut(pieces: Sequence[Piece], keep_whole: Callable[[Chunk], bool]) -> list[
 def _with_meta(table: pa.Table, pf: pq.ParquetFile, path: Path) -> pa.Table:
     """``table`` (rows of the Parquet track table ``pf``) validated, with the metadata of its
     recordings only."""
-    try:
-        meta = track_table.read_meta(track_table.file_schema(pf))
-    except TrackTableError as exc:
-        raise TrackTableError(f"{path}: {exc}") from exc
+    meta = track_table.read_meta(track_table.file_schema(pf), source=path)
     names = track_table.recording_codes(table)[0]
     meta = track_table.restrict_meta(meta, names.tolist())
     table = table.replace_schema_metadata({track_table.META_KEY: meta.to_json().encode()})
@@ -349,7 +346,8 @@ class TrackTableWriter:
         self._parts = 0
 
     def __enter__(self) -> TrackTableWriter:
-        self._tmp = self._stack.enter_context(atomic_path(self.out, directory=self.directory))
+        parts = ("part-*.parquet",)  # a previous dataset directory output, replaced
+        self._tmp = self._stack.enter_context(atomic_path(self.out, directory=self.directory, replaces=parts))
         return self
 
     def __exit__(

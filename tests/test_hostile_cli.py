@@ -549,3 +549,31 @@ def test_a_position_is_blamed_before_the_speed_derived_from_it(
         f"{path}: row ",
         "column 'x' is 1e+300",
     )
+
+
+# ---------------------------------------------------------------------------------------- outputs
+
+
+@pytest.mark.parametrize(
+    "command",
+    [["windows", "--split", "none"], ["convert", "--partition"], ["convert", "--to", "ros2"]],
+    ids=["windows", "partition", "ros2"],
+)
+def test_a_directory_output_never_deletes_a_users_files(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], command: list[str]
+) -> None:
+    """--out naming an existing directory of one's own files: the atomic rename replaced it whole,
+    deleting thesis.txt with exit 0. Refused; a previous output of the command is still replaced."""
+    from test_hostile_inputs import json_log, straight_messages
+
+    log = json_log(tmp_path / "in.mcap", straight_messages(n=120))
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "thesis.txt").write_text("precious\n")
+    name, *options = command
+    refused([name, str(log), "--out", str(out), *options], capsys, f"{out}: the directory holds 'thesis.txt'")
+    assert (out / "thesis.txt").read_text() == "precious\n" and len(list(out.iterdir())) == 1
+    again = tmp_path / "again"
+    for _ in range(2):
+        assert main([name, str(log), "--out", str(again), *options]) == 0
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]

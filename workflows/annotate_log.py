@@ -34,6 +34,7 @@ from lanecast.io_adapters.annotations import forecast_messages as fm
 from lanecast.io_adapters.contracts.track_table import read_meta
 from lanecast.io_adapters.errors import InputError, LogError
 from lanecast.io_adapters.files import atomic_path, check_input, checksum
+from lanecast.io_adapters.logs.log_conventions import BAG_FILES
 from lanecast.models.serving import load_forecaster
 from lanecast.workflows.forecast import forecast_table, forecast_windows, what_if_table, windows_to_forecast
 
@@ -267,7 +268,7 @@ def annotate_log(
     write_started = time.perf_counter()
     digest = hashlib.sha256()
     if kind == "ros2":
-        with atomic_path(out, directory=True) as tmp:
+        with atomic_path(out, directory=True, replaces=BAG_FILES) as tmp:
             inner = tmp / out.name  # rosbags creates the bag directory and names its files after it
             stats = bag_copy.copy_ros2_bag(src, inner, merge(), typestore=fm.ros2_typestore())
             for part in inner.iterdir():  # relative paths in metadata.yaml stay valid one level up

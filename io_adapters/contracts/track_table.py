@@ -219,16 +219,19 @@ def sort_rows(table: pa.Table) -> pa.Table:
     return table.take(pa.array(order))
 
 
-def read_meta(table: pa.Table | pa.Schema) -> TableMeta:
-    """The ``lanecast`` metadata document of a track table."""
+def read_meta(table: pa.Table | pa.Schema, source: str | Path | None = None) -> TableMeta:
+    """The ``lanecast`` metadata document of a track table (errors name ``source``, the file)."""
     schema_ = table if isinstance(table, pa.Schema) else table.schema
+    where = f"{source}: " if source is not None else ""
     raw = (schema_.metadata or {}).get(META_KEY)
     if raw is None:
-        raise TrackTableError("the table carries no 'lanecast' schema metadata (not a lanecast track table)")
+        raise TrackTableError(
+            f"{where}the table carries no 'lanecast' schema metadata (not a lanecast track table)"
+        )
     try:
         return TableMeta.from_json(raw)
     except json_fields.FieldError as exc:
-        raise TrackTableError(f"bad 'lanecast' schema metadata: {exc}") from exc
+        raise TrackTableError(f"{where}bad 'lanecast' schema metadata: {exc}") from exc
 
 
 def validate(table: pa.Table, source: str | Path | None = None) -> None:
@@ -252,10 +255,7 @@ def validate(table: pa.Table, source: str | Path | None = None) -> None:
             raise TrackTableError(f"{where}column {name!r} has type {got.type}, expected {expected.type}")
         if name in UNITS and (got.metadata or {}).get(b"unit", b"").decode(errors="replace") != UNITS[name]:
             raise TrackTableError(f"{where}column {name!r} does not state its unit {UNITS[name]!r}")
-    try:
-        meta = read_meta(table)
-    except TrackTableError as exc:
-        raise TrackTableError(f"{where}{exc}") from exc
+    meta = read_meta(table, source)
     rec_codes = None
     if table.column("recording").null_count:  # a null one is reported with its row below
         recordings = set(pc.unique(table.column("recording").drop_null().cast(pa.string())).to_pylist())

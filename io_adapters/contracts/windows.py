@@ -73,6 +73,8 @@ INDEX_SCHEMA = pa.schema(
     ]
 )
 _ARRAYS = ("inputs", "present", "future", "maneuver")
+#: the files of a dataset directory (a new dataset replaces a directory holding only these)
+DATASET_FILES: tuple[str, ...] = (*(f"{a}.npy" for a in _ARRAYS), "windows.parquet", "manifest.json")
 #: dtype and shape of one window in each array file
 ARRAY_LAYOUT: dict[str, tuple[np.dtype, tuple[int, ...]]] = {
     "inputs": (np.dtype(np.float32), (4, len(ROWS), HISTORY)),
@@ -203,7 +205,7 @@ def save_windows(windows: Windows, directory: str | Path) -> Path:
     """Write the dataset directory atomically (a reader never sees half of it); return its path."""
     windows.check()
     directory = Path(directory)
-    with atomic_path(directory, directory=True) as tmp:
+    with atomic_path(directory, directory=True, replaces=DATASET_FILES) as tmp:
         for name in _ARRAYS:
             np.save(tmp / f"{name}.npy", np.ascontiguousarray(getattr(windows, name)), allow_pickle=False)
         pq.write_table(windows.index.cast(INDEX_SCHEMA), tmp / "windows.parquet", compression="zstd")
@@ -235,7 +237,9 @@ class DatasetWriter:
         self._appenders: dict[str, NpyAppender] = {}
 
     def __enter__(self) -> DatasetWriter:
-        self._tmp = self._stack.enter_context(atomic_path(self.directory, directory=True))
+        self._tmp = self._stack.enter_context(
+            atomic_path(self.directory, directory=True, replaces=DATASET_FILES)
+        )
         self._appenders = {
             name: NpyAppender(self._tmp / f"{name}.npy", dtype, shape)
             for name, (dtype, shape) in ARRAY_LAYOUT.items()

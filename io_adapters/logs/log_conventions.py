@@ -39,6 +39,9 @@ from lanecast.io_adapters.errors import LogError
 
 FIXED_FRAMES: frozenset[str] = frozenset({"map", "odom", "world", "road"})
 
+#: what a ROS 2 bag directory holds (a new bag replaces a directory holding only these)
+BAG_FILES: tuple[str, ...] = ("metadata.yaml", "*.mcap", "*.db3", "*.db3-*")
+
 
 META_NAME = "lanecast"
 

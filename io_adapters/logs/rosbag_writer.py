@@ -249,7 +249,7 @@ def write(table: pa.Table, out: Path, fmt: str = "ros2", *, storage: str = "mcap
     from rosbags.rosbag2 import Writer as Writer2
 
     plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
-    with atomic_path(out, directory=True) as tmp:
+    with atomic_path(out, directory=True, replaces=conv.BAG_FILES) as tmp:
         inner = tmp / out.name
         w2 = Writer2(inner, version=Writer2.VERSION_LATEST, storage_plugin=plugin)
         w2.set_custom_data(conv.META_NAME, doc)
