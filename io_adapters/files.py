@@ -156,6 +156,34 @@ def atomic_path(
         raise
 
 
+@contextlib.contextmanager
+def staged_files(target: str | Path) -> Iterator[Path]:
+    """Yield a temporary directory beside the output directory ``target`` for a command's files
+    (a report: metrics.json, report.html, pictures); on success move them into ``target`` (created
+    if missing; files of the same names replaced, others left alone), on any error or interruption
+    remove them: ``target`` gets all of a run's files or none, never some."""
+    target = check_output(target, directory=True)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        stage = Path(tempfile.mkdtemp(prefix=f".{target.name}.tmp-", dir=target.parent))
+    except OSError as exc:
+        raise OutputError(target, f"cannot write here: {exc.strerror or exc}") from exc
+    try:
+        yield stage
+        files = sorted(p for p in stage.rglob("*") if not p.is_dir())
+        for path in files:  # checked before any is moved: all or none
+            final = target / path.relative_to(stage)
+            if final.is_dir() and not final.is_symlink():
+                raise OutputError(final, "is a directory", expected="a file lanecast may replace")
+        for path in files:
+            final = target / path.relative_to(stage)
+            final.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(path, final)
+            final.chmod(0o666 & ~_umask())  # mkdtemp's owner-only mode is not the outputs'
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+
+
 class ProgressLines(tqdm):
     """tqdm that writes whole lines (no ``\\r``, no bar) at most every ``mininterval`` seconds, and a
     last line when it closes: progress for a stderr that is not a terminal."""

@@ -13,6 +13,7 @@ import numpy as np
 
 from lanecast.io_adapters.contracts.windows import load_windows
 from lanecast.io_adapters.errors import InputError
+from lanecast.io_adapters.files import staged_files
 from lanecast.models.baselines import constant_acceleration, constant_velocity
 from lanecast.models.card import resolve
 from lanecast.models.evaluation import (
@@ -94,10 +95,10 @@ def run(args: argparse.Namespace) -> int:
     ood_note = out_of_distribution_note(preds, np.asarray(windows.future[idx]))
     if ood_note is not None:
         meta["out_of_distribution"] = ood_note
-    args.out.mkdir(parents=True, exist_ok=True)
-    write_metrics(args.out / "metrics.json", metrics, meta)
     scenes = example_scenes(windows, idx, preds["stcnn"], args.examples)
-    write_report(args.out, metrics, meta, scenes)
+    with staged_files(args.out) as stage:  # an interrupted run leaves none of the report's files
+        write_metrics(stage / "metrics.json", metrics, meta)
+        write_report(stage, metrics, meta, scenes)
     print(f"evaluated {len(idx):,} windows ({args.split}); RMSE per window at 1-5 s (m):")
     for name, m in metrics.items():
         rmse = " ".join("–" if v is None else f"{v:.2f}" for v in m["rmse"])

@@ -17,6 +17,7 @@ import numpy as np
 from lanecast.io_adapters import registry
 from lanecast.io_adapters.contracts.windows import Windows, load_windows
 from lanecast.io_adapters.errors import InputError
+from lanecast.io_adapters.files import staged_files
 from lanecast.models.explain import parse_removals, present_neighbours, what_if
 from lanecast.models.explain_report import write_explain
 from lanecast.models.serving import load_forecaster
@@ -151,7 +152,9 @@ def run(args: argparse.Namespace) -> int:
         "neighbours": present_neighbours(present),
     }
     model = str(args.model) if args.model else "the shipped model"
-    page = write_explain(args.out, whatif, window, model, np.asarray(windows.future[i]))
+    with staged_files(args.out) as stage:  # an interrupted run leaves none of its files
+        page = write_explain(stage, whatif, window, model, np.asarray(windows.future[i]))
+    page = args.out / page.relative_to(stage)
     effects = {e["scenario"]: e for e in whatif.effects()}
     print(
         f"{window['recording']} track {window['track_id']} at t0 = {window['t0_s']:.1f} s; most influential first:"

@@ -27,7 +27,7 @@ from lanecast.io_adapters import registry
 from lanecast.io_adapters.annotations.forecast_messages import PREDICTION_TOPIC
 from lanecast.io_adapters.contracts.windows import to_window_frame
 from lanecast.io_adapters.errors import InputError
-from lanecast.io_adapters.files import progress
+from lanecast.io_adapters.files import progress, staged_files
 from lanecast.models.baselines import constant_acceleration, constant_velocity
 from lanecast.models.evaluation import write_metrics
 from lanecast.models.metrics import accuracy, confusion_matrix, macro_f1, summary
@@ -310,8 +310,17 @@ def per_log_names(logs: list[Path]) -> dict[Path, str]:
 def report_logs(paths: list[Path], out: Path, *, topic: str | None = None, examples: int = 4) -> int:
     """Score every annotated log in ``paths`` and write the reports into ``out``; print a summary.
 
-    Returns 0, or 1 when some log could not be scored (it is named; the others are reported).
+    Returns 0, or 1 when some log could not be scored (it is named; the others are reported). The
+    files appear in ``out`` all at once at the end: an interrupted run leaves none of them.
     """
+    with staged_files(out) as stage:
+        status, html = _write_reports(paths, stage, topic, examples)
+    print(f"report: {out / html.relative_to(stage)}")
+    return status
+
+
+def _write_reports(paths: list[Path], out: Path, topic: str | None, examples: int) -> tuple[int, Path]:
+    """:func:`report_logs` into the directory ``out``: (status, the overall report.html)."""
     logs = annotated_logs(paths)
     names = per_log_names(logs)
     parts: list[dict[str, Any]] = []
@@ -364,5 +373,4 @@ def report_logs(paths: list[Path], out: Path, *, topic: str | None = None, examp
         f"scored {meta['forecasts_scored']:,} of {meta['forecasts_in_logs']:,} forecasts in {len(parts)} log(s)"
     )
     print(f"  RMSE 1-5 s (m): forecasts {rmse} | constant velocity {cv}")
-    print(f"report: {html}")
-    return 1 if failed else 0
+    return 1 if failed else 0, html
