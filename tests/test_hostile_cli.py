@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import gzip
 import json
+import os
 import shutil
 from collections.abc import Callable
 from pathlib import Path
@@ -598,3 +599,48 @@ def test_a_report_appears_whole_or_not_at_all(tmp_path: Path, capsys: pytest.Cap
     (out / "mine.txt").write_text("kept\n")
     assert main(["evaluate", str(directory), "--out", str(out), "--split", "all"]) == 0
     assert {"metrics.json", "report.html", "mine.txt"} <= {p.name for p in out.iterdir()}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("signal_name", ["SIGTERM", "SIGINT"])
+def test_a_signal_while_writing_leaves_nothing(tmp_path: Path, signal_name: str) -> None:
+    """SIGTERM (a batch system ending the job) while a ROS 2 bag was being written killed the
+    process outright: its temporary directory (.bag.tmp-*, the half-written storage) stayed beside
+    the output. Now it is handled as Ctrl-C: exit 143 (SIGINT 130), one line, nothing left."""
+    import signal
+    import subprocess
+    import sys
+
+    from conftest import make_track_table
+
+    from lanecast.io_adapters.contracts import track_table
+
+    frames = np.tile(np.arange(3000), 10)
+    table = make_track_table(
+        {
+            "track_id": np.repeat(np.arange(1, 11), 3000),
+            "frame": frames,
+            "x": frames * 3.0,
+            "y": np.zeros(30000),
+            "lane_id": np.ones(30000),
+        }
+    )
+    source = track_table.write_parquet(table, tmp_path / "t.parquet")
+    out = tmp_path / "bag"
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    command = [sys.executable, "-m", "lanecast", "convert", str(source), "--to", "ros2", "--out", str(out)]
+    with subprocess.Popen(command, stderr=subprocess.PIPE, text=True, env=env) as process:
+        assert process.stderr is not None
+        for line in process.stderr:  # the first progress line: the bag is being written
+            if line.startswith("writing bag"):
+                break
+        process.send_signal(getattr(signal, signal_name))
+        rest = process.stderr.read()
+        status = process.wait(timeout=60)
+    assert status == (143 if signal_name == "SIGTERM" else 130), rest
+    assert (
+        rest.strip().splitlines()[-1]
+        == f"lanecast convert: {'terminated' if signal_name == 'SIGTERM' else 'interrupted'}"
+    )
+    assert "Traceback" not in rest
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["t.parquet"]

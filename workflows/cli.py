@@ -10,8 +10,10 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import signal
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from types import FrameType
 
 from lanecast import __version__
 from lanecast.io_adapters.errors import LanecastError
@@ -63,9 +65,29 @@ def _stdout_closed() -> int:
     return 141  # 128 + SIGPIPE, what a shell reports for a tool killed by the closed pipe
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (a batch system stopping the job): handled as Ctrl-C is, so that temporary outputs
+    are removed on the way out instead of left beside the output."""
+
+
+def _on_sigterm(pid: int) -> Callable[[int, FrameType | None], None]:
+    def handler(signum: int, _frame: FrameType | None) -> None:
+        if os.getpid() != pid:  # a forked worker: end as the default handler does
+            signal.signal(signum, signal.SIG_DFL)
+            os.kill(os.getpid(), signum)
+            return
+        raise Terminated
+
+    return handler
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    try:
+        previous = signal.signal(signal.SIGTERM, _on_sigterm(os.getpid()))
+    except ValueError:  # not the main thread: no handler of ours
+        previous = None
     try:
         status = args.func(args)
         sys.stdout.flush()
@@ -78,9 +100,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         where = f"{exc.filename}: " if exc.filename else ""
         print(f"lanecast {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"lanecast {args.command}: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:
+        terminated = isinstance(exc, Terminated)
+        print(f"lanecast {args.command}: {'terminated' if terminated else 'interrupted'}", file=sys.stderr)
+        return 143 if terminated else 130  # 128 + SIGTERM or SIGINT, as a shell reports them
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
     return int(status or 0)
 
 
