@@ -80,7 +80,7 @@ def check_output(path: str | Path, *, directory: bool = False) -> Path:
     """``path`` as a Path if lanecast can write an output there; OutputError otherwise.
 
     Refused: an existing directory where a file is wanted (or a file where a directory is wanted),
-    a symlink loop, a parent that is not a directory or cannot be written.
+    a device, FIFO or socket, a symlink loop, a parent that is not a directory or cannot be written.
     """
     path = Path(path)
     try:
@@ -90,6 +90,11 @@ def check_output(path: str | Path, *, directory: bool = False) -> Path:
     except OSError as exc:
         raise OutputError(path, f"cannot write here: {exc.strerror or exc}") from exc
     if info is not None:
+        if not (stat.S_ISDIR(info.st_mode) or stat.S_ISREG(info.st_mode)):
+            # renaming the output onto it would replace a device node (/dev/null, as root) or a FIFO
+            raise OutputError(
+                path, "not a regular file (a device, FIFO or socket)", expected="a file or directory path"
+            )
         if not directory and stat.S_ISDIR(info.st_mode):
             raise OutputError(path, "is a directory", expected="a file path for the output")
         if directory and not stat.S_ISDIR(info.st_mode):

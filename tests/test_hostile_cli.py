@@ -644,3 +644,22 @@ def test_a_signal_while_writing_leaves_nothing(tmp_path: Path, signal_name: str)
     )
     assert "Traceback" not in rest
     assert sorted(p.name for p in tmp_path.iterdir()) == ["t.parquet"]
+
+
+@pytest.mark.parametrize("suffix", [".parquet", ".mcap", ".bag"])
+def test_an_output_onto_a_fifo_is_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], suffix: str
+) -> None:
+    """--out naming an existing FIFO (or, as root, /dev/full) exited 0 having renamed the output onto
+    it: the FIFO (the device node) was replaced by a regular file."""
+    import stat
+
+    source = track_table_copy(tmp_path)
+    fifo = tmp_path / f"out{suffix}"
+    os.mkfifo(fifo)
+    refused(["convert", str(source), "--out", str(fifo)], capsys, f"{fifo}: not a regular file")
+    assert stat.S_ISFIFO(fifo.lstat().st_mode)
+    link = tmp_path / f"link{suffix}"
+    link.symlink_to(fifo)
+    refused(["convert", str(source), "--out", str(link)], capsys, f"{link}: not a regular file")
+    assert stat.S_ISFIFO(fifo.lstat().st_mode) and link.is_symlink()
