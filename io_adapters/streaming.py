@@ -40,6 +40,7 @@ from lanecast.io_adapters.errors import InputError, TrackTableError
 from lanecast.io_adapters.files import atomic_path, check_input
 
 LONG = ("whole", "tracks", "context")  # what a recording larger than a piece becomes (plan)
+PARTS = ("part-*.parquet",)  # the files of a dataset directory output (a new one replaces them)
 MAX_ROWS = 1_000_000  # input rows per piece where recordings are small enough to group (memory ~ rows)
 ROW_GROUP_ROWS = 1 << 17  # rows per Parquet row group of written track tables (a chunk of a long
 # recording reads the groups that hold its context: small groups, little decoded in vain)
@@ -91,7 +92,8 @@ class Piece:
                 path, f"not a readable Parquet file: {exc}", expected="a lanecast track table"
             ) from exc
         table = table.slice(self.offset, table.num_rows - self.offset if self.rows < 0 else self.rows)
-        return _with_meta(table, pf, path)
+        first = sum(pf.metadata.row_group(i).num_rows for i in range(self.row_groups[0])) + self.offset
+        return _with_meta(table, pf, path, first)  # errors name rows of the file, not of the piece
 
     def read_with_context(self) -> pa.Table:
         """What windows need of the piece: :meth:`read`, or for a chunk its target tracks with
@@ -127,14 +129,13 @@ def uncut(pieces: Sequence[Piece], keep_whole: Callable[[Chunk], bool]) -> list[
     return out
 
 
-def _with_meta(table: pa.Table, pf: pq.ParquetFile, path: Path) -> pa.Table:
-    """``table`` (rows of the Parquet track table ``pf``) validated, with the metadata of its
-    recordings only."""
+def _with_meta(table: pa.Table, pf: pq.ParquetFile, path: Path, first_row: int = 0) -> pa.Table:
+    """``table`` (rows of ``pf`` from ``first_row`` on) validated, with its recordings' metadata only."""
     meta = track_table.read_meta(track_table.file_schema(pf), source=path)
     names = track_table.recording_codes(table)[0]
     meta = track_table.restrict_meta(meta, names.tolist())
     table = table.replace_schema_metadata({track_table.META_KEY: meta.to_json().encode()})
-    track_table.validate(table, source=path)
+    track_table.validate(table, source=path, first_row=first_row)
     return table
 
 
@@ -346,8 +347,7 @@ class TrackTableWriter:
         self._parts = 0
 
     def __enter__(self) -> TrackTableWriter:
-        parts = ("part-*.parquet",)  # a previous dataset directory output, replaced
-        self._tmp = self._stack.enter_context(atomic_path(self.out, directory=self.directory, replaces=parts))
+        self._tmp = self._stack.enter_context(atomic_path(self.out, directory=self.directory, replaces=PARTS))
         return self
 
     def __exit__(

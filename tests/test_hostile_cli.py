@@ -663,3 +663,35 @@ def test_an_output_onto_a_fifo_is_refused(
     link.symlink_to(fifo)
     refused(["convert", str(source), "--out", str(link)], capsys, f"{link}: not a regular file")
     assert stat.S_ISFIFO(fifo.lstat().st_mode) and link.is_symlink()
+
+
+@pytest.mark.slow
+def test_rows_named_in_a_large_table_are_rows_of_the_file(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A table of more than a million rows is read in pieces: NaN at row 1,050,000 was reported at
+    the row of its piece ('row 50,000' or so), not of the file."""
+    from conftest import make_track_table
+
+    from lanecast.io_adapters.contracts import track_table
+
+    tracks, frames = 1100, 1000
+    frame = np.tile(np.arange(frames), tracks)
+    x = frame * 3.0
+    table = make_track_table(
+        {
+            "track_id": np.repeat(np.arange(tracks), frames),
+            "frame": frame,
+            "x": x,
+            "y": np.zeros(x.size),
+            "lane_id": np.ones(x.size),
+        }
+    )
+    path = track_table.write_parquet(table, tmp_path / "table.parquet")
+    pq.write_table(_set_row("x", 1_050_000, np.nan)(pq.read_table(path)), path, row_group_size=1 << 17)
+    for command in ("convert", "windows"):
+        refused(
+            [command, str(path), "--out", str(tmp_path / command)],
+            capsys,
+            f"{path}: row 1050000: column 'x' is nan",
+        )

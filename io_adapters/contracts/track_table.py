@@ -234,12 +234,14 @@ def read_meta(table: pa.Table | pa.Schema, source: str | Path | None = None) -> 
         raise TrackTableError(f"{where}bad 'lanecast' schema metadata: {exc}") from exc
 
 
-def validate(table: pa.Table, source: str | Path | None = None) -> None:
+def validate(table: pa.Table, source: str | Path | None = None, first_row: int = 0) -> None:
     """Check a table against the contract; raise TrackTableError naming the first violation.
 
     Checks: columns and types, units in the field metadata, recording metadata with a frame rate,
-    no NaN/inf/null in required columns, positions within ±1e9 m, sizes and times >= 0, unique (recording, track_id, frame), rows sorted by
-    (recording, track_id, frame), and time strictly increasing along every track.
+    no NaN/inf/null in required columns, positions within ±1e9 m, sizes and times >= 0, unique
+    (recording, track_id, frame), rows sorted by (recording, track_id, frame), and time strictly
+    increasing along every track. ``first_row``: the row of ``source`` that is the table's row 0 (a
+    piece of a file), for the rows errors name.
     """
     where = f"{source}: " if source is not None else ""
     present = set(table.column_names)
@@ -274,7 +276,7 @@ def validate(table: pa.Table, source: str | Path | None = None) -> None:
         column = table.column(name)
         if name != "lane_id" and column.null_count:
             row = _first(pc.is_null(column))
-            raise TrackTableError(f"{where}row {row}: column {name!r} is null")
+            raise TrackTableError(f"{where}row {row + first_row}: column {name!r} is null")
     for name in FINITE_COLUMNS:
         values = table.column(name).to_numpy()
         bad = ~np.isfinite(values)
@@ -282,14 +284,20 @@ def validate(table: pa.Table, source: str | Path | None = None) -> None:
             bad |= np.abs(values) > MAX_POSITION_M
         if bad.any():
             row = int(np.flatnonzero(bad)[0])
-            expected = f"a position within ±{MAX_POSITION_M:g} m" if name in ("x", "y") else "a finite number"
-            raise TrackTableError(f"{where}row {row}: column {name!r} is {values[row]}, expected {expected}")
+            expected = (
+                f"a finite position within ±{MAX_POSITION_M:g} m" if name in ("x", "y") else "a finite number"
+            )
+            raise TrackTableError(
+                f"{where}row {row + first_row}: column {name!r} is {values[row]}, expected {expected}"
+            )
     for name, limit, expected in RANGES:
         values = table.column(name).to_numpy()
         bad = np.abs(values) > limit if limit > 0 else values < limit
         if bad.any():
             row = int(np.flatnonzero(bad)[0])
-            raise TrackTableError(f"{where}row {row}: column {name!r} is {values[row]}, expected {expected}")
+            raise TrackTableError(
+                f"{where}row {row + first_row}: column {name!r} is {values[row]}, expected {expected}"
+            )
     assert rec_codes is not None  # a null recording was refused above
     track = table.column("track_id").to_numpy()
     frame = table.column("frame").to_numpy()
@@ -298,19 +306,21 @@ def validate(table: pa.Table, source: str | Path | None = None) -> None:
     order_ok = _in_order(rec_codes, track, frame)
     if not order_ok.all():
         row = int(np.flatnonzero(~order_ok)[0]) + 1
-        raise TrackTableError(f"{where}row {row}: rows are not sorted by (recording, track_id, frame)")
+        raise TrackTableError(
+            f"{where}row {row + first_row}: rows are not sorted by (recording, track_id, frame)"
+        )
     duplicate = same_track & (frame[1:] == frame[:-1])
     if duplicate.any():
         row = int(np.flatnonzero(duplicate)[0]) + 1
         raise TrackTableError(
-            f"{where}row {row}: duplicate (recording, track_id, frame) = "
+            f"{where}row {row + first_row}: duplicate (recording, track_id, frame) = "
             f"({table.column('recording')[row]}, {track[row]}, {frame[row]})"
         )
     backwards = same_track & (time[1:] <= time[:-1])
     if backwards.any():
         row = int(np.flatnonzero(backwards)[0]) + 1
         raise TrackTableError(
-            f"{where}row {row}: time_ns does not increase along track {track[row]} "
+            f"{where}row {row + first_row}: time_ns does not increase along track {track[row]} "
             f"({time[row - 1]} then {time[row]})"
         )
 
