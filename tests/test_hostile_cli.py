@@ -695,3 +695,16 @@ def test_rows_named_in_a_large_table_are_rows_of_the_file(
             capsys,
             f"{path}: row 1050000: column 'x' is nan",
         )
+
+
+def test_a_blank_highd_class_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """class '   ' (not empty, so not null) became a vehicle of class '' in the table."""
+    rec = highd_copy(tmp_path, "tracksMeta", set_cell("class", "   ", {4}))
+    out = tmp_path / "out.parquet"
+    refused(
+        ["convert", str(rec), "--out", str(out)],
+        capsys,
+        f"{rec / '01_tracksMeta.csv'}, line 4, column 'class'",
+        "blank",
+    )
+    no_output(out)

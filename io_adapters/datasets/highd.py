@@ -605,9 +605,15 @@ def _check_direction(
         )
 
 
-def _classes(meta_table: pa.Table) -> tuple[list[str], np.ndarray]:
-    """Lower-cased class names (``Car`` → ``car``) as (dictionary, code int32 [M] per meta row)."""
+def _classes(meta_table: pa.Table, path: Path) -> tuple[list[str], np.ndarray]:
+    """Lower-cased class names (``Car`` → ``car``) as (dictionary, code int32 [M] per meta row);
+    a class of blanks only is refused at its line of ``path`` (tracksMeta)."""
     lowered = pc.utf8_lower(pc.utf8_trim_whitespace(meta_table.column("class").combine_chunks()))
+    blank = np.flatnonzero(np.asarray(pc.equal(lowered, "")))
+    if blank.size:
+        raise InputError(
+            path, "class is blank", line=_line(path, int(blank[0])), column="class", expected="Car or Truck"
+        )
     encoded = pc.dictionary_encode(lowered)
     return encoded.dictionary.to_pylist(), encoded.indices.to_numpy().astype(np.int32)
 
@@ -673,7 +679,7 @@ def convert_tracks(
     _check_ranges(tracks_path, cols, source_row, meta.frame_rate)
     row_meta, direction = _check_meta(rec, meta_table, cols, source_row, all_tracks)
     _check_direction(rec, cols, row_meta, direction)
-    class_names, class_codes = _classes(meta_table)
+    class_names, class_codes = _classes(meta_table, rec.path("tracksMeta"))
 
     length, width = cols["width"], cols["height"]
     x, y = road_frame(direction, cols["x"] + length / 2, cols["y"] + width / 2)
