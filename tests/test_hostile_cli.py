@@ -708,3 +708,17 @@ def test_a_blank_highd_class_is_refused(tmp_path: Path, capsys: pytest.CaptureFi
         "blank",
     )
     no_output(out)
+
+
+def test_a_frame_rate_that_overflows_the_times_is_named(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """frameRate 1e-9 Hz put frame 5 beyond int64 nanoseconds; the error said only 'expected a frame
+    from 0 to 4.612', sending one looking for a bad frame in the tracks, not at the rate."""
+    rec = highd_copy(tmp_path, "recordingMeta", set_cell("frameRate", "1e-9"))
+    refused(
+        ["convert", str(rec), "--out", str(tmp_path / "o.parquet")],
+        capsys,
+        "column 'frame'",
+        "frameRate 1e-09 Hz",
+    )

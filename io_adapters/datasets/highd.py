@@ -464,8 +464,9 @@ def _check_ranges(path: Path, cols: dict[str, np.ndarray], source_row: np.ndarra
     ``cols`` are the tracks (arrays [N], any order), ``source_row`` [N] their rows in the file.
     """
     max_frame = MAX_TIME_NS / 1e9 * frame_rate
+    frames = f"a frame from 0 to {max_frame:.4g} (frame / frameRate {frame_rate:g} Hz in ns within int64)"
     checks = (
-        ("frame", (cols["frame"] < 0) | (cols["frame"] > max_frame), f"a frame from 0 to {max_frame:.4g}"),
+        ("frame", (cols["frame"] < 0) | (cols["frame"] > max_frame), frames),
         ("width", ~(cols["width"] > 0), "a length > 0 m"),
         ("height", ~(cols["height"] > 0), "a width > 0 m"),
         ("laneId", (cols["laneId"] < -INT32_MAX) | (cols["laneId"] > INT32_MAX), "a lane id within int32"),
