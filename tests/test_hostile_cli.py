@@ -376,8 +376,8 @@ def _set_row(name: str, row: int, value: float) -> Callable[[pa.Table], pa.Table
 @pytest.mark.parametrize(
     ("name", "value", "expected"),
     [
-        ("x", 1e300, "a position within ±1e+09 m"),
-        ("y", -1e12, "a position within ±1e+09 m"),
+        ("x", 1e300, "a finite position within ±1e+09 m"),
+        ("y", -1e12, "a finite position within ±1e+09 m"),
         ("width", -1.8, "a size >= 0 m"),
     ],
 )
@@ -721,4 +721,29 @@ def test_a_frame_rate_that_overflows_the_times_is_named(
         capsys,
         "column 'frame'",
         "frameRate 1e-09 Hz",
+    )
+
+
+def test_impossible_vehicle_sizes_are_refused_at_their_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """v_Length 1e30 ft (within float32, so accepted) failed later as 'row 2: column 'x' is -1.5e29'
+    (a row of the table, not a line of the file); a highD width of 1e6 m converted."""
+    rows = [line.split() for line in US101.read_text().splitlines()]
+    rows[2][8] = "1e30"
+    path = tmp_path / "us-101" / "trajectories-0750am-0805am.txt"
+    path.parent.mkdir()
+    path.write_text("".join("  ".join(row) + "\n" for row in rows))
+    refused(
+        ["convert", str(path), "--out", str(tmp_path / "a.parquet")],
+        capsys,
+        f"{path}, line 3, column 'v_Length'",
+        "<= 1000 ft",
+    )
+    rec = highd_copy(tmp_path, "tracks", set_cell("width", "1e6", {5}))
+    refused(
+        ["convert", str(rec), "--out", str(tmp_path / "b.parquet")],
+        capsys,
+        "01_tracks.csv, line 5, column 'width'",
+        "<= 300 m",
     )

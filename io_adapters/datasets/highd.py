@@ -453,6 +453,7 @@ def _dedupe(path: Path, cols: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarr
 INT32_MAX = 2**31 - 1
 FLOAT32_MAX = float(np.finfo(np.float32).max)  # sizes, velocities, accelerations are float32
 MAX_POSITION_M = 1e9  # highD positions are image metres (below 1e3)
+MAX_SIZE_M = 300.0  # width (length) and height (width): no road vehicle is longer than ~60 m
 MAX_FRAME_RATE = 1e6  # Hz: consecutive frames keep distinct time_ns
 MAX_TIME_NS = 2**62  # time_ns = frame / frameRate * 1e9 must stay well inside int64
 
@@ -467,8 +468,16 @@ def _check_ranges(path: Path, cols: dict[str, np.ndarray], source_row: np.ndarra
     frames = f"a frame from 0 to {max_frame:.4g} (frame / frameRate {frame_rate:g} Hz in ns within int64)"
     checks = (
         ("frame", (cols["frame"] < 0) | (cols["frame"] > max_frame), frames),
-        ("width", ~(cols["width"] > 0), "a length > 0 m"),
-        ("height", ~(cols["height"] > 0), "a width > 0 m"),
+        (
+            "width",
+            ~((cols["width"] > 0) & (cols["width"] <= MAX_SIZE_M)),
+            f"a length > 0 and <= {MAX_SIZE_M:g} m",
+        ),
+        (
+            "height",
+            ~((cols["height"] > 0) & (cols["height"] <= MAX_SIZE_M)),
+            f"a width > 0 and <= {MAX_SIZE_M:g} m",
+        ),
         ("laneId", (cols["laneId"] < -INT32_MAX) | (cols["laneId"] > INT32_MAX), "a lane id within int32"),
         *(
             (name, np.abs(cols[name]) > MAX_POSITION_M, f"a position within ±{MAX_POSITION_M:g} m")

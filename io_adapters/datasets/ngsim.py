@@ -557,6 +557,7 @@ MAX_FRAME_ID = 2**62 // FRAME_NS  # time_ns = Frame_ID * 1e8 stays well inside i
 INT32_MAX = 2**31 - 1
 FLOAT32_MAX = float(np.finfo(np.float32).max)
 MAX_POSITION_FT = 1e9  # Local_X/Local_Y beyond this are no road (NGSIM's are below 1e4)
+MAX_SIZE_FT = 1000.0  # v_Length, v_Width: the longest road trains are under 200 ft
 
 
 def _checked_ranges(
@@ -590,8 +591,9 @@ def _checked_ranges(
             "global_time", (out["global_time"] < 0) | (out["global_time"] >= EXACT_FLOAT_INT), "0 to 2^53 ms"
         )
         flag("lane_id", np.abs(out["lane_id"]) > INT32_MAX, "a lane id within int32")
-        flag("v_length", ~(out["v_length"] > 0), "a length > 0 ft")
-        flag("v_width", ~(out["v_width"] > 0), "a width > 0 ft")
+        size = f"> 0 and <= {MAX_SIZE_FT:g} ft"  # no road vehicle is longer than a few hundred feet
+        flag("v_length", ~((out["v_length"] > 0) & (out["v_length"] <= MAX_SIZE_FT)), f"a length {size}")
+        flag("v_width", ~((out["v_width"] > 0) & (out["v_width"] <= MAX_SIZE_FT)), f"a width {size}")
         flag("v_vel", ~(out["v_vel"] >= 0), "a speed >= 0 ft/s")
         for name in ("v_length", "v_width", "v_vel", "v_acc"):  # float32 in the table
             flag(name, np.abs(out[name]) > FLOAT32_MAX / FEET, "a value within float32")
