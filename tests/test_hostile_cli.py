@@ -747,3 +747,34 @@ def test_impossible_vehicle_sizes_are_refused_at_their_line(
         "01_tracks.csv, line 5, column 'width'",
         "<= 300 m",
     )
+
+
+# ---------------------------------------------------------------------------------------- options
+
+
+@pytest.mark.parametrize(
+    ("options", "config", "named"),
+    [
+        (["--epochs", "0"], None, "--epochs: 0 (expected an integer >= 1)"),
+        (["--lr", "nan"], None, "--lr: nan (expected a number >= 0.0)"),
+        (["--lr", "-1"], None, "--lr: -1.0 (expected a number >= 0.0)"),
+        (["--batch-size", "0"], None, "--batch-size: 0"),
+        (["--threads", "0"], None, "--threads: 0"),
+        (["--device", "tpu9"], None, "--device: 'tpu9'"),
+        (["--position-noise", "-1"], None, "position_noise_m must be >= 0"),
+        ([], '{"epochs": "three"}', "epochs: 'three' (expected an integer >= 1)"),
+    ],
+)
+def test_training_options_of_the_wrong_type_or_range(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], options: list[str], config: str | None, named: str
+) -> None:
+    """--epochs 0 saved an untrained model with exit 0; the others ended in tracebacks from torch
+    (ValueError: Invalid learning rate, ZeroDivisionError, RuntimeError: Invalid device string, a
+    TypeError adding a str epoch count)."""
+    directory = windows_copy(tmp_path, lambda d: None)
+    if config is not None:
+        (tmp_path / "config.json").write_text(config)
+        options = ["--config", str(tmp_path / "config.json")]
+    out = tmp_path / "model"
+    refused(["train", str(directory), "--out", str(out), *options], capsys, named)
+    no_output(out)

@@ -8,11 +8,12 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from lanecast.io_adapters.contracts.windows import load_windows
-from lanecast.io_adapters.errors import InputError
+from lanecast.io_adapters.errors import InputError, UsageError
 from lanecast.models.card import read_card, resolve
 from lanecast.models.evaluation import evaluate
 
@@ -94,6 +95,48 @@ def default_config() -> TrainConfig:
         return TrainConfig()
 
 
+#: TrainConfig fields with a lowest value beyond their type's (a learning rate of 0 fine-tunes nothing:
+#: the init model's weights, as a test wants them)
+_LOWEST = {"epochs": 1, "batch_size": 1, "threads": 1, "lr": 0.0}
+
+
+def check_config(config: TrainConfig, options: dict[str, Any], file: Path | None) -> None:
+    """UsageError for a training setting of the wrong type or range (an epoch count of 0 trained
+    nothing and saved the random initial weights; a batch size of 0, a learning rate of NaN, a
+    thread count of 0, an unknown device or a string where a number belongs failed deep in torch),
+    naming the option, or the config file and its key."""
+    for f in dataclasses.fields(config):
+        value, kind = getattr(config, f.name), str(f.type)
+        from_file = file is not None and f.name not in options
+        where = f"--config {file}" if from_file else f"--{f.name.replace('_', '-')}"
+        key = f"{f.name}: " if from_file else ""
+        ok = {
+            "int": isinstance(value, int) and not isinstance(value, bool),
+            "float": isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value),
+            "str": isinstance(value, str),
+            "bool": isinstance(value, bool),
+        }.get(kind, True)
+        lowest = _LOWEST.get(f.name)
+        if ok and lowest is not None:
+            ok = value >= lowest
+        if not ok:
+            what = (
+                f"{'a number' if kind == 'float' else 'an integer'} >= {lowest}"
+                if lowest is not None
+                else f"a {kind}"
+            )
+            raise UsageError(where, f"{key}{value!r}", expected=what)
+    if config.device != "auto":
+        import torch
+
+        try:
+            torch.device(config.device)
+        except RuntimeError as exc:
+            raise UsageError(
+                "--device", f"{config.device!r}: {exc}", expected="auto, cpu, cuda, cuda:N, mps"
+            ) from exc
+
+
 def train_and_save(
     windows_dir: Path, out: Path, config: TrainConfig, *, top_k: int = 3, init: str | None = None
 ) -> dict[str, Any]:
@@ -148,7 +191,12 @@ def run(args: argparse.Namespace) -> int:
         "position_noise",
     )
     overrides = {("position_noise_m" if k == "position_noise" else k): getattr(args, k) for k in names}
-    config = dataclasses.replace(config, **{k: v for k, v in overrides.items() if v is not None})
+    overrides = {k: v for k, v in overrides.items() if v is not None}
+    try:
+        config = dataclasses.replace(config, **overrides)
+    except ValueError as exc:  # TrainConfig's own range checks
+        raise UsageError("training options", str(exc)) from exc
+    check_config(config, overrides, args.config)
     if args.regression_only:
         config = dataclasses.replace(config, model=dataclasses.replace(config.model, maneuver_input=False))
     card = train_and_save(args.windows, args.out, config, init=args.init)
