@@ -165,7 +165,7 @@ def plan(
     highd_bytes = HIGHD_STREAM_BYTES if stream_bytes is None else stream_bytes
     stream_bytes = STREAM_BYTES if stream_bytes is None else stream_bytes
     options = dict(options or {})
-    opts = tuple(sorted(options.items()))
+    opts = {fmt: tuple(sorted(registry.options_for(fmt, options).items())) for fmt in registry.READERS}
     groups: dict[str, list[Path]] = {}
     for p in map(check_input, paths):  # before anything opens it (a FIFO would block)
         groups.setdefault(fmt or registry.detect(p), []).append(p)
@@ -178,7 +178,7 @@ def plan(
             for rec in highd.recordings(group):
                 tracks = rec.path("tracks")
                 if spill_dir is None or not tracks.is_file() or tracks.stat().st_size < highd_bytes:
-                    pieces.append(Piece(name, (str(tracks),), options=opts))
+                    pieces.append(Piece(name, (str(tracks),), options=opts[name]))
                     continue
                 prefix = str(options.get("recording_prefix", "highd"))
                 for spill in highd_stream.split_tracks(rec, Path(spill_dir), prefix):
@@ -187,9 +187,9 @@ def plan(
             for p in group:
                 pieces.extend(_ngsim_pieces(p, spill_dir, stream_bytes, options))
         elif name in ("mcap", "rosbag"):
-            pieces.extend(Piece(name, (str(p),), options=opts) for p in group)
+            pieces.extend(Piece(name, (str(p),), options=opts[name]) for p in group)
         else:
-            pieces.append(Piece(name, tuple(map(str, group)), options=opts))
+            pieces.append(Piece(name, tuple(map(str, group)), options=opts[name]))
     return pieces
 
 

@@ -778,3 +778,15 @@ def test_training_options_of_the_wrong_type_or_range(
     out = tmp_path / "model"
     refused(["train", str(directory), "--out", str(out), *options], capsys, named)
     no_output(out)
+
+
+def test_location_given_for_a_log_is_ignored_as_for_other_readers(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """--location (NGSIM's) with an MCAP input: 'TypeError: read_log() got an unexpected keyword
+    argument 'location'' (exit 1); the other readers are never given the options of another."""
+    from test_hostile_inputs import json_log, straight_messages
+
+    log = json_log(tmp_path / "in.mcap", straight_messages())
+    assert main(["convert", str(log), "--location", "us-101", "--out", str(tmp_path / "o.parquet")]) == 0
+    assert "Traceback" not in capsys.readouterr().err
