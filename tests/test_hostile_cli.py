@@ -790,3 +790,41 @@ def test_location_given_for_a_log_is_ignored_as_for_other_readers(
     log = json_log(tmp_path / "in.mcap", straight_messages())
     assert main(["convert", str(log), "--location", "us-101", "--out", str(tmp_path / "o.parquet")]) == 0
     assert "Traceback" not in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("every", ["nan", "inf", "0.01"])
+def test_annotate_every_outside_the_grid_is_one_error_up_front(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], every: str
+) -> None:
+    """--every nan/inf passed the 'positive' check and failed in every log's task (ValueError:
+    cannot convert float NaN to integer), 0.01 s as 'FAILED <log>: <input>: --every 0.01', exit 1."""
+    from test_hostile_inputs import json_log, straight_messages
+
+    log = json_log(tmp_path / "in.mcap", straight_messages(n=60))
+    out = tmp_path / "out"
+    refused(
+        ["annotate", str(log), "--every", every, "--out", str(out)], capsys, "--every: ", "at least 0.1 s"
+    )
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(("option", "value"), [("--batch-size", "0"), ("--top-k", "0")])
+def test_evaluate_counts_below_one_are_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], option: str, value: str
+) -> None:
+    """--batch-size 0: 'ValueError: range() arg 3 must not be zero'; --top-k 0: minADE@1 reported
+    with meta top_k 0."""
+    directory = windows_copy(tmp_path, lambda d: None)
+    out = tmp_path / "report"
+    refused(["evaluate", str(directory), option, value, "--out", str(out)], capsys, f"{option}: {value}")
+    no_output(out)
+
+
+def test_explain_time_nan_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """--time nan: 'ValueError: cannot convert float NaN to integer'."""
+    directory = windows_copy(tmp_path, lambda d: None)
+    refused(
+        ["explain", str(directory), "--track", "1", "--time", "nan", "--out", str(tmp_path / "e")],
+        capsys,
+        "--time: nan",
+    )

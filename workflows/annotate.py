@@ -7,9 +7,10 @@ logs (manifest, resume, local processes or Ray) are ``lanecast.workflows.bulk``.
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
-from lanecast.io_adapters.errors import InputError
+from lanecast.io_adapters.errors import UsageError
 from lanecast.models.card import read_card, resolve
 from lanecast.workflows import bulk
 from lanecast.workflows.annotate_log import AnnotateOptions
@@ -81,8 +82,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.every <= 0:
-        raise InputError(None, f"--every must be positive, got {args.every}", expected="seconds > 0")
+    if not (math.isfinite(args.every) and round(args.every * 10) >= 1):  # the forecast grid is 10 Hz
+        raise UsageError("--every", f"{args.every} s", expected="at least 0.1 s (rounded to 0.1 s)")
     if args.forecasts is None or args.explain:
         read_card(resolve(args.model)[1])  # a bad model is one error up front, not one per log
     options = AnnotateOptions(

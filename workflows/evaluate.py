@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from lanecast.io_adapters.contracts.windows import load_windows
-from lanecast.io_adapters.errors import InputError
+from lanecast.io_adapters.errors import InputError, UsageError
 from lanecast.io_adapters.files import staged_files
 from lanecast.models.baselines import constant_acceleration, constant_velocity
 from lanecast.models.card import resolve
@@ -66,6 +66,9 @@ def run(args: argparse.Namespace) -> int:
 
     from lanecast.models.predict import STCNNForecaster
 
+    for option, value in (("--batch-size", args.batch_size), ("--top-k", args.top_k)):
+        if value < 1:  # a batch of 0 was a ValueError from range(); minADE@0 was reported as @1
+            raise UsageError(option, f"{value}", expected="at least 1")
     torch.set_num_threads(max(1, min(2, torch.get_num_threads())))
     windows = load_windows(args.windows, check_values=True)
     forecasters: list[Forecaster] = [

@@ -9,6 +9,7 @@ is and with each chosen neighbour removed, and drawn into ``--out`` (``explain.h
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 from typing import Any
 
@@ -16,7 +17,7 @@ import numpy as np
 
 from lanecast.io_adapters import registry
 from lanecast.io_adapters.contracts.windows import Windows, load_windows
-from lanecast.io_adapters.errors import InputError
+from lanecast.io_adapters.errors import InputError, UsageError
 from lanecast.io_adapters.files import staged_files
 from lanecast.models.explain import parse_removals, present_neighbours, what_if
 from lanecast.models.explain_report import write_explain
@@ -111,6 +112,8 @@ def pick_window(windows: Windows, track: int, t0_ns: int, recording: str | None,
 def window_of(args: argparse.Namespace, card: dict[str, Any]) -> tuple[Windows, int]:
     """The windows INPUT gives (a dataset as it is, or cut at --time from a table or log) and the index of
     the target's window."""
+    if not math.isfinite(args.time):
+        raise UsageError("--time", f"{args.time}", expected="a time in seconds")
     t0_ns = round(args.time * 10) * STEP_NS
     if (
         args.input.is_dir()
