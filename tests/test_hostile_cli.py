@@ -1,6 +1,11 @@
 """Semantically malformed inputs through the real commands: syntactically valid files whose
 content cannot be right. Each gets exit status 2 and one line naming the file, the line or offset
-and what was expected, and leaves no output behind; or, where the input is valid, a correct one."""
+and what was expected, and leaves no output behind; or, where the input is valid, a correct one.
+
+Size: one test (or parametrised case) per defect found by running the commands on hostile inputs,
+grouped by input kind (highD, NGSIM, Parquet, windows datasets, logs, outputs, options), each with
+the input that showed it; the byte-level and per-format unit cases stay in test_hostile_inputs.py.
+"""
 
 from __future__ import annotations
 
