@@ -123,6 +123,11 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("works", type=Path, nargs="+", help="work directories of train_shipped.py runs")
     ap.add_argument("--held-out-minutes", type=float, default=0.0, help="0: each run's windows-test")
+    ap.add_argument(
+        "--per-scenario",
+        action="store_true",
+        help="also every run's RMSE, CV ratio and macro-F1 per scenario",
+    )
     args = ap.parse_args()
 
     first = args.works[0]
@@ -150,7 +155,44 @@ def main() -> int:
                     f"{label}: {ra:.2f}/{rb:.2f} {ra - rb:+.2f} [{low:+.2f}, {high:+.2f}] {verdict}, across {across:.0%}"
                 )
             print(f"{name:12s} n={int(mask.sum()):5d}  " + "  |  ".join(cells))
+    if args.per_scenario:
+        for work in args.works:
+            per_scenario_table(work, shared or work / "windows-test")
     return 0
+
+
+def per_scenario_table(work: Path, windows_dir: Path) -> None:
+    """One run's models on the held-out windows, per scenario: RMSE at 1 s and 5 s of the
+    maneuver-based model and of CV, their ratio at 5 s, lane-change RMSE at 5 s of the model, its
+    regression-only variant and CV, and the maneuver macro-F1."""
+    from train_shipped import recordings, scenario_of_windows
+
+    from lanecast.io_adapters.contracts.windows import load_windows, subset
+    from lanecast.models.baselines import constant_velocity
+    from lanecast.models.evaluation import evaluate
+    from lanecast.models.predict import STCNNForecaster
+
+    held_out = load_windows(windows_dir)
+    _, test = recordings()
+    scenario = scenario_of_windows(held_out, test)
+    models = [
+        STCNNForecaster.load(work / "weights", "stcnn"),
+        STCNNForecaster.load(work / "regression-only", "reg"),
+        constant_velocity(),
+    ]
+    print(
+        f"{work.name}: scenario, windows, RMSE 1 s / 5 s model (CV), ratio at 5 s, LC@5 s model / reg.-only / CV, macro-F1"
+    )
+    for name in [*dict.fromkeys(scenario.tolist()), "all"]:
+        part = held_out if name == "all" else subset(held_out, scenario == name)
+        m = evaluate(part, models, splits=("none",), top_k=1)[0]
+        st, reg, cv = m["stcnn"], m["reg"], m["cv"]
+        print(
+            f"  {name:12s} {st['n_windows']:7,d}  {st['rmse'][0]:.2f} / {st['rmse'][-1]:.2f} "
+            f"({cv['rmse'][0]:.2f} / {cv['rmse'][-1]:.2f})  {st['rmse'][-1] / cv['rmse'][-1]:.2f}  "
+            f"{st['rmse_lane_change'][-1]:.2f} / {reg['rmse_lane_change'][-1]:.2f} / "
+            f"{cv['rmse_lane_change'][-1]:.2f}  {st['maneuver_macro_f1']:.3f}"
+        )
 
 
 if __name__ == "__main__":

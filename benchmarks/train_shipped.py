@@ -41,15 +41,17 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 # scenario -> (training minutes, training seed, held-out seed); recording ids 1.. (train) and 51.. (test)
+# Twice the minutes of wave 5 (47 min, at most 10,000 windows a recording): on the same held-out
+# data, lane-change windows 4.85 vs 5.07 m at 5 s, macro-F1 0.600 vs 0.580 (BENCHMARKS.md).
 MIX: dict[str, tuple[float, int]] = {
-    "free_flow": (8.0, 101),
-    "dense": (6.0, 102),
-    "wide": (5.0, 103),
-    "on_ramp": (6.0, 104),
-    "lane_drop": (6.0, 105),
-    "stop_and_go": (5.0, 106),
-    "urban": (5.0, 107),
-    "signal": (6.0, 108),
+    "free_flow": (16.0, 101),
+    "dense": (12.0, 102),
+    "wide": (10.0, 103),
+    "on_ramp": (12.0, 104),
+    "lane_drop": (12.0, 105),
+    "stop_and_go": (10.0, 106),
+    "urban": (10.0, 107),
+    "signal": (12.0, 108),
 }
 TEST_MINUTES = 3.0
 TEST_SEED_OFFSET = 800  # held-out seed = training seed + 800
@@ -372,7 +374,7 @@ def main() -> int:
         help="shift the classifier's decision by logit offsets chosen on validation macro-F1 "
         "(TrainConfig.decision_offsets)",
     )
-    ap.add_argument("--max-windows", type=int, default=10000, help="per training recording")
+    ap.add_argument("--max-windows", type=int, default=20000, help="per training recording")
     ap.add_argument(
         "--tracking-error-levels",
         type=float,
