@@ -93,15 +93,24 @@ _SIZE_LIMITS = {
     "hidden": 4096,
 }
 _CONV_CHANNELS_MAX = 1024
+_CONV_LAYERS = 4  # the network's default (STCNNConfig, not imported: this module stays torch-free)
 _KERNEL_MAX = 1024
 
 
 def check_card_fields(card: dict[str, Any]) -> None:
-    """FieldError at the first field of ``architecture.config`` or ``normalisation`` of the wrong
-    type or range (absent config fields take the network's defaults)."""
+    """FieldError at the first field of ``architecture.config``, ``normalisation`` or a section read
+    when the model is used, of the wrong type or range (absent config fields take the defaults)."""
     arch = jf.get(card, "architecture", "", "object")
     config = jf.get(arch, "config", "architecture", "object")
-    where = "architecture.config"
+    check_architecture(config, "architecture.config")
+    _check_normalisation(card, config)
+    check_usage_sections(card)
+
+
+def check_architecture(config: dict[str, Any], where: str) -> None:
+    """FieldError at the first key of an ``STCNNConfig`` dict (a card's ``architecture.config``, a
+    training config's ``model``) of the wrong type or range; absent keys take the defaults."""
+    jf.check(config, where, "object")
     for key, limit in _SIZE_LIMITS.items():
         value = jf.get(config, key, where, "positive_int", None)
         if value is not None and value > limit:
@@ -124,6 +133,17 @@ def check_card_fields(card: dict[str, Any]) -> None:
     if slope is not None and not 0 <= slope <= 1:
         raise jf.FieldError(f"{where}.negative_slope", f"{slope}", "a leaky ReLU slope from 0 to 1")
     jf.get(config, "maneuver_input", where, "bool", None)
+    conv = ("conv_channels", "conv_kernels", "conv_dilations")
+    layers = [len(config[k]) if k in config else _CONV_LAYERS for k in conv]
+    if len(set(layers)) > 1:
+        raise jf.FieldError(
+            f"{where}.conv_kernels",
+            f"{layers} layers",
+            "conv_channels, conv_kernels, conv_dilations of one length",
+        )
+
+
+def _check_normalisation(card: dict[str, Any], config: dict[str, Any]) -> None:
     norm = jf.get(card, "normalisation", "", "object")
     inputs = jf.get(norm, "inputs", "normalisation", "object")
     for key in ("mean", "std"):
@@ -146,6 +166,38 @@ def check_card_fields(card: dict[str, Any]) -> None:
     std = jf.get(future, "std", "normalisation.future", "number")
     if not _in_range(std, "std"):
         raise jf.FieldError("normalisation.future.std", f"{std}", _RANGE["std"])
+
+
+#: Longest neighbour range (m) a card may ask windows to be cut with: far beyond any sensor.
+_NEIGHBOUR_RANGE_MAX = 10_000.0
+
+
+def check_usage_sections(card: dict[str, Any]) -> None:
+    """FieldError at the first bad field of the optional sections read when a model is used: the
+    training distribution (out-of-distribution flags), ``training.config`` (``train --init``),
+    ``windows.neighbour_range_m`` (how ``forecast`` and ``explain`` cut windows)."""
+    from lanecast.models import ood  # numpy only
+
+    training = jf.get(card, "training", "", "object", None)
+    if training is not None:
+        jf.get(training, "config", "training", "object", None)
+        data = jf.get(training, "data", "training", "object", {})
+        distribution: dict[str, Any] = jf.get(data, "distribution", "training.data", "object", None) or {}
+        for name in ood.CHECKED if distribution else ():
+            where = f"training.data.distribution.{name}"
+            quantiles = jf.get(distribution, name, "training.data.distribution", "object", None)
+            if not quantiles:
+                continue
+            low, high = (jf.get(quantiles, key, where, "number") for key in ood.RANGE)
+            if low > high:
+                raise jf.FieldError(f"{where}.{ood.RANGE[1]}", f"{high}", f">= {ood.RANGE[0]} ({low})")
+    windows = jf.get(card, "windows", "", "object", None)
+    if windows is not None:
+        reach = jf.get(windows, "neighbour_range_m", "windows", "number", None)
+        if reach is not None and not 0 < reach <= _NEIGHBOUR_RANGE_MAX:
+            raise jf.FieldError(
+                "windows.neighbour_range_m", f"{reach}", f"metres, > 0 and at most {_NEIGHBOUR_RANGE_MAX:g}"
+            )
 
 
 # Normalisation statistics are physical (m, m/s, m/s²): bounds far outside any road, inside float32.

@@ -65,7 +65,9 @@ class STCNNConfig:
             raise ValueError(f"unknown STCNNConfig keys: {sorted(unknown)}")
         conv = {"conv_channels", "conv_kernels", "conv_dilations"}
         kw = {k: (_tuplify(v) if k in conv else v) for k, v in data.items()}
-        return cls(**kw)
+        config = cls(**kw)
+        layer_shapes(config)  # ValueError where the kernels leave no output
+        return config
 
 
 def _tuplify(value: Any) -> Any:

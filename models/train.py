@@ -33,12 +33,14 @@ from typing import Any
 import numpy as np
 import torch
 
+from lanecast.io_adapters import json_fields as jf
 from lanecast.io_adapters.contracts.windows import NormStats, Windows, compute_stats, labelled, normalise
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import bar
 from lanecast.models import ood
 from lanecast.models.augment import Augmentation, augment
 from lanecast.models.baselines import CV_SPAN, RELATIVE_TO, reference_offsets
+from lanecast.models.card import check_architecture
 from lanecast.models.checkpoint import torch_device
 from lanecast.models.decision import choose_offsets, classifier_log_probs, fold_into_classifier
 from lanecast.models.losses import (
@@ -162,6 +164,7 @@ class TrainConfig:
             raise ValueError(f"unknown training config keys: {sorted(unknown)}")
         kw = dict(data)
         if "model" in kw:
+            check_architecture(kw["model"], "model")  # FieldError (a ValueError) before torch sees it
             kw["model"] = STCNNConfig.from_dict(kw["model"])
         return cls(**kw)
 
@@ -170,6 +173,8 @@ class TrainConfig:
         """Read a JSON config file (keys of TrainConfig; ``model`` holds STCNNConfig keys)."""
         try:
             return cls.from_dict(json.loads(Path(path).read_text()))
+        except jf.FieldError as exc:
+            raise jf.as_input_error(path, "bad training config", exc) from exc
         except (OSError, json.JSONDecodeError, ValueError, TypeError) as exc:
             raise InputError(
                 path, f"bad training config: {exc}", expected="JSON with TrainConfig keys"

@@ -594,6 +594,12 @@ def _set(path: str, value: object) -> object:
         ("normalisation.future.std", -1.0),
         ("normalisation.future.mean", [1.0, 2.0]),
         ("normalisation", []),
+        ("architecture.config.conv_dilations", [[1, 2], [1, 2], [1, 1]]),
+        ("training", [1]),
+        ("training.config", 3),
+        ("training.data.distribution.speed_mps", {"p0.5": "slow", "p99.5": 40.0}),
+        ("training.data.distribution.lon_acc_mps2", {"p0.5": 3.0, "p99.5": -3.0}),
+        ("windows.neighbour_range_m", -5),
     ],
 )
 def test_model_card_with_wrong_types_is_refused_naming_the_card(
@@ -606,6 +612,37 @@ def test_model_card_with_wrong_types_is_refused_naming_the_card(
         load_checkpoint(model)
     assert err.value.path == str(model / "stcnn.json")
     assert err.value.column is not None and err.value.column.startswith(field.split(".")[0])
+
+
+@pytest.mark.parametrize(
+    ("model", "column"),
+    [
+        (5, "model"),
+        ({"hidden": -3}, "model.hidden"),
+        ({"hidden": 10**8}, "model.hidden"),
+        ({"conv_kernels": [[3, 3]]}, "model.conv_kernels"),
+    ],
+)
+def test_training_config_with_a_bad_model_is_refused_before_torch(
+    tmp_path: Path, model: object, column: str
+) -> None:
+    from lanecast.models.train import TrainConfig
+
+    config = tmp_path / "config.json"
+    config.write_text(json.dumps({"epochs": 1, "model": model}))
+    with pytest.raises(InputError) as err:
+        TrainConfig.from_file(config)
+    assert err.value.path == str(config)
+    assert err.value.column == column
+
+
+def test_training_config_with_kernels_larger_than_the_window_is_refused(tmp_path: Path) -> None:
+    from lanecast.models.train import TrainConfig
+
+    config = tmp_path / "config.json"
+    config.write_text(json.dumps({"model": {"conv_kernels": [[9, 30], [3, 3], [2, 3], [1, 1]]}}))
+    with pytest.raises(InputError, match="conv1 leaves no output"):
+        TrainConfig.from_file(config)
 
 
 def test_model_card_nan_is_not_json_and_nan_weights_are_refused(tmp_path: Path) -> None:
