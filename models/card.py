@@ -193,7 +193,8 @@ def check_usage_sections(card: dict[str, Any]) -> None:
                 raise jf.FieldError(f"{where}.{ood.RANGE[1]}", f"{high}", f">= {ood.RANGE[0]} ({low})")
     windows = jf.get(card, "windows", "", "object", None)
     if windows is not None:
-        reach = jf.get(windows, "neighbour_range_m", "windows", "number", None)
+        reach = windows.get("neighbour_range_m")  # null: windows cut without a recorded range
+        reach = None if reach is None else jf.check(reach, "windows.neighbour_range_m", "number")
         if reach is not None and not 0 < reach <= _NEIGHBOUR_RANGE_MAX:
             raise jf.FieldError(
                 "windows.neighbour_range_m", f"{reach}", f"metres, > 0 and at most {_NEIGHBOUR_RANGE_MAX:g}"

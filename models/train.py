@@ -164,7 +164,8 @@ class TrainConfig:
             raise ValueError(f"unknown training config keys: {sorted(unknown)}")
         kw = dict(data)
         if "model" in kw:
-            check_architecture(kw["model"], "model")  # FieldError (a ValueError) before torch sees it
+            as_json = json.loads(json.dumps(kw["model"])) if isinstance(kw["model"], dict) else kw["model"]
+            check_architecture(as_json, "model")  # FieldError (a ValueError) before torch sees it
             kw["model"] = STCNNConfig.from_dict(kw["model"])
         return cls(**kw)
 
