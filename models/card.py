@@ -17,6 +17,7 @@ from typing import Any
 from lanecast.io_adapters import json_fields as jf
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import atomic_path
+from lanecast.models import ood
 from lanecast.models.baselines import RELATIVE_TO
 
 FORMAT = "lanecast-stcnn"
@@ -176,8 +177,6 @@ def check_usage_sections(card: dict[str, Any]) -> None:
     """FieldError at the first bad field of the optional sections read when a model is used: the
     training distribution (out-of-distribution flags), ``training.config`` (``train --init``),
     ``windows.neighbour_range_m`` (how ``forecast`` and ``explain`` cut windows)."""
-    from lanecast.models import ood  # numpy only
-
     training = jf.get(card, "training", "", "object", None)
     if training is not None:
         jf.get(training, "config", "training", "object", None)
