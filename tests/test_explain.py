@@ -155,3 +155,30 @@ def test_annotate_explain_writes_each_what_if(tmp_path: Path, forecaster: STCNNF
             np.testing.assert_allclose(got, expected, atol=1e-4)
             checked += 1
     assert checked == occupied
+
+
+def test_a_time_between_strided_windows_takes_the_nearest(
+    scene_table: object, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A windows dataset cut every 1 s has no window at 3.3 s: explain takes the one at 2.9 s and says
+    so; a time outside the track's windows is still refused."""
+    from lanecast.io_adapters.contracts.windows import save_windows
+
+    frames = np.arange(120)
+    windows = make_windows(
+        table_of(straight(SEVEN, frames, vx={2: 24.0})), require_future=False, split="none", stride=10
+    )  # type: ignore[arg-type]
+    t0 = (
+        np.sort(windows.index.column("t0_ns").to_numpy()[windows.index.column("track_id").to_numpy() == 1])
+        / 1e9
+    )
+    assert np.allclose(np.diff(t0), 1.0) and 3.3 > t0[0]
+    directory = save_windows(windows, tmp_path / "windows")
+    out = tmp_path / "explain"
+    argv = ["explain", str(directory), "--track", "1", "--out", str(out)]
+    assert main([*argv, "--time", f"{t0[0] + 0.4:.1f}"]) == 0
+    assert json.loads((out / "explain.json").read_text())["window"]["t0_s"] == pytest.approx(t0[0])
+    assert f"the nearest to {t0[0] + 0.4:.1f} s is at {t0[0]:.1f} s" in capsys.readouterr().err
+    assert main([*argv, "--time", f"{t0[0] + 0.6:.1f}"]) == 0
+    assert json.loads((out / "explain.json").read_text())["window"]["t0_s"] == pytest.approx(t0[1])
+    assert main([*argv, "--time", f"{t0[-1] + 2:.1f}"]) == 2
