@@ -168,7 +168,7 @@ def sniff(path: Path) -> bool:
         return False
     first = head.split(b"\n", 1)[0].decode("utf-8", errors="replace").lstrip("\ufeff").strip()
     if "," in first:
-        names = {_unquoted(name).strip().lower() for name in first.split(",")}
+        names = {name.strip().lower() for name in header_names(first)}
         # the key columns, or most of the used ones (the reader then names what is missing)
         return {"vehicle_id", "frame_id", "local_x", "local_y"} <= names or 2 * len(
             names & set(USED_COLUMNS)
@@ -332,13 +332,19 @@ def _parse_txt(path: Path, location: str | None) -> _Parsed:
     return _Parsed(path, columns, np.zeros(n, dtype=np.int64), [loc], source, None)
 
 
-def _parse_csv(path: Path, first: str, location: str | None) -> _Parsed:
-    """The 25-column CSV export (header; names matched case-insensitively)."""
-    # pyarrow drops a BOM and the quotes around a name, keeps spaces
-    raw_header = [_unquoted(raw) for raw in first.lstrip("\ufeff").rstrip("\r").split(",")]
-    header = [name.strip() for name in raw_header]
+def header_names(first: str) -> list[str]:
+    """The column names of the CSV header line ``first`` as pyarrow reads them: without a BOM or
+    the quotes around a name, spaces kept."""
+    return [_unquoted(raw) for raw in first.lstrip("\ufeff").rstrip("\r").split(",")]
+
+
+def csv_columns(path: Path, first: str) -> tuple[dict[str, str], list[str], dict[str, pa.DataType]]:
+    """The CSV export's columns from its header line ``first``: (lower-case stripped name → the name
+    as pyarrow sees it, the columns to read, their types but for the integer ones). InputError at
+    line 1 where a used column appears twice or is missing."""
     by_lower: dict[str, str] = {}  # lower-case stripped name -> the name as pyarrow sees it
-    for raw, name in zip(raw_header, header, strict=True):
+    for raw in header_names(first):
+        name = raw.strip()
         if name.lower() in by_lower and name.lower() in (*USED_COLUMNS, "location", "direction"):
             raise InputError(
                 path,
@@ -364,6 +370,13 @@ def _parse_csv(path: Path, first: str, location: str | None) -> _Parsed:
         types[by_lower["direction"]] = pa.float64()
     if "location" in by_lower:
         types[by_lower["location"]] = pa.string()
+    return by_lower, wanted, types
+
+
+def _parse_csv(path: Path, first: str, location: str | None) -> _Parsed:
+    """The 25-column CSV export (header; names matched case-insensitively)."""
+    by_lower, wanted, types = csv_columns(path, first)
+    header = [name.strip() for name in header_names(first)]
     # Integer columns as int64 (ids 2^53 and 2^53 + 1 stay distinct); a file that writes them with a
     # fraction ("12.0") is read as float64 and checked to hold exact whole numbers.
     int_types = {**types, **{by_lower[n]: pa.int64() for n in INTEGER_COLUMNS}}

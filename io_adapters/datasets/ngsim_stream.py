@@ -58,29 +58,17 @@ def streamable(path: Path) -> bool:
         first = fh.readline(1 << 16).decode("utf-8", errors="replace")
     if "," not in first:
         return False
-    return "location" in {ngsim._unquoted(name).strip().lower() for name in first.lstrip("\ufeff").split(",")}
+    return "location" in {name.strip().lower() for name in ngsim.header_names(first)}
 
 
 def _layout(path: Path) -> tuple[str, dict[str, str], list[str], dict[str, pa.DataType]]:
     """(first line, lower-case name -> CSV name, columns to read, their types) as ngsim.read reads them."""
     with path.open("rb") as fh:
         first = fh.readline(1 << 16).decode("utf-8", errors="replace").rstrip("\n")
-    raw_header = [ngsim._unquoted(raw) for raw in first.lstrip("\ufeff").rstrip("\r").split(",")]
-    by_lower: dict[str, str] = {}
-    for raw in raw_header:
-        if raw.strip().lower() in by_lower and raw.strip().lower() in (*ngsim.USED_COLUMNS, "location"):
-            raise ValueError("a column appears twice")  # ngsim.read names it
-        by_lower.setdefault(raw.strip().lower(), raw)
-    missing = [n for n in ngsim.USED_COLUMNS if n not in by_lower]
-    if missing or "location" not in by_lower:
+    by_lower, wanted, types = ngsim.csv_columns(path, first)  # InputError: ngsim.read names it
+    if "location" not in by_lower:
         raise ValueError("not a CSV export with a Location column")
-    optional = [n for n in ("location", "direction") if n in by_lower]
-    wanted = [by_lower[n] for n in (*ngsim.USED_COLUMNS, *optional)]
-    types: dict[str, pa.DataType] = {by_lower[n]: pa.float64() for n in ngsim.USED_COLUMNS}
     types.update({by_lower[n]: pa.int64() for n in ngsim.INTEGER_COLUMNS})
-    if "direction" in by_lower:
-        types[by_lower["direction"]] = pa.float64()
-    types[by_lower["location"]] = pa.string()
     return first, by_lower, wanted, types
 
 
