@@ -164,8 +164,6 @@ class TrainConfig:
             raise ValueError(f"unknown training config keys: {sorted(unknown)}")
         kw = dict(data)
         if "model" in kw:
-            as_json = json.loads(json.dumps(kw["model"])) if isinstance(kw["model"], dict) else kw["model"]
-            check_architecture(as_json, "model")  # FieldError (a ValueError) before torch sees it
             kw["model"] = STCNNConfig.from_dict(kw["model"])
         return cls(**kw)
 
@@ -173,7 +171,10 @@ class TrainConfig:
     def from_file(cls, path: Path) -> TrainConfig:
         """Read a JSON config file (keys of TrainConfig; ``model`` holds STCNNConfig keys)."""
         try:
-            return cls.from_dict(json.loads(Path(path).read_text()))
+            data = json.loads(Path(path).read_text())
+            if isinstance(data, dict) and "model" in data:  # checked before torch sees it
+                check_architecture(data["model"], "model")
+            return cls.from_dict(data)
         except jf.FieldError as exc:
             raise jf.as_input_error(path, "bad training config", exc) from exc
         except (OSError, json.JSONDecodeError, ValueError, TypeError) as exc:

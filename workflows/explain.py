@@ -95,21 +95,22 @@ def pick_window(windows: Windows, track: int, t0_ns: int, recording: str | None,
     t0 = index.column("t0_ns").to_numpy()
     near = ok & (np.abs(t0 - t0_ns) <= STEP_NS // 2)
     if not near.any():
-        near = nearest_on_stride(t0, ok, t0_ns)
-        times = t0[ok] / 1e9
-        if not near.any():
+        nearest = nearest_on_stride(t0[ok], t0_ns)
+        if nearest is None:
+            times = t0[ok] / 1e9
             raise InputError(
                 source,
                 f"track {track} has no window at t0 = {t0_ns / 1e9:.1f} s",
                 column="--time",
                 expected=f"a time with 3 s of history: {times.min():.1f} … {times.max():.1f} s",
             )
-        chosen = t0[np.flatnonzero(near)[0]] / 1e9
+        best, stride = nearest
         print(
-            f"lanecast explain: {source} has windows of track {track} every "
-            f"{np.median(np.diff(np.unique(times))):.1f} s; the nearest to {t0_ns / 1e9:.1f} s is at {chosen:.1f} s",
+            f"lanecast explain: {source} has windows of track {track} every {stride / 1e9:.1f} s; "
+            f"the nearest to {t0_ns / 1e9:.1f} s is at {best / 1e9:.1f} s",
             file=sys.stderr,
         )
+        near = ok & (t0 == best)
     found = np.flatnonzero(near)
     if len(set(rec[found])) > 1:
         raise InputError(
@@ -118,19 +119,19 @@ def pick_window(windows: Windows, track: int, t0_ns: int, recording: str | None,
     return int(found[0])
 
 
-def nearest_on_stride(t0: np.ndarray, ok: np.ndarray, t0_ns: int) -> np.ndarray:
-    """bool [N]: the windows (of ``ok``) nearest to ``t0_ns`` when it lies between two of the track's
-    windows no more than one window stride apart (a dataset cut with ``--stride``), else none."""
-    times = np.unique(t0[ok])
+def nearest_on_stride(t0: np.ndarray, t0_ns: int) -> tuple[int, int] | None:
+    """(the window t0 nearest to ``t0_ns``, the stride), both ns, when ``t0_ns`` lies between two of
+    a track's window times ``t0`` [M] no more than one stride apart (a dataset cut with
+    ``--stride``), else None."""
+    times = np.unique(t0)
     after = int(np.searchsorted(times, t0_ns))
     if after == 0 or after == len(times):
-        return np.zeros(len(t0), dtype=bool)
+        return None
     before_t, after_t = int(times[after - 1]), int(times[after])
     stride = int(np.median(np.diff(times)))
     if after_t - before_t > stride:  # a gap in the track: no window there
-        return np.zeros(len(t0), dtype=bool)
-    best = before_t if t0_ns - before_t <= after_t - t0_ns else after_t
-    return ok & (t0 == best)
+        return None
+    return (before_t if t0_ns - before_t <= after_t - t0_ns else after_t), stride
 
 
 def window_of(args: argparse.Namespace, card: dict[str, Any]) -> tuple[Windows, int]:
