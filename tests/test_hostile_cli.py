@@ -80,6 +80,15 @@ def no_output(out: Path) -> None:
     assert not [p for p in out.parent.iterdir() if p.name.startswith(f".{out.name}")]
 
 
+def convert_refused(source: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], *names: str) -> str:
+    """``lanecast convert SOURCE --out tmp_path/out.parquet`` must refuse its input (see
+    :func:`refused`) and leave no output, not even a temporary one."""
+    out = tmp_path / "out.parquet"
+    line = refused(["convert", str(source), "--out", str(out)], capsys, *names)
+    no_output(out)
+    return line
+
+
 # ------------------------------------------------------------------------------------------ highD
 
 
@@ -145,9 +154,7 @@ def test_error_is_the_last_line_after_progress(tmp_path: Path, capsys: pytest.Ca
     folder.mkdir()
     (folder / "trajectories-a.txt").write_bytes(US101.read_bytes())
     (folder / "trajectories-b.txt").write_bytes(US101.read_bytes()[:-40])
-    out = tmp_path / "out.parquet"
-    refused(["convert", str(folder), "--out", str(out)], capsys, "trajectories-b.txt, line 15", "truncated")
-    no_output(out)
+    convert_refused(folder, tmp_path, capsys, "trajectories-b.txt, line 15", "truncated")
 
 
 @pytest.mark.parametrize(
@@ -169,11 +176,7 @@ def test_damaged_file_in_an_ngsim_folder_is_refused_not_left_out(
     folder.mkdir()
     (folder / "trajectories-a.txt").write_bytes(US101.read_bytes())
     (folder / "trajectories-b.txt").write_bytes(content)
-    out = tmp_path / "out.parquet"
-    refused(
-        ["convert", str(folder), "--out", str(out)], capsys, f"{folder / 'trajectories-b.txt'}, {message}"
-    )
-    no_output(out)
+    convert_refused(folder, tmp_path, capsys, f"{folder / 'trajectories-b.txt'}, {message}")
 
 
 def test_other_text_files_in_an_ngsim_folder_are_named_on_stderr(
@@ -226,14 +229,7 @@ def test_ngsim_csv_with_a_column_twice(
     lines = PEACHTREE.read_text().splitlines()[:200]
     path = tmp_path / "peachtree.csv"
     path.write_text("".join(f"{line},{extra if i == 0 else '0'}\n" for i, line in enumerate(lines)))
-    out = tmp_path / "out.parquet"
-    refused(
-        ["convert", str(path), "--out", str(out)],
-        capsys,
-        f"{path}, line 1, column '{named}'",
-        "appears twice",
-    )
-    no_output(out)
+    convert_refused(path, tmp_path, capsys, f"{path}, line 1, column '{named}'", "appears twice")
 
 
 def test_ngsim_in_metres_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -246,15 +242,14 @@ def test_ngsim_in_metres_is_refused(tmp_path: Path, capsys: pytest.CaptureFixtur
     path = tmp_path / "us-101" / "trajectories-0750am-0805am.txt"
     path.parent.mkdir()
     path.write_text("".join("  ".join(row) + "\n" for row in rows))
-    out = tmp_path / "out.parquet"
-    refused(
-        ["convert", str(path), "--out", str(out)],
+    convert_refused(
+        path,
+        tmp_path,
         capsys,
         f"{path}, line 1, column 'v_Length'",
         "look like metres",
         "expected NGSIM's feet",
     )
-    no_output(out)
 
 
 def test_ngsim_csv_with_quoted_fields_reads_as_unquoted(
@@ -290,14 +285,7 @@ def test_ngsim_csv_without_a_key_column_names_it(
     lines = PEACHTREE.read_text().splitlines()[:50]
     path = tmp_path / "peachtree.csv"
     path.write_text("".join(line.replace(column, f"{column}X", 1) + "\n" for line in lines))
-    out = tmp_path / "out.parquet"
-    refused(
-        ["convert", str(path), "--out", str(out)],
-        capsys,
-        f"{path}, line 1, column '{column.lower()}'",
-        "missing column",
-    )
-    no_output(out)
+    convert_refused(path, tmp_path, capsys, f"{path}, line 1, column '{column.lower()}'", "missing column")
 
 
 # ---------------------------------------------------------------------------------------- Parquet
@@ -349,9 +337,7 @@ def test_bad_metadata_of_a_track_table_names_the_file(
 ) -> None:
     """Through convert's streaming reader the metadata errors named no file."""
     path = track_table_copy(tmp_path, edit)
-    out = tmp_path / "out.parquet"
-    refused(["convert", str(path), "--out", str(out)], capsys, f"error: {path}: ", words)
-    no_output(out)
+    convert_refused(path, tmp_path, capsys, f"error: {path}: ", words)
 
 
 def test_no_windows_names_the_table_given(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -530,14 +516,7 @@ def test_log_times_beyond_int64_are_refused(
             data = json.dumps({"entities": [_entity(1, 2.0 * i)]}).encode()
             writer.add_message(channel, log_time=2**63 + i, data=data, publish_time=0)
         writer.finish()
-    out = tmp_path / "out.parquet"
-    refused(
-        ["convert", str(path), "--out", str(out)],
-        capsys,
-        f"{path}, offset ",
-        "log time 9223372036854775808 ns",
-    )
-    no_output(out)
+    convert_refused(path, tmp_path, capsys, f"{path}, offset ", "log time 9223372036854775808 ns")
 
 
 def test_a_position_is_blamed_before_the_speed_derived_from_it(
@@ -705,14 +684,7 @@ def test_rows_named_in_a_large_table_are_rows_of_the_file(
 def test_a_blank_highd_class_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """class '   ' (not empty, so not null) became a vehicle of class '' in the table."""
     rec = highd_copy(tmp_path, "tracksMeta", set_cell("class", "   ", {4}))
-    out = tmp_path / "out.parquet"
-    refused(
-        ["convert", str(rec), "--out", str(out)],
-        capsys,
-        f"{rec / '01_tracksMeta.csv'}, line 4, column 'class'",
-        "blank",
-    )
-    no_output(out)
+    convert_refused(rec, tmp_path, capsys, f"{rec / '01_tracksMeta.csv'}, line 4, column 'class'", "blank")
 
 
 def test_a_frame_rate_that_overflows_the_times_is_named(
