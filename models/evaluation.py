@@ -21,6 +21,7 @@ from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import atomic_path
 from lanecast.models.forecaster import Forecaster, Predictions
 from lanecast.models.metrics import accuracy, confusion_matrix, macro_f1, summary
+from lanecast.models.ood import target_speed
 from lanecast.models.report import Scene
 
 
@@ -57,6 +58,7 @@ def evaluate(
     index = windows.index.take(idx)
     vehicle = vehicle_ids(index)
     recording = index.column("recording").to_numpy(zero_copy_only=False).astype(str)
+    speed = target_speed(windows.inputs, idx)
     metrics: dict[str, Any] = {}
     preds = predict_in_batches(windows, idx, forecasters, top_k=top_k, batch_size=batch_size)
     for f in forecasters:
@@ -70,6 +72,7 @@ def evaluate(
             predicted_maneuver=p.maneuver,
             probs=p.probs,
             recording=recording,
+            speed=speed,
         )
         ood = p.out_of_distribution
         metrics[f.name]["n_out_of_distribution"] = None if ood is None else int(np.count_nonzero(ood))
@@ -128,6 +131,23 @@ def concat_predictions(parts: Sequence[Predictions]) -> Predictions:
         top_offsets=top_offsets,
         out_of_distribution=cat("out_of_distribution"),
     )
+
+
+def speed_band_note(metrics: dict[str, Any], model: str = "stcnn") -> str | None:
+    """One line on the target-speed bands where ``model`` is worse than constant velocity at some
+    horizon (the bands of ``metrics.per_speed_band``); None without both models' bands."""
+    bands = (metrics.get(model) or {}).get("per_speed_band")
+    cv = (metrics.get("cv") or {}).get("per_speed_band")
+    if not bands or not cv:
+        return None
+    worse = []
+    for band, row in bands.items():
+        ratios = [m / c for m, c in zip(row["rmse"], cv[band]["rmse"], strict=True) if m is not None and c]
+        if ratios and max(ratios) > 1:
+            worse.append(f"{band} ({row['n_windows']:,} windows; up to {max(ratios):.2f}× its RMSE)")
+    if not worse:
+        return f"{model} is no worse than constant velocity at any horizon in any band of target speed"
+    return f"{model} is worse than constant velocity at some horizon for targets at " + ", ".join(worse)
 
 
 def out_of_distribution_note(

@@ -10,6 +10,7 @@ Two RMSE conventions are offered because papers use both:
 
 from __future__ import annotations
 
+import itertools
 from typing import Any
 
 import numpy as np
@@ -211,6 +212,32 @@ def rmse_ci(
     return np.percentile(stats, tail, axis=0), np.percentile(stats, 100 - tail, axis=0)
 
 
+#: Edges (m/s) of the target-speed bands of ``per_speed_band``: standing, creeping, congested, slow,
+#: flowing, fast. A model trained on simulation can beat constant velocity overall and still lose in
+#: one band of real traffic (creeping queues, say); the bands show where.
+SPEED_BAND_EDGES_MPS = (0.2, 2.0, 8.0, 16.0, 25.0)
+
+
+def speed_band_labels(edges: tuple[float, ...] = SPEED_BAND_EDGES_MPS) -> list[str]:
+    """Labels of the bands cut at ``edges``: ["< 0.2 m/s", "0.2–2 m/s", …, "≥ 25 m/s"]."""
+    inner = [f"{lo:g}–{hi:g} m/s" for lo, hi in itertools.pairwise(edges)]
+    return [f"< {edges[0]:g} m/s", *inner, f"≥ {edges[-1]:g} m/s"]
+
+
+def per_speed_band(
+    errors: np.ndarray, speed: np.ndarray, edges: tuple[float, ...] = SPEED_BAND_EDGES_MPS
+) -> dict[str, dict[str, Any]]:
+    """RMSE per window by horizon within bands of the target's speed at t0: errors [N, H], speed
+    [N] (m/s) → {band label: {"n_windows", "rmse" [H]}}, bands in order, empty bands left out."""
+    band = np.digitize(np.asarray(speed, dtype=np.float64), edges)
+    out: dict[str, dict[str, Any]] = {}
+    for i, label in enumerate(speed_band_labels(edges)):
+        sel = band == i
+        if sel.any():
+            out[label] = {"n_windows": int(sel.sum()), "rmse": _finite_or_none(rmse(errors[sel]))}
+    return out
+
+
 def _finite_or_none(values: np.ndarray | float) -> object:
     """JSON-ready: floats (NaN → None), arrays → nested lists."""
     arr = np.asarray(values, dtype=np.float64)
@@ -258,6 +285,7 @@ def summary(
     predicted_maneuver: np.ndarray | None = None,
     probs: np.ndarray | None = None,
     recording: np.ndarray | None = None,
+    speed: np.ndarray | None = None,
     boots: int = 1000,
 ) -> dict[str, Any]:
     """Every metric of docs/design.md §4 for one model, JSON-ready (NaN → null).
@@ -266,13 +294,14 @@ def summary(
     ids (for the per-vehicle RMSE); candidates [N, K, 5, 2] (minADE/minFDE, default: offsets);
     predicted_maneuver int [N, 5] (maneuver metrics; None → null, e.g. for kinematic baselines);
     probs float [N, 5, 3] per-step probabilities (Brier score, reliability); recording str [N]
-    (per-recording rows); ``boots`` bootstrap resamples of the confidence intervals (0: none).
+    (per-recording rows); speed float [N] the target's speed at t0 in m/s (rows per speed band);
+    ``boots`` bootstrap resamples of the confidence intervals (0: none).
     Keys: rmse, rmse_per_vehicle, rmse_lane_change (per window, 1–5 s), rmse_ci and
     rmse_lane_change_ci ({"low", "high", "level"}), ade, fde, miss_rate (FDE > miss_threshold_m),
     min_ade, min_fde, k, maneuver_accuracy, always_straight_accuracy, maneuver_macro_f1 (over the
     classes present or predicted, see ``macro_f1``), f1, support, predicted, precision, recall (per
     class straight/left/right), confusion (rows true, columns predicted, per future step), brier,
-    reliability, ece, n_windows, n_lane_change_windows, per_recording.
+    reliability, ece, n_windows, n_lane_change_windows, per_recording, per_speed_band.
     """
     err = displacement_errors(offsets, future)
     lc = lane_change_windows(maneuver)
@@ -313,11 +342,14 @@ def summary(
         "n_windows": int(err.shape[0]),
         "n_lane_change_windows": int(lc.sum()),
         "per_recording": None,
+        "per_speed_band": None,
     }
     if predicted_maneuver is not None:
         out.update(_maneuver_metrics(maneuver, predicted_maneuver, probs))
     if recording is not None:
         out["per_recording"] = per_recording(err, maneuver, predicted_maneuver, np.asarray(recording))
+    if speed is not None:
+        out["per_speed_band"] = per_speed_band(err, speed)
     return out
 
 

@@ -22,11 +22,17 @@ RANGE = ("p0.5", "p99.5")  # a window outside this range of any checked quantity
 CHECKED = ("speed_mps", "lon_acc_mps2")
 
 
+def target_speed(inputs: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+    """The target's speed at t0 (m/s): inputs float32 [N, 4, 8, 30] → float64 [N], or [M] for the
+    window indices ``rows`` int [M] (from a memory map, only those values are read)."""
+    return np.asarray(inputs[slice(None) if rows is None else rows, 2, TARGET_ROW, -1], dtype=np.float64)
+
+
 def target_state(inputs: np.ndarray, present: np.ndarray) -> dict[str, np.ndarray]:
     """The target's state at t0: inputs float32 [N, 4, 8, 30], present bool [N, 8, 30] →
     speed_mps, lon_acc_mps2 (float64 [N]) and neighbours_present (int64 [N], 0-7)."""
     return {
-        "speed_mps": np.asarray(inputs[:, 2, TARGET_ROW, -1], dtype=np.float64),
+        "speed_mps": target_speed(inputs),
         "lon_acc_mps2": np.asarray(inputs[:, 3, TARGET_ROW, -1], dtype=np.float64),
         "neighbours_present": np.asarray(present[:, NEIGHBOUR_ROWS, -1]).sum(axis=1).astype(np.int64),
     }

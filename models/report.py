@@ -34,6 +34,7 @@ from lanecast.models.report_tables import (
     metric_rows,
     model_name,
     recording_rows,
+    speed_band_rows,
 )
 
 __all__ = [
@@ -61,6 +62,11 @@ MACRO_F1_NOTE = (
     "F1 = 0, and a class neither present nor predicted is left out. Always straight is the reference a "
     "classifier must beat. Brier score: mean over steps of the squared distance between the probabilities "
     "and the one-hot truth (0 is perfect, lower is better). Kinematic baselines predict no maneuver (–)."
+)
+
+SPEED_BAND_NOTE = (
+    "RMSE per window by the target's speed at t0 (m/s), the ST-CNN beside constant velocity; a ratio "
+    "above 1 marks traffic where the model is worse than constant velocity on these data."
 )
 
 
@@ -114,6 +120,9 @@ def write_report(
     per_rec = recording_rows(metrics)
     if len(per_rec[1]) > 1:
         tables.append(("Per recording", *per_rec, ["Accuracy with always straight's in brackets."]))
+    by_speed = speed_band_rows(metrics)
+    if by_speed[1]:
+        tables.append(("By target speed", *by_speed, [SPEED_BAND_NOTE]))
     items = meta_items(meta)
 
     md = [f"# {title}", ""]

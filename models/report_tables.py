@@ -177,6 +177,27 @@ def recording_rows(metrics: dict[str, Any]) -> tuple[list[str], list[list[str]]]
     return header, rows
 
 
+def _ratio(value: Any, reference: Any) -> str:
+    return "–" if value is None or not reference else f"{value / reference:.2f}"
+
+
+def speed_band_rows(metrics: dict[str, Any]) -> tuple[list[str], list[list[str]]]:
+    """One row per band of the target's speed at t0: the ST-CNN beside constant velocity at 1 s and
+    5 s, and their ratio (below 1: the model is better)."""
+    header = ["target speed at t0", "windows", "RMSE 1 s", "constant velocity", "ratio"]
+    header += ["RMSE 5 s", "constant velocity", "ratio"]
+    main = metrics.get("stcnn") or next(iter(metrics.values()))
+    cv = (metrics.get("cv") or {}).get("per_speed_band") or {}
+    rows = []
+    for band, r in (main.get("per_speed_band") or {}).items():
+        ref = (cv.get(band) or {}).get("rmse") or [None] * len(r["rmse"])
+        row = [band, f"{r['n_windows']:,}"]
+        for h in (0, -1):
+            row += [fmt_number(r["rmse"][h]), fmt_number(ref[h]), _ratio(r["rmse"][h], ref[h])]
+        rows.append(row)
+    return header, rows
+
+
 def _plain(value: Any) -> str:
     """A meta value in words: lists joined, mappings as "key value" pairs, None as –."""
     if value is None:

@@ -15,7 +15,8 @@ from lanecast.io_adapters.contracts.track_table import RecordingMeta, TableMeta,
 from lanecast.io_adapters.contracts.windows import save_windows, to_source_frame
 from lanecast.models.baselines import constant_velocity
 from lanecast.models.checkpoint import load_checkpoint
-from lanecast.models.metrics import displacement_errors, rmse
+from lanecast.models.evaluation import speed_band_note
+from lanecast.models.metrics import displacement_errors, per_speed_band, rmse
 from lanecast.models.predict import STCNNForecaster
 from lanecast.pipeline.make_windows import make_windows
 from lanecast.workflows.cli import main
@@ -145,6 +146,9 @@ def test_evaluate_command_writes_metrics_and_a_self_contained_report(
     np.testing.assert_allclose(metrics["cv"]["rmse"], rmse(err), rtol=1e-6)
     straight = ~np.any(w.maneuver[test] > 0, axis=1)
     assert np.all(err[straight] < 0.05)
+    # by band of the target's speed at t0 (the speed input of the target row's last step)
+    assert metrics["cv"]["per_speed_band"] == per_speed_band(err, w.inputs[test, 2, 4, -1])  # row 4: T
+    assert sum(b["n_windows"] for b in metrics["stcnn"]["per_speed_band"].values()) == 100
     assert metrics["cv"]["maneuver_accuracy"] is None and metrics["stcnn"]["maneuver_accuracy"] > 0.5
     assert sum(map(sum, metrics["stcnn"]["confusion"])) == 500  # 100 windows x 5 steps
     assert metrics["meta"]["always_straight"]["maneuver_macro_f1"] < 0.34
@@ -154,8 +158,24 @@ def test_evaluate_command_writes_metrics_and_a_self_contained_report(
     )  # rmse, confusion x2, scenes
     assert "http" not in html  # nothing fetched from elsewhere
     md = (report / "report.md").read_text()
+    assert "## By target speed" in md
     assert "per vehicle first" in md and "![RMSE by horizon](rmse_by_horizon.png)" in md
     assert (report / "rmse_by_horizon.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_speed_band_note_names_the_bands_where_the_model_loses_to_constant_velocity() -> None:
+    def bands(creeping: list[float]) -> dict[str, object]:
+        return {
+            "< 0.2 m/s": {"n_windows": 200, "rmse": [0.1, 0.3, 0.6, 1.0, 1.4]},
+            "0.2–2 m/s": {"n_windows": 24, "rmse": creeping},
+        }
+
+    cv = {"per_speed_band": bands([0.2, 0.4, 0.8, 1.2, 2.0])}
+    worse = speed_band_note({"stcnn": {"per_speed_band": bands([0.3, 0.4, 0.8, 1.2, 1.6])}, "cv": cv})
+    assert worse is not None and "0.2–2 m/s (24 windows; up to 1.50×" in worse and "< 0.2" not in worse
+    level = speed_band_note({"stcnn": cv, "cv": cv})
+    assert level is not None and "no worse than constant velocity" in level
+    assert speed_band_note({"stcnn": {"per_speed_band": None}, "cv": cv}) is None
 
 
 def test_evaluate_reports_a_missing_model(trained: tuple[Path, Path, Path], tmp_path: Path, capsys) -> None:
@@ -268,6 +288,7 @@ def test_evaluate_in_memory_mapped_batches_equals_one_shot(trained: tuple[Path, 
             predicted_maneuver=p.maneuver,
             probs=p.probs,
             recording=recording,
+            speed=inputs[:, 2, 4, -1],  # the target's speed at t0
         )
         got = {k: v for k, v in metrics[f.name].items() if k != "n_out_of_distribution"}
         assert json.dumps(got, sort_keys=True) == json.dumps(expected, sort_keys=True), f.name

@@ -158,3 +158,18 @@ def test_summary_per_recording_and_probabilities() -> None:
     assert s["per_recording"]["a"]["n_windows"] == 2 and s["per_recording"]["b"]["n_lane_change_windows"] == 1
     assert s["per_recording"]["a"]["rmse"] == pytest.approx([np.sqrt(2.5)] * 5)
     assert s["per_recording"]["a"]["maneuver_macro_f1"] == 1.0
+
+
+def test_rmse_per_band_of_target_speed() -> None:
+    # speeds at the band edges fall into the band above: 0.2 is creeping, 25 is fast
+    speed = np.array([0.0, 0.19, 0.2, 1.0, 25.0, 40.0])
+    err = np.array([[1.0] * 5, [3.0] * 5, [2.0] * 5, [4.0] * 5, [5.0] * 5, [7.0] * 5])
+    bands = M.per_speed_band(err, speed)
+    assert list(bands) == ["< 0.2 m/s", "0.2–2 m/s", "≥ 25 m/s"]  # empty bands left out, in order
+    assert [b["n_windows"] for b in bands.values()] == [2, 2, 2]
+    assert bands["< 0.2 m/s"]["rmse"] == pytest.approx([np.sqrt(5.0)] * 5)
+    assert bands["≥ 25 m/s"]["rmse"] == pytest.approx([np.sqrt(37.0)] * 5)
+    pred, true = _errors_as_offsets(err)
+    s = M.summary(pred, true, np.zeros((6, 5), int), np.arange(6), speed=speed, boots=0)
+    assert s["per_speed_band"] == bands
+    assert M.summary(pred, true, np.zeros((6, 5), int), np.arange(6), boots=0)["per_speed_band"] is None

@@ -21,6 +21,7 @@ from lanecast.models.evaluation import (
     evaluate,
     example_scenes,
     out_of_distribution_note,
+    speed_band_note,
     write_metrics,
 )
 from lanecast.models.forecaster import Forecaster
@@ -114,6 +115,9 @@ def run(args: argparse.Namespace) -> int:
         f"accuracy {straight['maneuver_accuracy']:.3f}"
     )
     print("  (macro-F1 over the maneuver classes present or predicted: a false lane change counts)")
+    band_note = speed_band_note(metrics)
+    if band_note is not None:
+        print(f"by target speed: {band_note} (report: By target speed)")
     print(f"wrote {args.out / 'metrics.json'}, report.md, report.html")
     if ood_note is not None:
         print(f"out of distribution: {ood_note}")

@@ -31,6 +31,7 @@ from lanecast.io_adapters.files import progress, staged_files
 from lanecast.models.baselines import constant_acceleration, constant_velocity
 from lanecast.models.evaluation import write_metrics
 from lanecast.models.metrics import accuracy, confusion_matrix, macro_f1, summary
+from lanecast.models.ood import target_speed
 from lanecast.models.report import Scene, write_report
 from lanecast.pipeline.make_windows import make_windows
 from lanecast.workflows.log_discovery import discover
@@ -213,6 +214,7 @@ def metrics_of(parts: list[dict[str, Any]]) -> dict[str, Any]:
     has_maneuver = all(p["maneuver_pred"] is not None for p in parts)
     probs = cat("probs")
     log_name = np.concatenate([np.full(len(p["future"]), p["log"].stem, dtype=object) for p in parts])
+    speed = target_speed(cat("inputs"))
     out = {
         "stcnn": summary(
             cat("offsets"),
@@ -223,6 +225,7 @@ def metrics_of(parts: list[dict[str, Any]]) -> dict[str, Any]:
             predicted_maneuver=cat("maneuver_pred") if has_maneuver else None,
             probs=probs if has_maneuver and np.isfinite(probs).all() else None,
             recording=log_name,
+            speed=speed,
         )
     }
     for name in parts[0]["baselines"]:
@@ -232,6 +235,7 @@ def metrics_of(parts: list[dict[str, Any]]) -> dict[str, Any]:
             maneuver,
             vehicle,
             recording=log_name,
+            speed=speed,
         )
     return out
 
