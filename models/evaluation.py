@@ -134,8 +134,8 @@ def concat_predictions(parts: Sequence[Predictions]) -> Predictions:
 
 
 def speed_band_note(metrics: dict[str, Any], model: str = "stcnn") -> str | None:
-    """One line on the target-speed bands where ``model`` is worse than constant velocity at some
-    horizon (the bands of ``metrics.per_speed_band``); None without both models' bands."""
+    """Where ``model`` is worse than constant velocity at some horizon, in bands of the target's speed
+    (``metrics.per_speed_band``), as words to follow the model's name; None without both models' bands."""
     bands = (metrics.get(model) or {}).get("per_speed_band")
     cv = (metrics.get("cv") or {}).get("per_speed_band")
     if not bands or not cv:
@@ -146,8 +146,8 @@ def speed_band_note(metrics: dict[str, Any], model: str = "stcnn") -> str | None
         if ratios and max(ratios) > 1:
             worse.append(f"{band} ({row['n_windows']:,} windows; up to {max(ratios):.2f}× its RMSE)")
     if not worse:
-        return f"{model} is no worse than constant velocity at any horizon in any band of target speed"
-    return f"{model} is worse than constant velocity at some horizon for targets at " + ", ".join(worse)
+        return "no worse than constant velocity at any horizon in any band of target speed"
+    return "worse than constant velocity at some horizon for targets at " + ", ".join(worse)
 
 
 def out_of_distribution_note(

@@ -117,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
     print("  (macro-F1 over the maneuver classes present or predicted: a false lane change counts)")
     band_note = speed_band_note(metrics)
     if band_note is not None:
-        print(f"by target speed: {band_note} (report: By target speed)")
+        print(f"by target speed, stcnn: {band_note} (report: By target speed)")
     print(f"wrote {args.out / 'metrics.json'}, report.md, report.html")
     if ood_note is not None:
         print(f"out of distribution: {ood_note}")

@@ -29,7 +29,7 @@ from lanecast.io_adapters.contracts.windows import to_window_frame
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import progress, staged_files
 from lanecast.models.baselines import constant_acceleration, constant_velocity
-from lanecast.models.evaluation import write_metrics
+from lanecast.models.evaluation import speed_band_note, write_metrics
 from lanecast.models.metrics import accuracy, confusion_matrix, macro_f1, summary
 from lanecast.models.ood import target_speed
 from lanecast.models.report import Scene, write_report
@@ -377,4 +377,7 @@ def _write_reports(paths: list[Path], out: Path, topic: str | None, examples: in
         f"scored {meta['forecasts_scored']:,} of {meta['forecasts_in_logs']:,} forecasts in {len(parts)} log(s)"
     )
     print(f"  RMSE 1-5 s (m): forecasts {rmse} | constant velocity {cv}")
+    band_note = speed_band_note(metrics)
+    if band_note is not None:
+        print(f"  by target speed, the forecasts: {band_note}")
     return 1 if failed else 0, html
