@@ -241,6 +241,9 @@ def recording_runs(path: Path) -> tuple[list[str], np.ndarray, np.ndarray]:
         col = pf.read_row_group(i, columns=["recording"]).column("recording")
         for chunk in col.chunks:
             chunk = chunk if pa.types.is_dictionary(chunk.type) else chunk.dictionary_encode()
+            if chunk.null_count:  # a null recording has no code: name its row, as validate does
+                row = offset + int(np.flatnonzero(chunk.is_null().to_numpy(zero_copy_only=False))[0])
+                raise TrackTableError(f"{path}: row {row}: column 'recording' is null")
             codes = chunk.indices.to_numpy(zero_copy_only=False)
             if codes.size == 0:
                 continue
@@ -267,8 +270,13 @@ def parquet_pieces(path: Path, max_rows: int = MAX_ROWS, *, long: str = "whole")
         raise InputError(
             path, f"not a readable Parquet track table: {exc}", expected="a lanecast track table"
         ) from exc
-    if len(set(names)) != len(names):
-        raise TrackTableError(f"{path}: rows of one recording are not contiguous (not sorted by recording)")
+    again = [k for k, name in enumerate(names) if name in names[:k]]
+    if again:
+        k = again[0]
+        raise TrackTableError(
+            f"{path}: row {int(first[k])}: recording {names[k]!r} starts again after rows of "
+            f"{names[k - 1]!r}: rows are not sorted by (recording, track_id, frame)"
+        )
     group_rows = [pf.metadata.row_group(i).num_rows for i in range(pf.num_row_groups)]
     group_start = np.r_[0, np.cumsum(group_rows)].astype(np.int64)
     pieces: list[Piece] = []

@@ -310,9 +310,36 @@ def test_a_table_without_rows_leaves_no_output(
     path = track_table_copy(tmp_path, lambda t: t.slice(0, 0))
     out = tmp_path / ("out" if partition else "out.parquet")
     refused(
-        ["convert", str(path), "--out", str(out), *(["--partition"] if partition else [])], capsys, "no rows"
+        ["convert", str(path), "--out", str(out), *(["--partition"] if partition else [])],
+        capsys,
+        f"error: {path}: no rows",  # the input that has none, not the output never written
     )
     no_output(out)
+
+
+def _null_recording(table: pa.Table) -> pa.Table:
+    names = table.column("recording").to_pylist()
+    names[2] = None
+    field = table.schema.field("recording").with_nullable(True)
+    return table.set_column(0, field, pa.array(names, pa.string()).dictionary_encode())
+
+
+@pytest.mark.parametrize(
+    ("edit", "words"),
+    [
+        (lambda t: t.append_column(t.schema.field("x"), t.column("x")), "column 'x' appears twice"),
+        (_null_recording, "row 2: column 'recording' is null"),
+        (lambda t: pa.concat_tables([t, t.slice(0, 1)]), "row 14: recording 'highd-01-lower' starts again"),
+    ],
+    ids=["column twice", "null recording", "recording twice"],
+)
+def test_track_table_columns_arrow_allows_but_the_contract_does_not(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], edit: Callable[[pa.Table], pa.Table], words: str
+) -> None:
+    """A column twice (KeyError) and a null recording (TypeError in the streaming planner) were
+    tracebacks; a recording whose rows come back later named no row."""
+    path = track_table_copy(tmp_path, edit)
+    convert_refused(path, tmp_path, capsys, f"error: {path}: {words}")
 
 
 @pytest.mark.parametrize(

@@ -123,6 +123,10 @@ def run(args: argparse.Namespace) -> int:
             pieces = streaming.plan(
                 args.inputs, fmt=args.format, spill_dir=spill.path, options=options, long="tracks"
             )
+            if not pieces:  # inputs that read as tables of no rows (a Parquet table of none)
+                raise InputError(
+                    ", ".join(map(str, args.inputs)), "no rows", expected="at least one row to convert"
+                )
             ordered_map = engines.mapper_from_args(args, args.inputs, args.out)
             rows, tracks = streaming.convert(pieces, args.out, directory=directory, ordered_map=ordered_map)
         path = args.out

@@ -245,6 +245,9 @@ def validate(table: pa.Table, source: str | Path | None = None, first_row: int =
     """
     where = f"{source}: " if source is not None else ""
     present = set(table.column_names)
+    if len(present) != table.num_columns:  # Arrow allows it; every lookup by name would fail
+        twice = next(n for i, n in enumerate(table.column_names) if n in table.column_names[:i])
+        raise TrackTableError(f"{where}column {twice!r} appears twice, expected each column once")
     for name in REQUIRED_COLUMNS:
         if name not in present:
             raise TrackTableError(f"{where}missing column {name!r}")
