@@ -832,3 +832,24 @@ def test_explain_time_nan_is_refused(tmp_path: Path, capsys: pytest.CaptureFixtu
         capsys,
         "--time: nan",
     )
+
+
+def test_a_log_that_fails_in_annotate_ends_stderr_with_its_error(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A truncated log given to annotate: exit 1 with its error only on stdout (in the summary)
+    and a progress line last on stderr; now the error is the last line on stderr, as for every
+    other command, and the good log beside it is still annotated."""
+    from test_hostile_inputs import json_log, straight_messages
+
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    good = json_log(logs / "good.mcap", straight_messages(n=60))
+    data = good.read_bytes()
+    (logs / "cut.mcap").write_bytes(data[: len(data) // 2])
+    out = tmp_path / "out"
+    status = main(["annotate", str(logs), "--out", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert status == 1 and "Traceback" not in "".join(err)
+    assert err[-1].startswith(f"lanecast annotate: error: {logs / 'cut.mcap'}, offset "), err[-1]
+    assert (out / "good.mcap").is_file() and not (out / "cut.mcap").exists()

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 from pathlib import Path
 
 from lanecast.io_adapters.errors import UsageError
@@ -106,4 +107,15 @@ def run(args: argparse.Namespace) -> int:
         force=args.force,
     )
     print(result.summary())
-    return 1 if result.failed else 0
+    if not result.failed:
+        return 0
+    # The error of a failed log on stderr, last, as every command reports one (the summary above
+    # and the manifest list them all); status 1: the other logs are done.
+    failed = result.failed
+    more = (
+        f"{len(failed)} logs failed (see {result.out_dir / bulk.MANIFEST}), the first: "
+        if len(failed) > 1
+        else ""
+    )
+    print(f"lanecast annotate: error: {more}{failed[0]['error']}", file=sys.stderr)
+    return 1
