@@ -253,3 +253,26 @@ def test_convert_cli_reports_damage_and_salvages(
     assert main(["convert", str(path), "--salvage", "--out", str(tmp_path / "t.parquet")]) == 0
     captured = capsys.readouterr()
     assert "lost 1 chunks" in captured.err and "wrote" in captured.out
+
+
+@pytest.mark.parametrize(
+    ("fmt", "storage", "name"), [("ros1", "", "d.bag"), ("ros2", "sqlite3", "b"), ("ros2", "mcap", "b")]
+)
+@pytest.mark.parametrize("fraction", [0.05, 0.3, 0.6, 0.95, 0.9999])
+def test_truncated_bag_names_file_and_offset(
+    tmp_path: Path, table: pa.Table, fmt: str, storage: str, name: str, fraction: float
+) -> None:
+    """A bag cut short was 'cannot read the bag: Bag index looks damaged' (ROS 1), 'database disk
+    image is malformed' (sqlite3) or 'not a complete MCAP file' (ROS 2 MCAP storage): no offset."""
+    from lanecast.io_adapters.logs import rosbag_writer
+
+    bag = rosbag_writer.write(table, tmp_path / name, fmt, **({"storage": storage} if storage else {}))
+    data_file = bag if bag.is_file() else next(p for p in bag.iterdir() if p.suffix in (".db3", ".mcap"))
+    data = data_file.read_bytes()
+    cut = int(len(data) * fraction)
+    data_file.write_bytes(data[:cut])
+    with pytest.raises(LogError, match="truncated") as err:
+        rosbag_reader.read(bag)
+    assert err.value.path == str(data_file)
+    assert err.value.offset is not None and 0 <= err.value.offset <= cut
+    assert "\n" not in str(err.value)

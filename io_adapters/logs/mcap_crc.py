@@ -41,14 +41,23 @@ def verify_crcs(path: str | Path) -> None:
 
 def _crcs(path: Path, mm: mmap.mmap) -> None:
     size = len(mm)
-    if size < 8 + _FOOTER_SIZE + 8 or mm[:8] != MAGIC or mm[size - 8 :] != MAGIC:
-        raise LogError(path, "not a complete MCAP file", expected="magic, records, footer, magic")
+    if size < 8 or mm[:8] != MAGIC:
+        raise LogError(path, "no MCAP magic at the start", offset=0, expected="magic, records, footer, magic")
+    # A file cut short (a copy or a recorder killed) is walked up to where it ends: the error names
+    # the record it cuts, or the end of the file where the summary and footer should be.
+    complete = size >= 8 + _FOOTER_SIZE + 8 and mm[size - 8 :] == MAGIC
     pos = 8
     while pos + 9 <= size:
         op, length = REC_HEAD.unpack_from(mm, pos)
         body, nxt = pos + 9, pos + 9 + length
         if nxt > size:
-            raise LogError(path, "a record runs past the end", offset=pos, expected="a complete MCAP file")
+            raise LogError(
+                path,
+                f"the file is truncated: a record (opcode {op:#04x}) declares {length} bytes but the file "
+                f"ends {size - body} bytes later",
+                offset=pos,
+                expected="a complete MCAP file",
+            )
         if op == OP_CHUNK:
             try:
                 chunk_payload(mm, body, nxt)  # checks a non-zero CRC
@@ -59,6 +68,13 @@ def _crcs(path: Path, mm: mmap.mmap) -> None:
             _check(path, crc, crc32_of(mm, 0, pos), pos, "data section")
             break
         pos = nxt
+    if not complete:
+        raise LogError(
+            path,
+            f"the file is truncated: it ends at {size} bytes without a footer and the closing magic",
+            offset=size,
+            expected="a complete MCAP file",
+        )
     footer = size - 8 - _FOOTER_SIZE
     if mm[footer] != OP_FOOTER:
         raise LogError(path, "no footer before the closing magic", offset=footer, expected="a Footer record")

@@ -17,7 +17,7 @@ import pyarrow as pa
 
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.errors import LogError
-from lanecast.io_adapters.logs import frame_transforms, log_assembly, ros_types
+from lanecast.io_adapters.logs import bag_damage, frame_transforms, log_assembly, ros_types
 from lanecast.io_adapters.logs import log_conventions as conv
 from lanecast.io_adapters.logs import tracked_objects as to
 from lanecast.io_adapters.logs.mcap_crc import verify_crcs
@@ -70,6 +70,10 @@ def read_log(
     if target.is_dir():  # rosbags does not check MCAP CRCs: check them first (sqlite3 has none)
         for storage_file in sorted(target.glob("*.mcap")):
             verify_crcs(storage_file)
+        for storage_file in sorted(target.glob("*.db3")):  # a file cut short may still open
+            cut = bag_damage.sqlite_truncation(storage_file)
+            if cut is not None:
+                raise LogError(storage_file, cut[1], offset=cut[0], expected="an intact ROS bag")
     topics: dict[str, log_assembly.TopicData] = {}
     transforms = frame_transforms.Transforms()
     log_meta: dict[str, Any] | None = None
@@ -109,6 +113,10 @@ def read_log(
     except LogError:
         raise
     except Exception as exc:  # rosbags reader/serde errors: damaged or unreadable bag
+        damage = _located_damage(target, ros1)
+        if damage is not None:
+            file, offset, problem = damage
+            raise LogError(file, problem, offset=offset, expected="an intact ROS bag") from exc
         raise LogError(
             path, f"cannot read the bag: {type(exc).__name__}: {exc}", expected="an intact ROS bag"
         ) from exc
@@ -124,6 +132,20 @@ def read_log(
         topic=topic,
         fixed_frames=fixed_frames or conv.FIXED_FRAMES,
     )
+
+
+def _located_damage(target: Path, ros1: bool) -> tuple[Path, int, str] | None:
+    """(file, byte offset, what is wrong) of a bag rosbags failed to read, where its structure
+    shows it (a file cut short, a corrupt chunk), else None: rosbags' errors give no offset."""
+    files = [target] if ros1 else sorted(target.glob("*.db3"))
+    for file in files:
+        try:
+            found = bag_damage.ros1_damage(file) if ros1 else bag_damage.sqlite_damage(file)
+        except OSError:
+            continue
+        if found is not None:
+            return (file, *found)
+    return None
 
 
 def _handler(

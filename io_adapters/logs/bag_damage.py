@@ -1,0 +1,166 @@
+"""Where a bag that rosbags cannot read is damaged: the byte offset its error does not give.
+
+rosbags says "Bag index looks damaged" for any ROS 1 bag cut short and "database disk image is
+malformed" for a cut sqlite3 file. After such a failure (never on the happy path) these walks
+look at the file's own structure, record headers only, and name the first thing that is wrong:
+
+* ROS 1 (``#ROSBAG V2.0``): records of ``header_len, header, data_len, data``; a record running
+  past the end of the file, a header field running past its header, a bag that was never indexed
+  (index_pos 0, its recorder killed) or whose index lies beyond the end, a chunk whose bz2/lz4
+  data does not decompress to the size it states.
+* sqlite3: the database header's page size and page count against the file's size.
+"""
+
+from __future__ import annotations
+
+import bz2
+import mmap
+import re
+import struct
+from pathlib import Path
+
+ROS1_MAGIC = b"#ROSBAG V2.0\n"
+_U32 = struct.Struct("<I")
+_OP_BAG_HEADER = 0x03
+_OP_CHUNK = 0x05
+SQLITE_MAGIC = b"SQLite format 3\x00"
+
+
+def ros1_damage(path: Path) -> tuple[int, str] | None:
+    """(offset, what is wrong) of the first fault of the ROS 1 bag at ``path``, or None."""
+    with open(path, "rb") as f:
+        size = f.seek(0, 2)
+        if size <= len(ROS1_MAGIC):
+            return size, f"the file is truncated: {size} bytes, no record after the magic"
+        with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
+            return _ros1_walk(mm, size)
+
+
+def _ros1_walk(mm: mmap.mmap, size: int) -> tuple[int, str] | None:
+    pos = len(ROS1_MAGIC)
+    index_pos: int | None = None
+    while pos < size:
+        if pos + 4 > size:
+            return pos, f"the file is truncated inside a record header ({size - pos} bytes left)"
+        (header_len,) = _U32.unpack_from(mm, pos)
+        header_end = pos + 4 + header_len
+        if header_end + 4 > size:
+            return (
+                pos,
+                f"the file is truncated: a record header declares {header_len} bytes, the file ends first",
+            )
+        fields = _fields(mm, pos + 4, header_end)
+        if fields is None:
+            return pos, "a record header whose fields run past the header"
+        (data_len,) = _U32.unpack_from(mm, header_end)
+        data, end = header_end + 4, header_end + 4 + data_len
+        op = fields.get("op", b"\xff")[:1]
+        opcode = op[0] if op else 0xFF
+        if end > size:
+            return pos, (
+                f"the file is truncated: a record (op {opcode:#04x}) declares {data_len} bytes of data "
+                f"but the file ends {size - data} bytes later"
+            )
+        if opcode == _OP_BAG_HEADER and len(fields.get("index_pos", b"")) == 8:
+            (index_pos,) = struct.unpack("<Q", fields["index_pos"])
+            if index_pos == 0:
+                return pos, "the bag was never indexed (index_pos 0: its recorder did not close it)"
+            if index_pos > size:
+                return (
+                    pos,
+                    f"the file is truncated: the bag header puts the index at offset {index_pos}, the file "
+                    f"ends at {size}",
+                )
+        elif opcode == _OP_CHUNK:
+            problem = _chunk_problem(fields, mm[data:end])
+            if problem is not None:
+                return pos, problem
+        pos = end
+    return None
+
+
+def _fields(mm: mmap.mmap, pos: int, end: int) -> dict[str, bytes] | None:
+    out: dict[str, bytes] = {}
+    while pos < end:
+        if pos + 4 > end:
+            return None
+        (n,) = _U32.unpack_from(mm, pos)
+        if pos + 4 + n > end:
+            return None
+        name, _, value = bytes(mm[pos + 4 : pos + 4 + n]).partition(b"=")
+        out[name.decode("latin-1")] = value
+        pos += 4 + n
+    return out
+
+
+def _chunk_problem(fields: dict[str, bytes], data: bytes) -> str | None:
+    compression = fields.get("compression", b"none").decode("latin-1")
+    stated = struct.unpack("<I", fields["size"])[0] if len(fields.get("size", b"")) == 4 else None
+    try:
+        if compression == "bz2":
+            raw = bz2.decompress(data)
+        elif compression == "lz4":
+            import lz4.frame
+
+            raw = lz4.frame.decompress(data)
+        else:
+            raw = data
+    except (OSError, ValueError, RuntimeError) as exc:
+        return f"a corrupt {compression} chunk: {exc}"
+    if stated is not None and len(raw) != stated:
+        return f"a {compression} chunk of {len(raw)} bytes, its header states {stated}"
+    return None
+
+
+def sqlite_damage(path: Path) -> tuple[int, str] | None:
+    """(offset, what is wrong) of a sqlite3 file cut short (:func:`sqlite_truncation`) or whose
+    b-trees sqlite's own check finds damaged, or None."""
+    found = sqlite_truncation(path)
+    if found is not None:
+        return found
+    with open(path, "rb") as f:
+        (page_size,) = struct.unpack_from(">H", f.read(18), 16)  # a complete header: see above
+    return _integrity(path, 65536 if page_size == 1 else page_size)
+
+
+def sqlite_truncation(path: Path) -> tuple[int, str] | None:
+    """(offset, what is wrong) of a sqlite3 file whose header does not match its size, or None:
+    cheap (100 bytes and a seek), so checked before reading, where a file cut by a few bytes may
+    still open."""
+    with open(path, "rb") as f:
+        head = f.read(100)
+        size = f.seek(0, 2)
+    if len(head) < 100:
+        return len(head), f"the file is truncated: {size} bytes, inside the 100-byte sqlite3 header"
+    if not head.startswith(SQLITE_MAGIC):
+        return 0, "no sqlite3 header (SQLite format 3)"
+    (page_size,) = struct.unpack_from(">H", head, 16)
+    page_size = 65536 if page_size == 1 else page_size
+    (pages,) = struct.unpack_from(">I", head, 28)
+    valid = head[24:28] == head[92:96]  # the page count is valid only where these agree
+    if valid and pages and size < pages * page_size:
+        return size, (
+            f"the file is truncated: its header declares {pages} pages of {page_size} bytes "
+            f"({pages * page_size} bytes), the file ends at {size}"
+        )
+    return None
+
+
+def _integrity(path: Path, page_size: int) -> tuple[int, str] | None:
+    """sqlite's own check of the b-trees (read-only): the first damaged page it names, as an offset."""
+    import sqlite3
+
+    try:
+        con = sqlite3.connect(f"file:{path}?mode=ro&immutable=1", uri=True)
+        try:
+            rows = con.execute("PRAGMA quick_check(1)").fetchall()
+        finally:
+            con.close()
+    except sqlite3.Error as exc:
+        return 0, f"not a readable sqlite3 database: {exc}"
+    report = " ".join(str(r[0]) for r in rows).replace("*** in database main ***", "").strip()
+    if report in ("", "ok"):
+        return None
+    page = re.search(r"[Pp]age (\d+)", report)
+    offset = (int(page.group(1)) - 1) * page_size if page else 0
+    return offset, f"damaged sqlite3 database: {' '.join(report.split())}"
