@@ -276,3 +276,21 @@ def test_truncated_bag_names_file_and_offset(
     assert err.value.path == str(data_file)
     assert err.value.offset is not None and 0 <= err.value.offset <= cut
     assert "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize(("column", "value"), [("data", "x''"), ("data", "'text'"), ("timestamp", "'abc'")])
+def test_bad_sqlite3_message_names_where_reading_stopped(
+    tmp_path: Path, table: pa.Table, column: str, value: str
+) -> None:
+    """An empty or text payload or a text timestamp in a sqlite3 bag: 'cannot read the bag:
+    AnyReaderError: Invalid or unsupported CDR encapsulation', no message, topic or time."""
+    import sqlite3
+
+    from lanecast.io_adapters.logs import rosbag_writer
+
+    bag = rosbag_writer.write(table, tmp_path / "b", "ros2", storage="sqlite3")
+    with sqlite3.connect(bag / "b.db3") as con:
+        con.execute(f"UPDATE messages SET {column}={value} WHERE id=(SELECT MIN(id) FROM messages)")
+    with pytest.raises(LogError, match=r"cannot read the bag at message \d+ \(topic '/") as err:
+        rosbag_reader.read(bag)
+    assert err.value.path == str(bag)

@@ -77,6 +77,7 @@ def read_log(
     topics: dict[str, log_assembly.TopicData] = {}
     transforms = frame_transforms.Transforms()
     log_meta: dict[str, Any] | None = None
+    at: tuple[int, str, int] = (0, "", 0)  # the messages read, the last one's topic and log time
     try:
         with AnyReader([target], default_typestore=ros_types.typestore(1 if ros1 else 2)) as reader:
             listing = ", ".join(sorted(f"{c.topic} [{c.msgtype}]" for c in reader.connections)) or "none"
@@ -99,6 +100,7 @@ def read_log(
             wanted = [c for c in reader.connections if own or c.id in handlers]
             digest = conv.PayloadDigest()
             for conn, timestamp, raw in reader.messages(connections=wanted):
+                at = (at[0] + 1, conn.topic, timestamp)
                 if conn.topic == conv.META_TOPIC and conn.msgtype == ros_types.STRING:
                     meta_msg: Any = reader.deserialize(raw, conn.msgtype)
                     log_meta = conv.parse_log_metadata(path, meta_msg.data)
@@ -117,8 +119,11 @@ def read_log(
         if damage is not None:
             file, offset, problem = damage
             raise LogError(file, problem, offset=offset, expected="an intact ROS bag") from exc
+        where = f" at message {at[0]} (topic {at[1]!r}, log time {at[2]} ns) or the next" if at[0] else ""
         raise LogError(
-            path, f"cannot read the bag: {type(exc).__name__}: {exc}", expected="an intact ROS bag"
+            path,
+            f"cannot read the bag{where}: {type(exc).__name__}: {exc}",
+            expected="an intact ROS bag",
         ) from exc
     found = {t: d for t, d in topics.items() if len(d.columns)}
     if not found:
