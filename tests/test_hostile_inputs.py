@@ -497,6 +497,7 @@ def test_ngsim_ids_beyond_2_53_stay_distinct(tmp_path: Path) -> None:
         (11, "-40.0", "v_Vel", "a speed >= 0"),
         (13, str(2**33), "Lane_ID", "within int32"),
         (0, "9.3e18", "Vehicle_ID", "below 2^53"),
+        (0, "-2", "Vehicle_ID", "a vehicle id >= 0"),  # was a phantom one-row track -2
     ],
 )
 def test_ngsim_values_out_of_range(

@@ -599,6 +599,7 @@ def _checked_ranges(
     if not bad_rows:
         for name in INTEGER_COLUMNS:
             out[name] = out[name].astype(np.int64)
+        flag("vehicle_id", out["vehicle_id"] < 0, "a vehicle id >= 0")  # NGSIM numbers from 1
         flag("frame_id", (out["frame_id"] < 0) | (out["frame_id"] > MAX_FRAME_ID), f"0 to {MAX_FRAME_ID}")
         flag(
             "global_time", (out["global_time"] < 0) | (out["global_time"] >= EXACT_FLOAT_INT), "0 to 2^53 ms"
