@@ -147,6 +147,21 @@ def test_damaged_tracks_file_of_a_highd_directory_is_named(
 US101 = REPO / "tests" / "data" / "ngsim" / "us-101" / "trajectories-fixture.txt"
 
 
+@pytest.mark.parametrize("replace", ["nothing", "a directory"])
+def test_a_highd_directory_without_its_tracks_file_names_it(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], replace: str
+) -> None:
+    """A highD directory holding 01_tracksMeta.csv and 01_recordingMeta.csv but no 01_tracks.csv
+    file (missing, or a directory of that name) was 'format not recognised' or 'no highD
+    recording in this directory', naming neither the recording nor the file it lacks."""
+    rec = highd_copy(tmp_path)
+    (rec / "01_tracks.csv").unlink()
+    if replace == "a directory":
+        (rec / "01_tracks.csv").mkdir()
+    line = convert_refused(rec, tmp_path, capsys, f"error: {rec / '01_tracks.csv'}: ")
+    assert line.endswith("(expected the highD tracks CSV file)"), line
+
+
 def test_error_is_the_last_line_after_progress(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """The second file of a folder is cut short: the error line ends stderr (the abandoned progress
     used to print its count after it, when the reader's generator was collected)."""

@@ -154,6 +154,12 @@ def _looks_like(path: Path, kind: str) -> bool:
     return len(names & set(required)) * 2 >= len(required)
 
 
+def _named_files(directory: Path) -> list[tuple[Path, re.Match[str]]]:
+    """The regular files of ``directory`` named as highD's (NN_tracks.csv, …), with their match."""
+    named = ((p, _NAME.match(p.name)) for p in sorted(directory.glob("*_*.csv")))
+    return [(p, m) for p, m in named if m is not None and p.is_file()]
+
+
 def _with_companions(path: Path, prefix: str) -> bool:
     """All three files of recording ``prefix`` are beside ``path``."""
     return all((path.parent / f"{prefix}_{kind}.csv").is_file() for kind in KINDS)
@@ -164,11 +170,10 @@ def sniff(path: Path) -> bool:
     a directory holding one: a recording whose file is damaged (empty, UTF-16, another separator)
     is still highD, for the reader to name what is wrong with it."""
     path = Path(path)
-    if path.is_dir():
+    if path.is_dir():  # any of a recording's files: one missing is the reader's to name
         return any(
-            _looks_like(p, "tracks") or _with_companions(p, p.name[: -len("_tracks.csv")])
-            for p in sorted(path.glob("*_tracks.csv"))
-            if p.is_file()
+            _looks_like(p, m.group("kind")) or _with_companions(p, m.group("prefix"))
+            for p, m in _named_files(path)
         )
     match = _NAME.match(path.name)
     return (
@@ -183,13 +188,15 @@ def recordings(paths: Sequence[str | Path]) -> list[Recording]:
     found: dict[tuple[Path, str], Recording] = {}
     for raw in paths:
         path = Path(raw)
-        if path.is_dir():
-            tracks = sorted(p for p in path.glob("*_tracks.csv") if p.is_file())
-            if not tracks:
+        match = _NAME.match(path.name)
+        if path.is_dir() and match is None:
+            # Every recording any of whose three files is here: one whose tracks file is missing
+            # (or is no file) is refused naming it, not left out.
+            prefixes = sorted({m.group("prefix") for _, m in _named_files(path)})
+            if not prefixes:
                 raise InputError(path, "no highD recording in this directory", expected="NN_tracks.csv files")
-            candidates = [Recording(path, p.name[: -len("_tracks.csv")]) for p in tracks]
+            candidates = [Recording(path, prefix) for prefix in prefixes]
         else:
-            match = _NAME.match(path.name)
             if match is None:
                 raise InputError(
                     path,
@@ -197,7 +204,8 @@ def recordings(paths: Sequence[str | Path]) -> list[Recording]:
                     expected="NN_tracks.csv, NN_tracksMeta.csv or NN_recordingMeta.csv",
                 )
             if not path.is_file():
-                raise InputError(path, "no such file")
+                what = "a directory, not a file" if path.is_dir() else "no such file"
+                raise InputError(path, what, expected=f"the highD {match.group('kind')} CSV file")
             candidates = [Recording(path.parent, match.group("prefix"))]
         for rec in candidates:
             found.setdefault((rec.directory.resolve(), rec.prefix), rec)
@@ -664,7 +672,8 @@ def _read_one(
             raise InputError(
                 rec.path(kind),
                 f"missing companion file of highD recording {rec.prefix!r}",
-                expected=f"{rec.path(kind).name} beside {rec.path('tracks').name}",
+                expected=f"a file {rec.path(kind).name}"
+                + (f" beside {rec.path('tracks').name}" if kind != "tracks" else ""),
             )
     meta = _read_recording_meta(rec.path("recordingMeta"))
     meta_table = _read_csv(rec.path("tracksMeta"), TRACKS_META_COLUMNS, "tracksMeta")
