@@ -868,3 +868,19 @@ def test_a_log_that_fails_in_annotate_ends_stderr_with_its_error(
     assert status == 1 and "Traceback" not in "".join(err)
     assert err[-1].startswith(f"lanecast annotate: error: {logs / 'cut.mcap'}, offset "), err[-1]
     assert (out / "good.mcap").is_file() and not (out / "cut.mcap").exists()
+
+
+@pytest.mark.parametrize("missing", ["inputs.npy", "manifest.json"])
+def test_explain_on_a_windows_dataset_missing_a_file_names_it(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], missing: str
+) -> None:
+    """Without inputs.npy or manifest.json a windows dataset was read as a Parquet track table
+    (its windows.parquet): 'win/windows.parquet: missing column 'frame''."""
+    directory = windows_copy(tmp_path, lambda d: (d / missing).unlink())
+    out = tmp_path / "explain"
+    refused(
+        ["explain", str(directory), "--track", "1", "--time", "5", "--out", str(out)],
+        capsys,
+        f"error: {directory / missing}: missing file of a windows dataset",
+    )
+    no_output(out)

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from lanecast.io_adapters import registry
-from lanecast.io_adapters.contracts.windows import Windows, load_windows
+from lanecast.io_adapters.contracts.windows import DATASET_FILES, Windows, load_windows
 from lanecast.io_adapters.errors import InputError, UsageError
 from lanecast.io_adapters.files import staged_files
 from lanecast.models.explain import parse_removals, present_neighbours, what_if
@@ -140,11 +140,9 @@ def window_of(args: argparse.Namespace, card: dict[str, Any]) -> tuple[Windows, 
     if not math.isfinite(args.time):
         raise UsageError("--time", f"{args.time}", expected="a time in seconds")
     t0_ns = round(args.time * 10) * STEP_NS
-    if (
-        args.input.is_dir()
-        and (args.input / "manifest.json").is_file()
-        and (args.input / "inputs.npy").is_file()
-    ):
+    # A directory with any file of a windows dataset is one: one missing is load_windows' to name
+    # (not read as a Parquet track table dataset of its windows.parquet).
+    if args.input.is_dir() and any((args.input / name).exists() for name in DATASET_FILES):
         windows = load_windows(args.input)
     else:
         table = registry.read_any([args.input])
