@@ -499,6 +499,11 @@ def _drop_split(directory: Path) -> None:
     )
 
 
+def _manifest_set(directory: Path, **fields: object) -> None:
+    manifest = json.loads((directory / "manifest.json").read_text())
+    (directory / "manifest.json").write_text(json.dumps({**manifest, **fields}))
+
+
 WINDOWS_DAMAGE: dict[str, tuple[Callable[[Path], object], str, str]] = {
     # case: (damage, file named, words): each was a traceback, a silent result or named no file
     "empty inputs.npy": (lambda d: (d / "inputs.npy").write_bytes(b""), "inputs.npy", "not a readable .npy array"),
@@ -509,6 +514,10 @@ WINDOWS_DAMAGE: dict[str, tuple[Callable[[Path], object], str, str]] = {
     "infinite future": (_edit_npy("future", _set_first(np.inf)), "future.npy", "window 0 holds inf"),
     "inputs short": (_edit_npy("inputs", lambda a: a[:-5]), "inputs.npy", "float32[55, 4, 8, 30]"),
     "no labelled windows": (_edit_npy("future", lambda a: a * np.nan), "win: no labelled", "known futures"),
+    # no target in its own window: a ValueError drawing the report's scenes
+    "target absent": (_edit_npy("present", np.zeros_like), "present.npy", "the target (row 4) is absent"),
+    # a dataset of a newer format: read as if it were this one
+    "format_version 99": (lambda d: _manifest_set(d, format_version=99), "manifest.json", "format_version 99"),
 }  # fmt: skip
 
 

@@ -39,6 +39,7 @@ from lanecast.io_adapters.npy_append import SHARD_HEADER_BYTES, NpyAppender, sav
 ROWS: tuple[str, ...] = ("FL", "F", "FR", "L", "T", "R", "RL", "RR")
 #: Row of the target vehicle.
 TARGET_ROW = ROWS.index("T")
+FORMAT_VERSION = 1  # manifest.json's format_version (pipeline.make_windows writes it)
 #: The neighbour slots (every row but the target's), in row order.
 NEIGHBOUR_ROWS: tuple[str, ...] = tuple(r for r in ROWS if r != "T")
 CHANNELS: tuple[str, ...] = ("x", "y", "v", "a")
@@ -132,6 +133,16 @@ class Windows:
             ("future", np.isinf, "finite offsets, NaN where unknown"),
             ("maneuver", lambda a: (a < -1) | (a >= len(MANEUVERS)), "labels -1 (unknown), 0, 1, 2"),
         )
+        for start in range(0, len(self), _CHUNK):  # windows exist where their target is present
+            absent = ~np.asarray(self.present[start : start + _CHUNK, TARGET_ROW])
+            if absent.any():
+                window, frame = np.unravel_index(int(np.flatnonzero(absent)[0]), absent.shape)
+                raise InputError(
+                    None if directory is None else directory / "present.npy",
+                    f"window {start + int(window)}: the target (row {TARGET_ROW}) is absent at history "
+                    f"frame {int(frame)}",
+                    expected="the target present in every history frame",
+                )
         for name, bad_of, expected in checks:
             array = getattr(self, name)
             for start in range(0, len(self), _CHUNK):
@@ -334,6 +345,14 @@ def load_windows(directory: str | Path, mmap: bool = True, check_values: bool = 
     if not isinstance(manifest, dict):
         raise InputError(
             directory / "manifest.json", "not a JSON object", expected="the manifest of `lanecast windows`"
+        )
+    version = manifest.get("format_version", FORMAT_VERSION)  # test datasets may carry none
+    if type(version) is not int or version != FORMAT_VERSION:
+        raise InputError(
+            directory / "manifest.json",
+            f"format_version {version!r}",
+            column="format_version",
+            expected=f"{FORMAT_VERSION} (a dataset of this lanecast's `lanecast windows`)",
         )
     windows = Windows(index=index, manifest=manifest, **arrays)
     windows.check(directory)
