@@ -93,9 +93,9 @@ def convert_refused(source: Path, tmp_path: Path, capsys: pytest.CaptureFixture[
 
 
 def test_windows_of_tracks_without_a_10hz_sample(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """At 1 MHz every track of the fixture lasts microseconds: no sample at 10 Hz, so no windows
+    """At 1 kHz every track of the fixture lasts milliseconds: no sample at 10 Hz, so no windows
     (resampling gave an empty table, which crashed the lane-change labels)."""
-    rec = highd_copy(tmp_path, "recordingMeta", set_cell("frameRate", "1000000"))
+    rec = highd_copy(tmp_path, "recordingMeta", set_cell("frameRate", "1000"))
     out = tmp_path / "win"
     refused(["windows", str(rec), "--out", str(out)], capsys, "no windows", "no rows at 10 Hz")
     no_output(out)
@@ -738,17 +738,20 @@ def test_a_blank_highd_class_is_refused(tmp_path: Path, capsys: pytest.CaptureFi
     convert_refused(rec, tmp_path, capsys, f"{rec / '01_tracksMeta.csv'}, line 4, column 'class'", "blank")
 
 
-def test_a_frame_rate_that_overflows_the_times_is_named(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+@pytest.mark.parametrize("rate", ["1e-9", "0.05", "1000000", "-25"])
+def test_an_implausible_frame_rate_is_refused_at_its_cell(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], rate: str
 ) -> None:
-    """frameRate 1e-9 Hz put frame 5 beyond int64 nanoseconds; the error said only 'expected a frame
-    from 0 to 4.612', sending one looking for a bad frame in the tracks, not at the rate."""
-    rec = highd_copy(tmp_path, "recordingMeta", set_cell("frameRate", "1e-9"))
-    refused(
-        ["convert", str(rec), "--out", str(tmp_path / "o.parquet")],
+    """frameRate 1e-9 Hz put frame 5 beyond int64 nanoseconds and was blamed on a frame of the
+    tracks ('column frame: expected a frame from 0 to 4.612'); 1 MHz converted. The rate itself is
+    refused at its line and column of the recordingMeta, with the range a rate may have."""
+    rec = highd_copy(tmp_path, "recordingMeta", set_cell("frameRate", rate))
+    convert_refused(
+        rec,
+        tmp_path,
         capsys,
-        "column 'frame'",
-        "frameRate 1e-09 Hz",
+        f"{rec / '01_recordingMeta.csv'}, line 2, column 'frameRate'",
+        "highD's 25 Hz, or any rate from 0.1 to 1000 Hz",
     )
 
 

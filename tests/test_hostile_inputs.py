@@ -348,6 +348,8 @@ def _parquet(tmp_path: Path) -> tuple[Path, pa.Table]:
     ("edit", "match"),
     [
         (lambda d: d["recordings"]["src"].update(frame_rate="abc"), "recordings.src.frame_rate"),
+        (lambda d: d["recordings"]["src"].update(frame_rate=1e-9), r"recordings.src.frame_rate.*0.1 to 1000"),
+        (lambda d: d["recordings"]["src"].update(frame_rate=1e308), r"recordings.src.frame_rate.*0.1 to 1000"),
         (lambda d: d.update(source_files=1), "source_files"),
         (lambda d: d.pop("source_format"), "source_format"),
         (lambda d: d["recordings"].update(src=[]), "recordings.src"),

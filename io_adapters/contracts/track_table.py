@@ -85,6 +85,21 @@ RANGES: tuple[tuple[str, float, str], ...] = (
 )
 
 
+#: Frame rates a recording may have (Hz): below 0.1 Hz there is no trajectory to forecast at 10 Hz
+#: (a highD frameRate of 1e-9 put frame 5 in the year 2128), above 1 kHz no traffic sensor records.
+FRAME_RATE_MIN, FRAME_RATE_MAX = 0.1, 1000.0
+FRAME_RATES = f"from {FRAME_RATE_MIN:g} to {FRAME_RATE_MAX:g} Hz"
+
+
+def plausible_frame_rate(rate: object) -> bool:
+    """``rate`` is a number (not bool) from FRAME_RATE_MIN to FRAME_RATE_MAX Hz."""
+    return (
+        isinstance(rate, (int, float, np.floating, np.integer))
+        and not isinstance(rate, bool)
+        and FRAME_RATE_MIN <= float(rate) <= FRAME_RATE_MAX
+    )
+
+
 @dataclass
 class RecordingMeta:
     """What is known about one recording: its rate, its coordinate frame and the source's extras."""
@@ -128,8 +143,11 @@ class TableMeta:
         for name, rec in json_fields.get(doc, "recordings", "", "object").items():
             where = f"recordings.{name}"
             json_fields.check(rec, where, "object")
+            rate = json_fields.get(rec, "frame_rate", where, "positive")
+            if not plausible_frame_rate(rate):
+                raise json_fields.FieldError(f"{where}.frame_rate", f"{rate:g} Hz", f"a rate {FRAME_RATES}")
             recordings[name] = RecordingMeta(
-                frame_rate=float(json_fields.get(rec, "frame_rate", where, "positive")),
+                frame_rate=float(rate),
                 coordinate_frame=json_fields.get(rec, "coordinate_frame", where, "str", "road"),
                 source_files=list(json_fields.get(rec, "source_files", where, "str_list", [])),
                 extra=dict(json_fields.get(rec, "extra", where, "object", {})),

@@ -398,13 +398,13 @@ def _read_recording_meta(path: Path) -> _Meta:
         )
     row = {name: table.column(name)[0].as_py() for name in RECORDING_META_COLUMNS}
     line = _line(path, 0)
-    if not 0 < row["frameRate"] <= MAX_FRAME_RATE:
+    if not track_table.plausible_frame_rate(row["frameRate"]):
         raise InputError(
             path,
-            f"frame rate {row['frameRate']}",
+            f"frame rate {row['frameRate']:g} Hz",
             line=line,
             column="frameRate",
-            expected=f"a rate > 0 and <= {MAX_FRAME_RATE:g} Hz (frames a nanosecond apart at most)",
+            expected=f"highD's 25 Hz, or any rate {track_table.FRAME_RATES}",
         )
     return _Meta(
         recording_id=int(row["id"]),
@@ -462,7 +462,6 @@ INT32_MAX = 2**31 - 1
 FLOAT32_MAX = float(np.finfo(np.float32).max)  # sizes, velocities, accelerations are float32
 MAX_POSITION_M = 1e9  # highD positions are image metres (below 1e3)
 MAX_SIZE_M = 300.0  # width (length) and height (width): no road vehicle is longer than ~60 m
-MAX_FRAME_RATE = 1e6  # Hz: consecutive frames keep distinct time_ns
 MAX_TIME_NS = 2**62  # time_ns = frame / frameRate * 1e9 must stay well inside int64
 
 
