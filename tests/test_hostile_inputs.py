@@ -349,7 +349,10 @@ def _parquet(tmp_path: Path) -> tuple[Path, pa.Table]:
     [
         (lambda d: d["recordings"]["src"].update(frame_rate="abc"), "recordings.src.frame_rate"),
         (lambda d: d["recordings"]["src"].update(frame_rate=1e-9), r"recordings.src.frame_rate.*0.1 to 1000"),
-        (lambda d: d["recordings"]["src"].update(frame_rate=1e308), r"recordings.src.frame_rate.*0.1 to 1000"),
+        (
+            lambda d: d["recordings"]["src"].update(frame_rate=1e308),
+            r"recordings.src.frame_rate.*0.1 to 1000",
+        ),
         (lambda d: d.update(source_files=1), "source_files"),
         (lambda d: d.pop("source_format"), "source_format"),
         (lambda d: d["recordings"].update(src=[]), "recordings.src"),
@@ -437,6 +440,12 @@ def _highd_variant(tmp_path: Path, line: int, column: str, value: str) -> Path:
     [
         ("laneId", str(2**31), "within int32"),
         ("laneId", str(2**40), "within int32"),
+        # lane changes are changes of laneId: -1, 0, the median (4), the other carriageway's lane (2) or
+        # the road edge (7) was a lane change that never happened
+        *(
+            ("laneId", lane, "lower carriageway, 5 to 6 (the recordingMeta's 3")
+            for lane in ("-1", "0", "4", "2", "7")
+        ),
         ("width", "0.0", "a length > 0"),
         ("height", "-1.5", "a width > 0"),
         ("frame", "-3", "a frame from 0"),

@@ -622,6 +622,60 @@ def _check_direction(
         )
 
 
+def lane_ids(markings: Mapping[int, Sequence[float]]) -> dict[int, tuple[int, int]]:
+    """highD's laneIds of each driving direction with lane markings: (first, last), inclusive.
+
+    highD numbers the marking areas and lanes across the road from the top of the image: id 1 is the
+    upper road edge, 2 … U the U - 1 upper lanes between the U upperLaneMarkings, U + 1 the median,
+    U + 2 … U + L the lower lanes, U + L + 1 the lower road edge. A direction with fewer than two
+    markings has no lanes known (the meta file left them out), nor has the lower one without the
+    upper markings (its numbering starts after them)."""
+    upper, lower = len(markings[UPPER]), len(markings[LOWER])
+    known = {}
+    if upper >= 2:
+        known[UPPER] = (2, upper)
+        if lower >= 2:
+            known[LOWER] = (upper + 2, upper + lower)
+    return known
+
+
+def _check_lanes(
+    path: Path, meta: _Meta, cols: dict[str, np.ndarray], source_row: np.ndarray, direction: np.ndarray
+) -> None:
+    """Refuse a laneId that is no lane of its vehicle's carriageway (-1, 0, a road edge, the other
+    direction's lane, 10**6): lane-change labels come from changes of laneId (pipeline/labels.py), so
+    one such row would be a lane change that never happened. Without markings for a direction, its
+    laneIds must be at least 1 (highD's numbering). ``cols``, ``source_row``, ``direction`` [N]."""
+    known = lane_ids(meta.markings)
+    lane = cols["laneId"]
+    low = np.ones(lane.size, dtype=np.int64)
+    high = np.full(lane.size, INT32_MAX, dtype=np.int64)
+    for d, (first, last) in known.items():
+        low = np.where(direction == d, first, low)
+        high = np.where(direction == d, last, high)
+    bad = np.flatnonzero((lane < low) | (lane > high))
+    if not bad.size:
+        return
+    k = int(bad[np.argmin(source_row[bad])])  # the first in the file
+    d = int(direction[k])
+    if d in known:
+        first, last = known[d]
+        column = "upperLaneMarkings" if d == UPPER else "lowerLaneMarkings"
+        expected = (
+            f"a lane of the {DIRECTION_NAMES[d]} carriageway, {first} to {last} "
+            f"(the recordingMeta's {len(meta.markings[d])} {column})"
+        )
+    else:
+        expected = "a lane id >= 1 (highD numbers lanes from the top of the image)"
+    raise InputError(
+        path,
+        f"laneId is {lane[k]} for vehicle {cols['id'][k]} (drivingDirection {d})",
+        line=_line(path, int(source_row[k])),
+        column="laneId",
+        expected=expected,
+    )
+
+
 def _classes(meta_table: pa.Table, path: Path) -> tuple[list[str], np.ndarray]:
     """Lower-cased class names (``Car`` → ``car``) as (dictionary, code int32 [M] per meta row);
     a class of blanks only is refused at its line of ``path`` (tracksMeta)."""
@@ -697,6 +751,7 @@ def convert_tracks(
     _check_ranges(tracks_path, cols, source_row, meta.frame_rate)
     row_meta, direction = _check_meta(rec, meta_table, cols, source_row, all_tracks)
     _check_direction(rec, cols, row_meta, direction)
+    _check_lanes(tracks_path, meta, cols, source_row, direction)
     class_names, class_codes = _classes(meta_table, rec.path("tracksMeta"))
 
     length, width = cols["width"], cols["height"]
