@@ -23,7 +23,6 @@ stated); on a CPU we use large batches and a larger learning rate (``TrainConfig
 from __future__ import annotations
 
 import copy
-import json
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields
@@ -171,13 +170,14 @@ class TrainConfig:
     def from_file(cls, path: Path) -> TrainConfig:
         """Read a JSON config file (keys of TrainConfig; ``model`` holds STCNNConfig keys)."""
         try:
-            data = json.loads(Path(path).read_text())
-            if isinstance(data, dict) and "model" in data:  # checked before torch sees it
+            # jf.loads: not UTF-8, NaN-free JSON or nested too deep is a FieldError naming the file
+            data = jf.check(jf.loads(Path(path).read_bytes(), "config"), "config", "object")
+            if "model" in data:  # checked before torch sees it
                 check_architecture(data["model"], "model")
             return cls.from_dict(data)
         except jf.FieldError as exc:
             raise jf.as_input_error(path, "bad training config", exc) from exc
-        except (OSError, json.JSONDecodeError, ValueError, TypeError) as exc:
+        except (OSError, ValueError, TypeError) as exc:
             raise InputError(
                 path, f"bad training config: {exc}", expected="JSON with TrainConfig keys"
             ) from exc

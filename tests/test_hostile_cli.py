@@ -786,14 +786,26 @@ def test_impossible_vehicle_sizes_are_refused_at_their_line(
 @pytest.mark.parametrize(
     ("options", "config", "named"),
     [
-        (["--epochs", "0"], None, "--epochs: 0 (expected an integer >= 1)"),
-        (["--lr", "nan"], None, "--lr: nan (expected a number >= 0.0)"),
-        (["--lr", "-1"], None, "--lr: -1.0 (expected a number >= 0.0)"),
+        (["--epochs", "0"], None, "--epochs: 0 (expected an integer from 1 to 100000)"),
+        (["--lr", "nan"], None, "--lr: nan (expected a number from 0.0 to 10.0)"),
+        (["--lr", "-1"], None, "--lr: -1.0 (expected a number from 0.0 to 10.0)"),
         (["--batch-size", "0"], None, "--batch-size: 0"),
         (["--threads", "0"], None, "--threads: 0"),
         (["--device", "tpu9"], None, "--device: 'tpu9'"),
         (["--position-noise", "-1"], None, "position_noise_m must be >= 0"),
-        ([], '{"epochs": "three"}', "epochs: 'three' (expected an integer >= 1)"),
+        ([], '{"epochs": "three"}', "epochs: 'three' (expected an integer from 1 to 100000)"),
+        # a JSON list trained 30 epochs with the defaults; 10**12 epochs ran until killed; a seed
+        # beyond int64 (or below 0) failed in numpy once the data was loaded
+        ([], "[]", "config.json, column 'config': bad training config: [] (expected a JSON object)"),
+        ([], '[["epochs", 3]]', "bad training config: [['epochs', 3]] (expected a JSON object)"),
+        ([], '{"epochs": 1000000000000}', "epochs: 1000000000000 (expected an integer from 1 to 100000)"),
+        ([], '{"seed": 1180591620717411303424}', "seed: 1180591620717411303424 (expected an integer from 0"),
+        ([], '{"seed": -1}', "seed: -1 (expected an integer from 0"),
+        (
+            ["--batch-size", str(2**40)],
+            None,
+            "--batch-size: 1099511627776 (expected an integer from 1 to 1048576)",
+        ),
     ],
 )
 def test_training_options_of_the_wrong_type_or_range(

@@ -97,7 +97,18 @@ def default_config() -> TrainConfig:
 
 #: TrainConfig fields with a lowest value beyond their type's (a learning rate of 0 fine-tunes nothing:
 #: the init model's weights, as a test wants them)
-_LOWEST = {"epochs": 1, "batch_size": 1, "threads": 1, "lr": 0.0}
+_LOWEST = {"epochs": 1, "batch_size": 1, "threads": 1, "lr": 0.0, "seed": 0}
+#: and a highest: beyond these a run trains for ever, allocates without end or diverges at once (an
+#: epoch count of 10**12 ran until killed; a seed beyond int64 failed in numpy after loading the data)
+_HIGHEST = {
+    "epochs": 100_000,
+    "batch_size": 1 << 20,
+    "threads": 1024,
+    "lr": 10.0,
+    "seed": 2**63 - 1,
+    "class_weight_power": 10.0,
+    "position_noise_m": 100.0,
+}
 
 
 def check_config(config: TrainConfig, options: dict[str, Any], file: Path | None) -> None:
@@ -116,15 +127,21 @@ def check_config(config: TrainConfig, options: dict[str, Any], file: Path | None
             "str": isinstance(value, str),
             "bool": isinstance(value, bool),
         }.get(kind, True)
-        lowest = _LOWEST.get(f.name)
+        lowest, highest = _LOWEST.get(f.name), _HIGHEST.get(f.name)
         if ok and lowest is not None:
             ok = value >= lowest
+        if ok and highest is not None:
+            ok = value <= highest
         if not ok:
-            what = (
-                f"{'a number' if kind == 'float' else 'an integer'} >= {lowest}"
-                if lowest is not None
-                else f"a {kind}"
-            )
+            number = "a number" if kind == "float" else "an integer"
+            if lowest is not None and highest is not None:
+                what = f"{number} from {lowest} to {highest}"
+            elif lowest is not None:
+                what = f"{number} >= {lowest}"
+            elif highest is not None:
+                what = f"{number} <= {highest}"
+            else:
+                what = f"a {kind}"
             raise UsageError(where, f"{key}{value!r}", expected=what)
     if config.device != "auto":
         import torch
