@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from lanecast.io_adapters.errors import InputError
 from lanecast.models.card import file_sha256, normalisation_sha256
 from lanecast.models.forecaster import Predictions
 
@@ -76,7 +77,12 @@ class OnnxForecaster:
         options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
         options.add_session_config_entry("session.intra_op.allow_spinning", "0")
         options.log_severity_level = 3
-        session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+        try:
+            session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+        except Exception as exc:  # onnxruntime's own types (InvalidProtobuf, Fail, …): not importable stably
+            raise InputError(
+                path, f"ONNX Runtime cannot load it: {exc}", expected="an ONNX model from lanecast export"
+            ) from exc
         return cls(session, card, name)
 
     def predict(

@@ -19,8 +19,21 @@ from lanecast.models.onnx_predict import OnnxForecaster, onnx_file
 ENGINES = ("auto", "onnx", "torch")
 
 
+def check_model(model: Path | str | None = None, *, engine: str = "auto") -> None:
+    """Load the model as the commands that predict will (card, then the ONNX graph or the weights)
+    and drop it: an InputError for a bad card, truncated or NaN weights, tensors that do not fit the
+    card, before a command creates anything in its output directory. Quiet: a fallback to torch is
+    reported when the model is used."""
+    load_forecaster(model, engine=engine, quiet=True)
+
+
 def load_forecaster(
-    model: Path | str | None = None, name: str = "stcnn", *, engine: str = "auto", threads: int | None = None
+    model: Path | str | None = None,
+    name: str = "stcnn",
+    *,
+    engine: str = "auto",
+    threads: int | None = None,
+    quiet: bool = False,
 ) -> Forecaster:
     """A loaded forecaster (``OnnxForecaster`` or ``STCNNForecaster``) for a model (None: the shipped one)."""
     if engine not in ENGINES:
@@ -34,10 +47,15 @@ def load_forecaster(
                 return OnnxForecaster.from_file(path, card, name, threads=threads)
             except ImportError:
                 why = "onnxruntime is not installed"
+            except InputError as exc:  # the card vouches for a file ONNX Runtime cannot load
+                if engine == "onnx":
+                    raise
+                why = f"{path.name}: {exc.reason}"
         if engine == "onnx":
             raise InputError(card_path, f"cannot predict with ONNX Runtime: {why}")
         hint = f" (lanecast export {weights_path.parent} --to onnx)" if "installed" not in why else ""
-        print(f"lanecast: {card_path}: {why}; predicting with torch{hint}", file=sys.stderr)
+        if not quiet:
+            print(f"lanecast: {card_path}: {why}; predicting with torch{hint}", file=sys.stderr)
     from lanecast.models.predict import STCNNForecaster
 
     forecaster = STCNNForecaster.load(weights_path, name)

@@ -690,6 +690,62 @@ def test_annotate_with_a_bad_card_is_one_clean_line(
     assert "Traceback" not in err
 
 
+@pytest.mark.parametrize(
+    ("damage", "match"),
+    [
+        (lambda b: b[: len(b) // 2], "unreadable weights"),
+        (lambda b: b"", "unreadable weights"),
+        (lambda b: b[:8] + b[8:].replace(b'"F32"', b'"F16"', 1), "unreadable weights|do not fit"),
+    ],
+)
+def test_annotate_with_bad_weights_leaves_no_trace(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], damage: object, match: str
+) -> None:
+    """Truncated, empty or mistyped weights failed per log, after OUT_DIR got a manifest.jsonl and a
+    lock file: the model is now loaded (as the logs will be) before anything is created."""
+    import re
+
+    model = _model_copy(tmp_path)
+    weights = model / "stcnn.safetensors"
+    weights.write_bytes(damage(weights.read_bytes()))  # type: ignore[operator]
+    log = json_log(tmp_path / "in.mcap", straight_messages(n=60))
+    out = tmp_path / "out"
+    status, err = cli(["annotate", str(log), "--model", str(model), "--out", str(out)], capsys)
+    assert status == 2 and err.startswith(f"lanecast annotate: error: {weights}") and re.search(match, err), (
+        err
+    )
+    assert not out.exists()
+
+
+def test_an_onnx_export_onnx_runtime_cannot_load(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """An .onnx file the card vouches for (its sha256 updated) that is not ONNX escaped as
+    onnxruntime's InvalidProtobuf traceback; now ``engine="onnx"`` refuses it naming the file and
+    ``"auto"`` predicts with torch, saying why. (A file that differs from the card's checksum was
+    already never used.)"""
+    from lanecast.models.card import SHIPPED_STEM, WEIGHTS_DIR, file_sha256
+    from lanecast.models.predict import STCNNForecaster
+    from lanecast.models.serving import load_forecaster
+
+    model = tmp_path / "model"
+    model.mkdir()
+    for suffix in (".safetensors", ".json", ".onnx"):
+        (model / f"{SHIPPED_STEM}{suffix}").write_bytes(
+            (WEIGHTS_DIR / f"{SHIPPED_STEM}{suffix}").read_bytes()
+        )
+    onnx = model / f"{SHIPPED_STEM}.onnx"
+    onnx.write_bytes(b"not onnx" * 100)
+    card_path = model / f"{SHIPPED_STEM}.json"
+    card = json.loads(card_path.read_text())
+    card["onnx"]["sha256"] = file_sha256(onnx)
+    card_path.write_text(json.dumps(card))
+    with pytest.raises(InputError, match="ONNX Runtime cannot load it") as err:
+        load_forecaster(model, engine="onnx")
+    assert err.value.path == str(onnx)
+    capsys.readouterr()
+    assert isinstance(load_forecaster(model), STCNNForecaster)
+    assert f"{SHIPPED_STEM}.onnx: ONNX Runtime cannot load it" in capsys.readouterr().err
+
+
 # --------------------------------------------------------------------------------------- ROS bags
 
 

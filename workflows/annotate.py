@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 from lanecast.io_adapters.errors import UsageError
-from lanecast.models.card import read_card, resolve
+from lanecast.models.serving import check_model
 from lanecast.workflows import bulk
 from lanecast.workflows.annotate_log import AnnotateOptions
 from lanecast.workflows.vocabulary import HelpFormatter, add_model_option
@@ -86,7 +86,9 @@ def run(args: argparse.Namespace) -> int:
     if not (math.isfinite(args.every) and round(args.every * 10) >= 1):  # the forecast grid is 10 Hz
         raise UsageError("--every", f"{args.every} s", expected="at least 0.1 s (rounded to 0.1 s)")
     if args.forecasts is None or args.explain:
-        read_card(resolve(args.model)[1])  # a bad model is one error up front, not one per log
+        # a bad model (card, weights, ONNX graph) is one error up front, not one per log, and it
+        # leaves OUT_DIR untouched: no manifest, no lock
+        check_model(args.model)
     options = AnnotateOptions(
         model_dir=args.model,
         topic=args.topic,
