@@ -113,6 +113,39 @@ def check_output(path: str | Path, *, directory: bool = False) -> Path:
     return path
 
 
+def check_replaceable(target: Path, replaces: tuple[str, ...] = ()) -> None:
+    """OutputError if the existing directory ``target`` holds an entry matching none of the name
+    patterns ``replaces`` (a user's file, which replacing the directory would delete)."""
+    if not target.is_dir() or target.is_symlink():
+        return
+    foreign = sorted(p.name for p in target.iterdir() if not any(fnmatch(p.name, r) for r in replaces))
+    if foreign:
+        raise OutputError(
+            target,
+            f"the directory holds {foreign[0]!r}"
+            + (f" and {len(foreign) - 1} more" if len(foreign) > 1 else "")
+            + ", which this output would delete",
+            expected="a new or empty directory, or a previous output of the same command",
+        )
+
+
+def check_output_dir(
+    path: str | Path, *, files: tuple[str, ...] = (), replaces: tuple[str, ...] | None = None
+) -> Path:
+    """What a command that writes the directory ``path`` checks before any work (an output it cannot
+    write was refused only after minutes of training or cutting): :func:`check_output`, none of the
+    ``files`` it writes into the directory is a directory, and, for a directory replaced as a whole
+    (``replaces`` given, as for :func:`atomic_path`), nothing else is in it."""
+    path = check_output(path, directory=True)
+    for name in files:
+        final = path / name
+        if final.is_dir() and not final.is_symlink():
+            raise OutputError(final, "is a directory", expected="a file lanecast may replace")
+    if replaces is not None:
+        check_replaceable(path, replaces)
+    return path
+
+
 @contextlib.contextmanager
 def atomic_path(
     target: str | Path, *, directory: bool = False, replaces: tuple[str, ...] = ()
@@ -123,16 +156,8 @@ def atomic_path(
     name patterns ``replaces`` (what this kind of output holds: a previous run's output): a
     directory with anything else in it (a user's files) is refused, never deleted."""
     target = check_output(target, directory=directory)
-    if directory and target.is_dir() and not target.is_symlink():
-        foreign = sorted(p.name for p in target.iterdir() if not any(fnmatch(p.name, r) for r in replaces))
-        if foreign:
-            raise OutputError(
-                target,
-                f"the directory holds {foreign[0]!r}"
-                + (f" and {len(foreign) - 1} more" if len(foreign) > 1 else "")
-                + ", which this output would delete",
-                expected="a new or empty directory, or a previous output of the same command",
-            )
+    if directory:
+        check_replaceable(target, replaces)
     prefix = f".{target.name}.tmp-"
     try:
         target.parent.mkdir(parents=True, exist_ok=True)

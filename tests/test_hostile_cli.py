@@ -636,6 +636,51 @@ def test_a_report_appears_whole_or_not_at_all(tmp_path: Path, capsys: pytest.Cap
     assert {"metrics.json", "report.html", "mine.txt"} <= {p.name for p in out.iterdir()}
 
 
+@pytest.mark.parametrize(
+    ("argv", "blocker"),
+    [
+        (["train", "{missing}", "--epochs", "1"], "file"),
+        (["evaluate", "{missing}"], "file"),
+        (["explain", "{missing}", "--track", "1", "--time", "5"], "file"),
+        (["ablate", "{missing}", "--epochs", "1"], "file"),
+        (["annotate", "{missing}"], "file"),
+        (["windows", "{missing}"], "file"),
+        (["windows", "{missing}"], "users"),
+        (["convert", "{missing}", "--to", "ros2"], "users"),
+        (["simulate", "--minutes", "1", "--seed", "1"], "parent"),
+        (["train", "{missing}", "--epochs", "1"], "weights dir"),
+    ],
+    ids=lambda v: v if isinstance(v, str) else v[0],
+)
+def test_an_output_that_cannot_be_written_is_refused_before_the_work(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], argv: list[str], blocker: str
+) -> None:
+    """train --out naming a file trained ~17 s, then failed with a bare 'File exists' (annotate,
+    simulate under a file the same); windows and convert into a directory of one's own files did all
+    their work before refusing. Each output is now checked first: with a missing input, the output
+    is what the error names."""
+    taken = tmp_path / "taken"
+    out = taken
+    if blocker == "file":
+        taken.write_text("keep\n")
+        said = f"{taken}: exists and is not a directory"
+    elif blocker == "parent":
+        taken.write_text("keep\n")
+        out = taken / "sim"
+        said = f"{out}: cannot write here"
+    elif blocker == "users":
+        (taken / "thesis.txt").parent.mkdir()
+        (taken / "thesis.txt").write_text("keep\n")
+        said = f"{taken}: the directory holds 'thesis.txt'"
+    else:
+        (taken / "stcnn.safetensors").mkdir(parents=True)
+        said = f"{taken / 'stcnn.safetensors'}: is a directory"
+    before = sorted((p.relative_to(tmp_path), p.is_dir()) for p in tmp_path.rglob("*"))
+    missing = str(tmp_path / "missing")
+    refused([*(a.format(missing=missing) for a in argv), "--out", str(out)], capsys, said)
+    assert sorted((p.relative_to(tmp_path), p.is_dir()) for p in tmp_path.rglob("*")) == before
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("signal_name", ["SIGTERM", "SIGINT"])
 def test_a_signal_while_writing_leaves_nothing(tmp_path: Path, signal_name: str) -> None:

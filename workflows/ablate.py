@@ -16,7 +16,7 @@ import numpy as np
 
 from lanecast.io_adapters.contracts.windows import labelled, load_windows, subset
 from lanecast.io_adapters.errors import InputError
-from lanecast.io_adapters.files import atomic_path
+from lanecast.io_adapters.files import check_output_dir, staged_files
 from lanecast.models.ablation_report import write_ablation_report
 from lanecast.workflows.vocabulary import HelpFormatter
 
@@ -81,6 +81,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(
             None, f"unknown variant(s) {unknown}", column="--variants", expected=", ".join(variants())
         )
+    check_output_dir(args.out, files=("ablation.json", "report.md", "report.html", "ablation.png"))
     if args.seeds < 1:
         raise InputError(None, f"--seeds {args.seeds}", column="--seeds", expected="at least 1")
     config = TrainConfig.from_file(args.config) if args.config else TrainConfig(epochs=10)
@@ -102,10 +103,9 @@ def run(args: argparse.Namespace) -> int:
     result = run_ablation(windows, names, list(range(args.seeds)), config)
     result["windows"] = str(args.windows)
     result["max_train_windows"] = max_train
-    args.out.mkdir(parents=True, exist_ok=True)
-    with atomic_path(args.out / "ablation.json") as tmp:
-        tmp.write_text(json.dumps(finite(result), indent=2, allow_nan=False) + "\n")
-    html = write_ablation_report(args.out, result)  # NaN still NaN here: the table shows "–"
+    with staged_files(args.out) as stage:  # all of the report's files or none
+        (stage / "ablation.json").write_text(json.dumps(finite(result), indent=2, allow_nan=False) + "\n")
+        html = args.out / write_ablation_report(stage, result).relative_to(stage)  # NaN shows "–"
     print(f"RMSE per window at 1-5 s (m), mean over {args.seeds} seed(s):")
     for v in result["variants"].values():
         print(f"  {v['label']:<24}" + " ".join(f"{x:.2f}" for x in v["mean"]["rmse"]))

@@ -10,7 +10,8 @@ from pathlib import Path
 from lanecast.io_adapters import registry, streaming
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.errors import InputError, UsageError
-from lanecast.io_adapters.files import check_output
+from lanecast.io_adapters.files import check_output, check_replaceable
+from lanecast.io_adapters.logs.log_conventions import BAG_FILES
 from lanecast.io_adapters.logs.rosbag_writer import STORAGES
 from lanecast.workflows import engines, heap
 from lanecast.workflows.vocabulary import HelpFormatter, add_location_option
@@ -108,6 +109,8 @@ def run(args: argparse.Namespace) -> int:
     fmt = output_format(args.out, args.to)
     directory = fmt == "ros2" or (fmt == "parquet" and args.partition)
     check_output(args.out, directory=directory)
+    if directory:  # a directory holding a user's files is refused before the work, not after it
+        check_replaceable(args.out, BAG_FILES if fmt == "ros2" else streaming.PARTS)
     if os.path.realpath(args.out) in {os.path.realpath(p) for p in args.inputs}:
         raise InputError(args.out, "the output would overwrite an input", expected="a new output path")
     engines.check(args.workers, args.engine)

@@ -13,7 +13,7 @@ import numpy as np
 
 from lanecast.io_adapters.contracts.windows import load_windows
 from lanecast.io_adapters.errors import InputError, UsageError
-from lanecast.io_adapters.files import staged_files
+from lanecast.io_adapters.files import check_output_dir, staged_files
 from lanecast.models.baselines import constant_acceleration, constant_velocity
 from lanecast.models.card import resolve
 from lanecast.models.evaluation import (
@@ -67,6 +67,7 @@ def run(args: argparse.Namespace) -> int:
 
     from lanecast.models.predict import STCNNForecaster
 
+    check_output_dir(args.out, files=("metrics.json", "report.md", "report.html"))  # before the work
     for option, value in (("--batch-size", args.batch_size), ("--top-k", args.top_k)):
         if value < 1:  # a batch of 0 was a ValueError from range(); minADE@0 was reported as @1
             raise UsageError(option, f"{value}", expected="at least 1")

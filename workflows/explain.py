@@ -19,7 +19,7 @@ import numpy as np
 from lanecast.io_adapters import registry
 from lanecast.io_adapters.contracts.windows import DATASET_FILES, Windows, load_windows
 from lanecast.io_adapters.errors import InputError, UsageError
-from lanecast.io_adapters.files import staged_files
+from lanecast.io_adapters.files import check_output_dir, staged_files
 from lanecast.models.explain import parse_removals, present_neighbours, what_if
 from lanecast.models.explain_report import write_explain
 from lanecast.models.serving import load_forecaster
@@ -159,6 +159,7 @@ def window_of(args: argparse.Namespace, card: dict[str, Any]) -> tuple[Windows, 
 
 
 def run(args: argparse.Namespace) -> int:
+    check_output_dir(args.out, files=("explain.json", "explain.html"))  # before the work
     forecaster = load_forecaster(args.model)
     card: dict[str, Any] = getattr(forecaster, "card", None) or {}
     windows, i = window_of(args, card)

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 from lanecast.io_adapters.contracts.windows import load_windows
 from lanecast.io_adapters.errors import InputError, UsageError
+from lanecast.io_adapters.files import check_output_dir
 from lanecast.models.card import read_card, resolve
 from lanecast.models.evaluation import evaluate
 
@@ -195,6 +196,7 @@ def train_and_save(
 def run(args: argparse.Namespace) -> int:
     from lanecast.models.train import TrainConfig
 
+    check_output_dir(args.out, files=("stcnn.safetensors", "stcnn.json"))  # before minutes of training
     config = TrainConfig.from_file(args.config) if args.config else default_config()
     names = (
         "epochs",

@@ -7,7 +7,9 @@ import time
 from pathlib import Path
 
 from lanecast.io_adapters import registry, streaming
+from lanecast.io_adapters.contracts.windows import DATASET_FILES
 from lanecast.io_adapters.errors import InputError
+from lanecast.io_adapters.files import check_output_dir
 from lanecast.pipeline.make_windows import WindowOptions, write_windows
 from lanecast.workflows import engines, heap
 from lanecast.workflows.vocabulary import HelpFormatter, add_location_option
@@ -71,8 +73,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
-    if args.out.exists() and not args.out.is_dir():
-        raise InputError(args.out, "exists and is not a directory", expected="a directory path")
+    # before the work: a file there, or a directory holding a user's files, was refused at the end
+    check_output_dir(args.out, replaces=DATASET_FILES)
     if args.stride < 1:
         raise InputError(None, f"--stride {args.stride}", expected="at least 1")
     engines.check(args.workers, args.engine)

@@ -61,7 +61,7 @@ from lanecast.io_adapters.contracts.track_runs import (
 )
 from lanecast.io_adapters.datasets.highd import NEIGHBOURS
 from lanecast.io_adapters.errors import InputError
-from lanecast.io_adapters.files import bar
+from lanecast.io_adapters.files import bar, check_output
 from lanecast.io_adapters.sim.slow_signals import sinusoid_sum
 
 FRAME_RATE = 25.0
@@ -1040,8 +1040,7 @@ def simulate(
     cfg.check()
     if not 1 <= recording_id <= 99:
         raise InputError(None, f"invalid recording id {recording_id}", expected="1 … 99")
-    if Path(out_dir).exists() and not Path(out_dir).is_dir():
-        raise InputError(out_dir, "exists and is not a directory", expected="a directory for the CSV files")
+    check_output(out_dir, directory=True)  # a file there, or on its path: before minutes of simulation
     if not overwrite:
         refuse_existing_recording(Path(out_dir), recording_id)
     total_s = cfg.warmup_s + cfg.n_frames / cfg.frame_rate
