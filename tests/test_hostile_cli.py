@@ -953,3 +953,18 @@ def test_explain_on_a_windows_dataset_missing_a_file_names_it(
         f"error: {directory / missing}: missing file of a windows dataset",
     )
     no_output(out)
+
+
+def test_report_on_a_truncated_log_names_the_damage(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`report` read /lanecast/prediction with the mcap library before the tracks: a log cut in half
+    was a RecordLengthLimitExceeded traceback (and, for one log, 'no log could be scored' hid the
+    reason). Now the log's own error, with its offset, is the command's."""
+    from test_hostile_inputs import json_log, straight_messages
+
+    log = json_log(tmp_path / "cut.mcap", straight_messages(n=120))
+    log.write_bytes(log.read_bytes()[: log.stat().st_size // 2])
+    out = tmp_path / "rep"
+    refused(["report", str(log), "--out", str(out)], capsys, f"{log}, offset ", "truncated")
+    no_output(out)

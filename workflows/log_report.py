@@ -26,7 +26,7 @@ from rosbags.highlevel import AnyReader
 from lanecast.io_adapters import registry
 from lanecast.io_adapters.annotations.forecast_messages import PREDICTION_TOPIC
 from lanecast.io_adapters.contracts.windows import to_window_frame
-from lanecast.io_adapters.errors import InputError
+from lanecast.io_adapters.errors import InputError, LanecastError, LogError
 from lanecast.io_adapters.files import progress, staged_files
 from lanecast.models.baselines import constant_acceleration, constant_velocity
 from lanecast.models.evaluation import speed_band_note, write_metrics
@@ -74,6 +74,24 @@ def annotated_logs(paths: list[Path]) -> list[Path]:
 
 def prediction_documents(log: Path) -> list[dict[str, Any]]:
     """Every JSON document on /lanecast/prediction of an annotated MCAP or ROS 2 bag, in log order."""
+    try:
+        docs = _prediction_documents(log)
+    except LanecastError:
+        raise
+    except Exception as exc:  # the mcap and rosbags libraries' own types, a JSON document cut short
+        raise LogError(
+            log,
+            f"cannot read {PREDICTION_TOPIC}: {type(exc).__name__}: {exc}",
+            expected="an intact log written by lanecast annotate",
+        ) from exc
+    if not docs:
+        raise InputError(
+            log, f"no forecasts on {PREDICTION_TOPIC}", expected="a log written by lanecast annotate"
+        )
+    return docs
+
+
+def _prediction_documents(log: Path) -> list[dict[str, Any]]:
     docs: list[dict[str, Any]] = []
     if log.is_dir():  # a ROS 2 bag: std_msgs/msg/String holding the JSON
         with AnyReader([log]) as reader:
@@ -90,10 +108,6 @@ def prediction_documents(log: Path) -> list[dict[str, Any]]:
                     length = int.from_bytes(data[4:8], "little")
                     data = data[8 : 8 + length - 1]
                 docs.append(json.loads(data))
-    if not docs:
-        raise InputError(
-            log, f"no forecasts on {PREDICTION_TOPIC}", expected="a log written by lanecast annotate"
-        )
     return docs
 
 
@@ -154,8 +168,10 @@ def match(fc: LogForecasts, index: pa.Table) -> tuple[np.ndarray, np.ndarray]:
 
 def score_log(log: Path, topic: str | None) -> dict[str, Any]:
     """Arrays needed for the metrics of one annotated log (model forecasts, baselines, ground truth)."""
-    fc = log_forecasts(prediction_documents(log))
+    # the tracks first: lanecast's own reader checks the log's records and names the offset of a
+    # damage (a truncated log was a traceback from the mcap library reading the predictions)
     tracks = registry.read_any([log], topic=topic) if topic else registry.read_any([log])
+    fc = log_forecasts(prediction_documents(log))
     windows = make_windows(
         tracks,
         require_future=True,
@@ -334,6 +350,8 @@ def _write_reports(paths: list[Path], out: Path, topic: str | None, examples: in
         try:
             part = score_log(log, topic)
         except InputError as exc:
+            if len(logs) == 1:  # the one log's own error, with its place, is the command's
+                raise
             failed.append(f"{log}: {exc}")
             continue
         if len(part["future"]) == 0:
