@@ -968,3 +968,31 @@ def test_report_on_a_truncated_log_names_the_damage(
     out = tmp_path / "rep"
     refused(["report", str(log), "--out", str(out)], capsys, f"{log}, offset ", "truncated")
     no_output(out)
+
+
+@pytest.mark.parametrize("damage", ["nan point", "null point", "garbage", "no x"])
+def test_annotate_with_a_bad_forecasts_table_is_one_error_up_front(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], damage: str
+) -> None:
+    """--forecasts with a NaN point was written into the log as a line that draws nothing; a file
+    that is not Parquet failed each log as 'ArrowInvalid: …' and a missing column as '<input>,
+    column …', both after OUT_DIR got a manifest and a lock. Now the table is checked before."""
+    from conftest import forecasts_for, make_mcap
+
+    log = make_mcap(tmp_path / "drive.mcap", n=60)
+    table = forecasts_for("drive", [1, 2], [1, 2])
+    fc = tmp_path / "fc.parquet"
+    x = table.column("x").to_pylist()
+    if damage == "garbage":
+        fc.write_bytes(b"PAR1garbagePAR1")
+        said: tuple[str, ...] = (f"{fc}: unreadable forecasts table",)
+    elif damage == "no x":
+        pq.write_table(table.drop_columns(["x"]), fc)
+        said = (f"{fc}, column 'x': forecasts table lacks a column",)
+    else:
+        x[2][3] = float("nan") if damage == "nan point" else None
+        pq.write_table(table.set_column(table.column_names.index("x"), "x", pa.array(x)), fc)
+        said = (f"{fc}, column 'x': row 2: forecast point", "expected finite coordinates")
+    out = tmp_path / "ann"
+    refused(["annotate", str(log), "--forecasts", str(fc), "--out", str(out)], capsys, *said)
+    assert not out.exists()

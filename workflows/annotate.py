@@ -15,7 +15,7 @@ from lanecast.io_adapters.errors import UsageError
 from lanecast.io_adapters.files import check_output
 from lanecast.models.serving import check_model
 from lanecast.workflows import bulk
-from lanecast.workflows.annotate_log import AnnotateOptions
+from lanecast.workflows.annotate_log import AnnotateOptions, read_forecasts_table
 from lanecast.workflows.vocabulary import HelpFormatter, add_model_option
 
 
@@ -87,6 +87,8 @@ def run(args: argparse.Namespace) -> int:
     if not (math.isfinite(args.every) and round(args.every * 10) >= 1):  # the forecast grid is 10 Hz
         raise UsageError("--every", f"{args.every} s", expected="at least 0.1 s (rounded to 0.1 s)")
     check_output(args.out, directory=True)  # a file there, or on its path: before loading anything
+    if args.forecasts is not None and args.forecasts.is_file():  # one table for every log: check it once
+        read_forecasts_table(args.forecasts)
     if args.forecasts is None or args.explain:
         # a bad model (card, weights, ONNX graph) is one error up front, not one per log, and it
         # leaves OUT_DIR untouched: no manifest, no lock
