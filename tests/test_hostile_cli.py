@@ -996,3 +996,20 @@ def test_annotate_with_a_bad_forecasts_table_is_one_error_up_front(
     out = tmp_path / "ann"
     refused(["annotate", str(log), "--forecasts", str(fc), "--out", str(out)], capsys, *said)
     assert not out.exists()
+
+
+def test_a_manifest_that_is_a_directory_is_named(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """OUT_DIR/manifest.jsonl being a directory was reported as '4: Is a directory' (a file
+    descriptor for a file name)."""
+    from conftest import forecasts_for, make_mcap
+
+    log = make_mcap(tmp_path / "drive.mcap", n=60)
+    fc = tmp_path / "fc.parquet"
+    pq.write_table(forecasts_for("drive", [1, 2], [1, 2]), fc)
+    out = tmp_path / "ann"
+    (out / "manifest.jsonl").mkdir(parents=True)
+    refused(
+        ["annotate", str(log), "--forecasts", str(fc), "--out", str(out)],
+        capsys,
+        f"{out / 'manifest.jsonl'}: not a regular file",
+    )

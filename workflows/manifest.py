@@ -26,6 +26,7 @@ import contextlib
 import hashlib
 import json
 import os
+import stat
 from pathlib import Path
 from typing import Any
 
@@ -101,6 +102,11 @@ class Manifest:
             return []
         except OSError as exc:
             raise not_ours(self.path, exc) from exc
+        if not stat.S_ISREG(os.fstat(fd).st_mode):  # a directory opens read-only, then fails as fd 4
+            os.close(fd)
+            raise InputError(
+                self.path, "not a regular file", expected="the manifest lanecast annotate writes, or nothing"
+            )
         out = []
         with open(fd, encoding="utf-8", errors="replace") as f:
             for line in f:
