@@ -78,6 +78,16 @@ def detect(path: str | Path) -> str:
             raise FormatNotRecognisedError(
                 path, f"format not recognised: the file is {kind}", offset=0, expected=expected
             )
+    if path.is_dir() and not (path / "metadata.yaml").exists():
+        storage = sorted(p.name for p in path.iterdir() if p.suffix in (".db3", ".mcap") and p.is_file())
+        if storage:  # the files of a ROS 2 bag without the index that says what they hold
+            raise FormatNotRecognisedError(
+                path,
+                f"the directory holds {storage[0]}"
+                + (f" and {len(storage) - 1} more" if len(storage) > 1 else "")
+                + " but no metadata.yaml, which a ROS 2 bag needs",
+                expected="a ROS 2 bag with its metadata.yaml (ros2 bag reindex writes one), or the log files",
+            )
     raise FormatNotRecognisedError(path, "format not recognised", expected=expected)
 
 

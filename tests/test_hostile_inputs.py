@@ -898,3 +898,13 @@ def test_own_bags_without_checksums_carry_a_payload_digest(
     with pytest.raises(LogError, match="do not match the checksum") as err:
         rosbag_reader.read(bag)
     assert err.value.path == str(bag)
+
+
+def test_a_ros2_bag_without_metadata_yaml_says_so(tmp_path: Path) -> None:
+    """A ROS 2 bag directory whose metadata.yaml was lost said only 'format not recognised'."""
+    bag = tmp_path / "bag"
+    bag.mkdir()
+    (bag / "bag_0.db3").write_bytes(b"SQLite format 3\x00" + bytes(100))
+    with pytest.raises(LanecastError, match="holds bag_0.db3 but no metadata.yaml") as err:
+        registry.read_any([bag])
+    assert str(bag) in str(err.value)
