@@ -8,6 +8,7 @@ import os
 import struct
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -538,6 +539,50 @@ def test_ngsim_conflicting_duplicates_are_reported(
     after = capsys.readouterr().err
     assert "rows repeat a (Vehicle_ID, Frame_ID)" in after and after != before
     assert table.column("x").equals(original.column("x"))  # the first in file order is kept
+
+
+def _quoted(source: Path, target: Path, line: int, edit: Callable[[str], str]) -> Path:
+    """A copy of ``source`` (its first 200 lines) with ``edit`` applied to ``line`` (1 = header)."""
+    lines = source.read_text().splitlines()[:200]
+    lines[line - 1] = edit(lines[line - 1])
+    target.write_text("\n".join(lines) + "\n")
+    return target
+
+
+@pytest.mark.parametrize(
+    ("victim", "edit"),
+    [
+        ("peachtree.csv", lambda text: text.replace(",peachtree", ',"peachtree')),  # the Location
+        ("peachtree.csv", lambda text: '"' + text),  # the first value
+        ("peachtree.csv", lambda text: text.replace(",", ',"', 3)),  # numbers
+        ("01_tracksMeta.csv", lambda text: text.replace(",Truck", ',"Truck')),  # highD's class
+        ("01_tracks.csv", lambda text: '"' + text),
+    ],
+)
+def test_an_open_quote_that_swallows_the_lines_after_it_is_refused_at_its_line(
+    tmp_path: Path, victim: str, edit: Callable[[str], str]
+) -> None:
+    """A quoted value that runs on over line ends: the CSV parser read the rest of the file as one
+    value and kept a single row, silently (the fuzzer found it in NGSIM's Location column). No
+    dataset lanecast reads quotes across lines."""
+    for kind in ("tracks", "tracksMeta", "recordingMeta"):
+        (tmp_path / f"01_{kind}.csv").write_bytes((HIGHD / f"01_{kind}.csv").read_bytes())
+    source = PEACHTREE if victim == "peachtree.csv" else HIGHD / victim
+    path = _quoted(source, tmp_path / victim, 3, edit)
+    with pytest.raises(InputError, match="double quote opens a value") as err:
+        registry.read_any([path])
+    assert err.value.path == str(path) and err.value.line == 3
+
+
+def test_an_open_quote_in_a_location_is_refused_by_the_streaming_reader_too(tmp_path: Path) -> None:
+    from lanecast.io_adapters.datasets import ngsim_stream
+
+    path = _quoted(
+        PEACHTREE, tmp_path / "peachtree.csv", 3, lambda text: text.replace(",peachtree", ',"peachtree')
+    )
+    with pytest.raises(InputError, match="double quote opens a value") as err:
+        ngsim_stream.split_csv(path, tmp_path / "spill")
+    assert err.value.line == 3
 
 
 def test_peachtree_vehicle_570_heading_does_not_flip() -> None:

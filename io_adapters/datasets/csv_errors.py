@@ -115,3 +115,37 @@ def check_field_counts(path: Path, data: bytes, names: Sequence[str], *, whitesp
         column=names[got] if got < expected else None,
         expected=f"{expected} {sep} fields",
     )
+
+
+
+def check_balanced_quotes(path: Path, data: bytes) -> None:
+    """Raise InputError at the first line with an odd number of double quotes: its open quote runs
+    the value on over the line ends after it (no dataset lanecast reads quotes across lines)."""
+    if b'"' not in data:  # the common case, at C speed
+        return
+    starts, ends = line_spans(data)
+    quotes = np.concatenate([[0], np.cumsum(np.frombuffer(data, dtype=np.uint8) == ord('"'))])
+    odd = np.flatnonzero((quotes[ends] - quotes[starts]) % 2 == 1)
+    if odd.size:
+        raise InputError(
+            path,
+            "a double quote opens a value that runs on over the line ends after it",
+            line=int(odd[0]) + 1,
+            expected="values without unbalanced double quotes, one row per line",
+        )
+
+
+def check_one_line_per_row(path: Path, data: bytes, rows: int) -> None:
+    """Raise InputError when a CSV parser read ``rows`` rows from a file with a header and more data
+    lines (a quoted value ran on over line ends and swallowed the lines after it)."""
+    if b'"' not in data:  # without quotes every line is a row
+        return
+    lines, _ = record_lines(data)
+    if rows == lines.size - 1:
+        return
+    check_balanced_quotes(path, data)
+    raise InputError(
+        path,
+        f"{lines.size - 1:,} data lines but {rows:,} rows: quoted values run on over line ends",
+        expected="one row per line",
+    )

@@ -35,7 +35,13 @@ import pyarrow.csv as pacsv
 
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.contracts.track_runs import run_bounds
-from lanecast.io_adapters.datasets.csv_errors import check_field_counts, check_text, record_lines
+from lanecast.io_adapters.datasets.csv_errors import (
+    check_balanced_quotes,
+    check_field_counts,
+    check_one_line_per_row,
+    check_text,
+    record_lines,
+)
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import progress
 
@@ -274,6 +280,7 @@ def _read_csv(
         raise InputError(path, f"cannot read: {exc}") from exc
     if table.num_rows == 0:
         raise InputError(path, "no data rows", line=2, expected=f"at least one {what} row")
+    check_one_line_per_row(path, path.read_bytes(), table.num_rows)
     _check_cells(path, table, names, {k: v for k, v in columns.items() if k not in may_be_empty})
     return table
 
@@ -295,6 +302,7 @@ def _diagnose(path: Path, names: list[str], columns: Mapping[str, str]) -> None:
             ),
         )
     except pa.ArrowInvalid:
+        check_balanced_quotes(path, data)
         return  # not a cell problem: the caller reports pyarrow's own message
     first_bad: tuple[int, str] | None = None
     for name in names:

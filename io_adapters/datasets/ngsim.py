@@ -62,7 +62,14 @@ import pyarrow.csv as pacsv
 
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.contracts.track_runs import along_track_derivative, row_extent, run_starts
-from lanecast.io_adapters.datasets.csv_errors import check_field_counts, check_text, line_spans, record_lines
+from lanecast.io_adapters.datasets.csv_errors import (
+    check_balanced_quotes,
+    check_field_counts,
+    check_one_line_per_row,
+    check_text,
+    line_spans,
+    record_lines,
+)
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import progress
 
@@ -407,6 +414,7 @@ def _parse_csv(path: Path, first: str, location: str | None) -> _Parsed:
                 ),
             )
         except pa.ArrowInvalid:
+            check_balanced_quotes(path, path.read_bytes())
             raise InputError(path, f"cannot parse: {exc}", expected="NGSIM CSV rows") from exc
         checked = [n for n in (*USED_COLUMNS, "direction") if n in by_lower]
         columns = {
@@ -417,6 +425,7 @@ def _parse_csv(path: Path, first: str, location: str | None) -> _Parsed:
         raise InputError(path, f"cannot parse: {exc}", expected="NGSIM CSV rows") from exc
     if table.num_rows == 0:
         raise InputError(path, "the file has a header but no rows", line=2, expected="NGSIM rows")
+    check_one_line_per_row(path, path.read_bytes(), table.num_rows)
     columns = {n: table.column(by_lower[n]).to_numpy() for n in USED_COLUMNS}
     if not all(np.isfinite(v).all() for v in columns.values()) or not _integral(columns):
         check_field_counts(path, path.read_bytes(), header)

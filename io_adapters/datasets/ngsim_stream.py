@@ -89,6 +89,8 @@ def _locations(column: pa.Array) -> tuple[np.ndarray, list[str]]:
     raw = pc.utf8_trim_whitespace(column)
     if np.asarray(pc.equal(raw, "")).any():
         raise ValueError("empty Location")
+    if np.asarray(pc.match_substring_regex(raw, r'[\r\n"]')).any():
+        raise ValueError("a quoted Location runs over line ends")  # the whole-file reader names the line
     encoded = raw.dictionary_encode()
     names = [ngsim._normalise_location(str(v)) for v in encoded.dictionary.to_pylist()]
     unique = sorted(set(names))
