@@ -106,6 +106,7 @@ def check_card_fields(card: dict[str, Any]) -> None:
     check_architecture(config, "architecture.config")
     _check_normalisation(card, config)
     check_usage_sections(card)
+    jf.get(card, "weights_sha256", "", "str", None)  # the weights file's, checked when they are loaded
 
 
 def check_architecture(config: dict[str, Any], where: str) -> None:

@@ -26,11 +26,11 @@ from lanecast.models.card import FORMAT as FORMAT
 from lanecast.models.card import FORMAT_VERSION as FORMAT_VERSION
 from lanecast.models.card import SHIPPED_STEM as SHIPPED_STEM
 from lanecast.models.card import WEIGHTS_DIR as WEIGHTS_DIR
+from lanecast.models.card import file_sha256, write_card
 from lanecast.models.card import lanecast_version as lanecast_version
 from lanecast.models.card import read_card as read_card
 from lanecast.models.card import resolve as resolve
 from lanecast.models.card import set_card_section as set_card_section
-from lanecast.models.card import write_card
 from lanecast.models.stcnn import STCNN, STCNNConfig, count_parameters
 
 
@@ -66,9 +66,13 @@ def save_checkpoint(model: STCNN, card: dict[str, Any], directory: Path, stem: s
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     tensors = {k: v.detach().to("cpu").contiguous() for k, v in model.state_dict().items()}
-    with atomic_path(directory / f"{stem}.safetensors") as tmp:
+    weights_path = directory / f"{stem}.safetensors"
+    with atomic_path(weights_path) as tmp:
         write_safetensors(tmp, tensors, {"format": FORMAT, "format_version": str(FORMAT_VERSION)})
         tmp.chmod(0o644)  # package data: readable by everyone
+    # the pair is two renames: the card names its weights, so that a run stopped between them (new
+    # weights, old card) is refused on loading instead of serving weights under another card
+    full["weights_sha256"] = file_sha256(weights_path)
     card_path = directory / f"{stem}.json"
     write_card(card_path, full)
     return card_path
@@ -147,6 +151,15 @@ def load_checkpoint(model: Path | str | None = None) -> tuple[STCNN, dict[str, A
         net.load_state_dict(state, strict=True)
     except RuntimeError as exc:
         raise InputError(weights_path, f"weights do not fit the card's architecture: {exc}") from exc
+    expected = card.get("weights_sha256")
+    if expected is not None and expected != file_sha256(weights_path):
+        raise InputError(
+            card_path,
+            f"{weights_path.name} is not the weights file this card was written with (another run's, "
+            "or a run stopped between writing the two)",
+            column="weights_sha256",
+            expected=f"weights with SHA-256 {str(expected)[:16]}…",
+        )
     net.eval()
     return net, card
 

@@ -725,6 +725,34 @@ def test_model_card_nan_is_not_json_and_nan_weights_are_refused(tmp_path: Path) 
     assert err.value.path == str(model / "stcnn.safetensors")
 
 
+def test_weights_of_another_run_under_a_card_are_refused(tmp_path: Path) -> None:
+    """save_checkpoint writes the weights, then the card (two renames): a run stopped between them
+    leaves new weights under the old card. The card names its weights' SHA-256, so that pair is
+    refused instead of served; a card without the field (written before it) still loads."""
+    import torch
+
+    from lanecast.models.card import SHIPPED_STEM, WEIGHTS_DIR, file_sha256
+    from lanecast.models.checkpoint import load_checkpoint, save_checkpoint
+
+    net, card = load_checkpoint(None)
+    assert card["weights_sha256"] == file_sha256(WEIGHTS_DIR / f"{SHIPPED_STEM}.safetensors")
+    first, other = tmp_path / "first", tmp_path / "other"
+    save_checkpoint(net, card, first)
+    load_checkpoint(first)
+    with torch.no_grad():
+        next(net.parameters()).add_(0.01)  # another run's weights
+    save_checkpoint(net, card, other)
+    (first / "stcnn.safetensors").write_bytes((other / "stcnn.safetensors").read_bytes())
+    with pytest.raises(InputError, match="not the weights file this card was written with") as err:
+        load_checkpoint(first)
+    assert err.value.path == str(first / "stcnn.json") and err.value.column == "weights_sha256"
+    older = json.loads((first / "stcnn.json").read_text())
+    del older["weights_sha256"]
+    (first / "stcnn.json").write_text(json.dumps(older))
+    reloaded, _ = load_checkpoint(first)
+    assert torch.equal(next(reloaded.parameters()), next(net.parameters()))
+
+
 def test_annotate_with_a_bad_card_is_one_clean_line(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
