@@ -13,6 +13,9 @@ Outputs: :class:`TrackTableWriter` writes one Parquet file (row groups per piece
 metadata naming every recording is stored when the file is complete) or a dataset directory of
 one Parquet file per piece (``part-00000.parquet``, …), which every reader of track tables
 accepts in place of a file.
+
+Size: the piece plan, the per-piece readers and the two writers are one protocol (what a piece is
+decides how it is read and where its rows go); split up, each file would restate the others.
 """
 
 from __future__ import annotations

@@ -13,6 +13,9 @@ On disk a windows dataset is a directory that training memory-maps:
 
 Normalisation (per channel, statistics from the training windows only): Mean and std are taken over *present* entries, so that the zeros of absent neighbours do not bias
 them; after normalisation absent entries are exactly 0 again ("zero means absent").
+
+Size: the dataset's one definition, in memory and on disk, with the checks every reader of it runs
+(file shapes, manifest version, targets present): a reader that skipped one would be a second format.
 """
 
 from __future__ import annotations

@@ -117,7 +117,6 @@ def check_field_counts(path: Path, data: bytes, names: Sequence[str], *, whitesp
     )
 
 
-
 def check_balanced_quotes(path: Path, data: bytes) -> None:
     """Raise InputError at the first line with an odd number of double quotes: its open quote runs
     the value on over the line ends after it (no dataset lanecast reads quotes across lines)."""
