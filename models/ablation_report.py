@@ -156,7 +156,7 @@ def write_ablation_report(directory: Path, result: dict[str, Any]) -> Path:
     md += ["", "The paper's Table II (highD, RMSE in m):", "", *_md_table(header, paper_rows(result)), ""]
     md += [f"- {line}" for line in notes] + ["", "![RMSE by horizon](ablation.png)", ""]
     with atomic_path(directory / "report.md") as tmp:
-        tmp.write_text("\n".join(md))
+        tmp.write_text("\n".join(md), encoding="utf-8")
 
     esc = html.escape
 
@@ -189,5 +189,5 @@ def write_ablation_report(directory: Path, result: dict[str, Any]) -> Path:
     ]
     html_path = directory / "report.html"
     with atomic_path(html_path) as tmp:
-        tmp.write_text("".join(page))
+        tmp.write_text("".join(page), encoding="utf-8")
     return html_path

@@ -215,7 +215,9 @@ def _in_range(value: float, key: str) -> bool:
 def write_card(card_path: Path, card: dict[str, Any]) -> None:
     """Write a card atomically, readable by everyone (it is package data for the shipped model)."""
     with atomic_path(card_path) as tmp:
-        tmp.write_text(json.dumps(card, indent=2, allow_nan=False, default=_json_default) + "\n")
+        tmp.write_text(
+            json.dumps(card, indent=2, allow_nan=False, default=_json_default) + "\n", encoding="utf-8"
+        )
         tmp.chmod(0o644)
 
 

@@ -254,7 +254,9 @@ def example_scenes(
 def write_metrics(path: Path, metrics: dict[str, Any], meta: dict[str, Any]) -> Path:
     """metrics.json: one key per model name plus ``meta``."""
     with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps({**metrics, "meta": meta}, indent=2, allow_nan=False) + "\n")
+        tmp.write_text(
+            json.dumps({**metrics, "meta": meta}, indent=2, allow_nan=False) + "\n", encoding="utf-8"
+        )
     return path
 
 

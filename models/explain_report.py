@@ -88,7 +88,7 @@ def write_explain(
     directory.mkdir(parents=True, exist_ok=True)
     doc = document(whatif, window, model)
     with atomic_path(directory / "explain.json") as tmp:
-        tmp.write_text(json.dumps(doc, indent=2, allow_nan=False) + "\n")
+        tmp.write_text(json.dumps(doc, indent=2, allow_nan=False) + "\n", encoding="utf-8")
     title = f"{window['recording']} track {window['track_id']} at t0 = {window['t0_s']:.1f} s"
     images = []
     for i, scene in enumerate(scenes(whatif, title, future)):
@@ -155,5 +155,5 @@ def write_explain(
     page.append("</body></html>")
     path = directory / "explain.html"
     with atomic_path(path) as tmp:
-        tmp.write_text("".join(page))
+        tmp.write_text("".join(page), encoding="utf-8")
     return path

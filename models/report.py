@@ -141,7 +141,7 @@ def write_report(
                 md += [f"### {caption}", "", f"![{caption}]({fname})", ""]
     md_path = directory / "report.md"
     with atomic_path(md_path) as tmp:
-        tmp.write_text("\n".join(md))
+        tmp.write_text("\n".join(md), encoding="utf-8")
 
     esc = html.escape
     parts = [
@@ -183,5 +183,5 @@ def write_report(
     parts.append("</body></html>")
     html_path = directory / "report.html"
     with atomic_path(html_path) as tmp:
-        tmp.write_text("".join(parts))
+        tmp.write_text("".join(parts), encoding="utf-8")
     return md_path, html_path

@@ -8,6 +8,7 @@ fast); every plot returns PNG bytes (:func:`png_bytes`), which ``report.md`` lin
 from __future__ import annotations
 
 import io
+import logging
 from collections.abc import Sequence
 from typing import Any
 
@@ -18,11 +19,19 @@ from lanecast.models.report_tables import model_name
 
 
 def pyplot() -> Any:
-    import matplotlib
+    """matplotlib's pyplot on the Agg backend. Its import's warnings that HOME has no writable
+    config directory (HOME unset or read-only: a container, a batch job), so that it uses a
+    temporary one, are not shown: the plots are the same, and the advice is for matplotlib users."""
+    log = logging.getLogger("matplotlib")
+    level = log.level
+    log.setLevel(logging.ERROR)
+    try:
+        import matplotlib
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    finally:
+        log.setLevel(level)
     return plt
 
 

@@ -59,10 +59,10 @@ def scene_plot(scene: Scene) -> bytes:
     red, the forecast coloured by each step's maneuver with a marker and label per second, the other
     maneuver sequences dotted; every probability is in the legend beside the plot, not on the lines.
     """
+    plt = pyplot()  # first: matplotlib imported as pyplot() does
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch, Rectangle
 
-    plt = pyplot()
     with_probs = scene.probs is not None and np.isfinite(scene.probs).all()
     fig = plt.figure(figsize=(11, 4.6 if with_probs else 3.4))
     grid = fig.add_gridspec(2 if with_probs else 1, 1, height_ratios=[3.2, 1.2] if with_probs else [1])

@@ -104,7 +104,9 @@ def run(args: argparse.Namespace) -> int:
     result["windows"] = str(args.windows)
     result["max_train_windows"] = max_train
     with staged_files(args.out) as stage:  # all of the report's files or none
-        (stage / "ablation.json").write_text(json.dumps(finite(result), indent=2, allow_nan=False) + "\n")
+        (stage / "ablation.json").write_text(
+            json.dumps(finite(result), indent=2, allow_nan=False) + "\n", encoding="utf-8"
+        )
         html = args.out / write_ablation_report(stage, result).relative_to(stage)  # NaN shows "–"
     print(f"RMSE per window at 1-5 s (m), mean over {args.seeds} seed(s):")
     for v in result["variants"].values():

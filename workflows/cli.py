@@ -8,7 +8,9 @@ function that runs it. Heavy imports (torch, SUMO) happen inside those functions
 from __future__ import annotations
 
 import argparse
+import codecs
 import importlib
+import io
 import os
 import signal
 import sys
@@ -33,6 +35,36 @@ COMMANDS = (
     "annotate",
     "report",
 )
+
+
+# What lanecast prints beyond ASCII (help texts, units, arrows), spelled in ASCII for a terminal
+# whose encoding lacks it (a Latin-1 or ASCII locale, PYTHONIOENCODING=ascii); anything else is "?".
+ASCII_SPELLING = {
+    "→": "->", "←": "<-", "…": "...", "×": "x", "–": "-", "—": "-", "−": "-", "≥": ">=", "≤": "<=",
+    "±": "+/-", "·": ".", "²": "^2", "°": " deg", "µ": "u", "≈": "~", "‘": "'", "’": "'", "“": '"', "”": '"',
+}  # fmt: skip
+
+
+def _spell_in_ascii(error: UnicodeError) -> tuple[str | bytes, int]:
+    """Codec error handler: the characters a stream cannot encode, spelled with ASCII_SPELLING; the
+    undecodable bytes of a file name (surrogate escapes) written back as the bytes they were."""
+    if not isinstance(error, UnicodeEncodeError):
+        raise error
+    bad = error.object[error.start : error.end]
+    if all("\udc80" <= c <= "\udcff" for c in bad):
+        return bytes(ord(c) - 0xDC00 for c in bad), error.end
+    return "".join(ASCII_SPELLING.get(c, "?") for c in bad), error.end
+
+
+codecs.register_error("lanecast-ascii", _spell_in_ascii)
+
+
+def printable_everywhere() -> None:
+    """stdout and stderr never fail on a character their encoding lacks: ``lanecast demo --help``
+    on a terminal that is not UTF-8 printed a traceback at its first arrow."""
+    for stream in (sys.stdout, sys.stderr):
+        if isinstance(stream, io.TextIOWrapper) and stream.errors == "strict":
+            stream.reconfigure(errors="lanecast-ascii")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -82,6 +114,7 @@ def _on_sigterm(pid: int) -> Callable[[int, FrameType | None], None]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    printable_everywhere()
     parser = build_parser()
     args = parser.parse_args(argv)
     try:

@@ -112,7 +112,7 @@ def ros2_custom_data(bag: Path) -> dict[str, str]:
     from ruamel.yaml import YAML  # rosbags' own YAML library
 
     try:
-        doc = YAML(typ="safe").load((Path(bag) / "metadata.yaml").read_text())
+        doc = YAML(typ="safe").load((Path(bag) / "metadata.yaml").read_text(encoding="utf-8"))
         custom = doc["rosbag2_bagfile_information"].get("custom_data") or {}
     except Exception as exc:  # any YAML or shape problem: rosbags' reader reports it first anyway
         raise LogError(bag, f"cannot read metadata.yaml's custom_data: {exc}") from exc

@@ -31,7 +31,9 @@ def ros2_typestore() -> Any:
     folder = resources.files("lanecast.io_adapters") / "data" / "foxglove" / "ros2"
     for entry in sorted(folder.iterdir(), key=lambda p: p.name):
         if entry.name.endswith(".msg"):
-            types.update(get_types_from_msg(entry.read_text(), f"foxglove_msgs/msg/{entry.name[:-4]}"))
+            types.update(
+                get_types_from_msg(entry.read_text(encoding="utf-8"), f"foxglove_msgs/msg/{entry.name[:-4]}")
+            )
     store.register(types)
     return store
 

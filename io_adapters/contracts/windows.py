@@ -223,7 +223,9 @@ def save_windows(windows: Windows, directory: str | Path) -> Path:
         for name in _ARRAYS:
             np.save(tmp / f"{name}.npy", np.ascontiguousarray(getattr(windows, name)), allow_pickle=False)
         pq.write_table(windows.index.cast(INDEX_SCHEMA), tmp / "windows.parquet", compression="zstd")
-        (tmp / "manifest.json").write_text(json.dumps(_jsonable(windows.manifest), indent=2, sort_keys=True))
+        (tmp / "manifest.json").write_text(
+            json.dumps(_jsonable(windows.manifest), indent=2, sort_keys=True), encoding="utf-8"
+        )
     return directory
 
 
@@ -312,7 +314,7 @@ class DatasetWriter:
         windows.check()
         windows.manifest = manifest(windows)
         (self._tmp / "manifest.json").write_text(
-            json.dumps(_jsonable(windows.manifest), indent=2, sort_keys=True)
+            json.dumps(_jsonable(windows.manifest), indent=2, sort_keys=True), encoding="utf-8"
         )
         return windows
 
@@ -342,7 +344,7 @@ def load_windows(directory: str | Path, mmap: bool = True, check_values: bool = 
         raise InputError(directory / "windows.parquet", f"damaged windows dataset: {exc}") from exc
     _check_index(directory / "windows.parquet", index)
     try:
-        manifest = json.loads((directory / "manifest.json").read_text())
+        manifest = json.loads((directory / "manifest.json").read_text(encoding="utf-8"))
     except (OSError, ValueError) as exc:
         raise InputError(directory / "manifest.json", f"damaged windows dataset: {exc}") from exc
     if not isinstance(manifest, dict):

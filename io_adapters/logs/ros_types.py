@@ -26,7 +26,8 @@ STRING = "std_msgs/msg/String"
 def msg_definitions() -> dict[str, str]:
     """The shipped ``.msg`` texts by full type name (``pkg/msg/Type``)."""
     return {
-        f"{p.parent.parent.name}/msg/{p.stem}": p.read_text() for p in sorted(MSG_DIR.glob("*/msg/*.msg"))
+        f"{p.parent.parent.name}/msg/{p.stem}": p.read_text(encoding="utf-8")
+        for p in sorted(MSG_DIR.glob("*/msg/*.msg"))
     }
 
 

@@ -314,8 +314,12 @@ def write_network(cfg: HighwayConfig, directory: Path) -> Path:
                 connections.append(
                     f'  <connection from="{side}_out" to="{side}_bn" fromLane="{i}" toLane="{i - 1}"/>'
                 )
-    (directory / "highway.nod.xml").write_text("<nodes>\n" + "\n".join(nodes) + "\n</nodes>\n")
-    (directory / "highway.edg.xml").write_text("<edges>\n" + "\n".join(edges) + "\n</edges>\n")
+    (directory / "highway.nod.xml").write_text(
+        "<nodes>\n" + "\n".join(nodes) + "\n</nodes>\n", encoding="utf-8"
+    )
+    (directory / "highway.edg.xml").write_text(
+        "<edges>\n" + "\n".join(edges) + "\n</edges>\n", encoding="utf-8"
+    )
     lanes_str = "G" * lanes
     (directory / "highway.add.xml").write_text(
         "<additional>\n"
@@ -328,10 +332,12 @@ def write_network(cfg: HighwayConfig, directory: Path) -> Path:
             for p, offset in (("l", 0.0), ("u", cfg.signal_green_s / 2))
             if cfg.bottleneck == "signal"
         )
-        + "</additional>\n"
+        + "</additional>\n",
+        encoding="utf-8",
     )
     (directory / "highway.con.xml").write_text(
-        "<connections>\n" + "\n".join(connections) + ("\n" if connections else "") + "</connections>\n"
+        "<connections>\n" + "\n".join(connections) + ("\n" if connections else "") + "</connections>\n",
+        encoding="utf-8",
     )
     net = directory / "highway.net.xml"
     home = _sumo_home()
@@ -440,7 +446,7 @@ def write_routes(cfg: HighwayConfig, directory: Path) -> Path:
             )
     lines.append("</routes>")
     path = directory / "highway.rou.xml"
-    path.write_text("\n".join(lines) + "\n")
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
     return path
 
 
