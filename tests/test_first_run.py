@@ -1,4 +1,5 @@
-"""A new user's first run: --help on any terminal, reports in any locale, no warnings about HOME."""
+"""A new user's first run: --help on any terminal, reports in any locale, no warnings about HOME,
+the demo's --out."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ import pytest
 from conftest import synthetic_windows
 
 from lanecast.io_adapters.contracts.windows import save_windows
-from lanecast.workflows import cli
+from lanecast.workflows import cli, demo
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -71,3 +72,38 @@ def test_matplotlib_without_a_writable_home_says_nothing(tmp_path: Path) -> None
     )
     assert done.returncode == 0, done.stderr
     assert done.stderr == ""
+
+
+# ------------------------------------------------------------------------------------ demo --out
+
+
+def test_demo_refuses_an_out_holding_what_it_did_not_write(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`lanecast demo --out .` beside one's own tracks.parquet overwrote it; now it is refused before
+    anything is simulated."""
+    mine = tmp_path / "tracks.parquet"
+    mine.write_bytes(b"my own table")
+    assert cli.main(["demo", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert f"{mine}: exists and was not written by `lanecast demo`" in err
+    assert mine.read_bytes() == b"my own table"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["tracks.parquet"]
+
+
+def test_demo_claims_a_new_empty_or_previous_demo_directory(tmp_path: Path) -> None:
+    demo.claim(tmp_path / "new" / "demo")  # created, parents too
+    assert (tmp_path / "new" / "demo" / demo.MARK).is_file()
+    (tmp_path / "empty").mkdir()
+    demo.claim(tmp_path / "empty")
+    (tmp_path / "empty" / "tracks.parquet").write_bytes(b"the demo's own")
+    demo.claim(tmp_path / "empty")  # a rerun: its mark says the outputs are the demo's
+    (tmp_path / "other").mkdir()
+    (tmp_path / "other" / "notes.txt").write_text("unrelated")
+    demo.claim(tmp_path / "other")  # nothing the demo writes is there: it writes beside it
+
+
+def test_demo_refuses_a_file_as_out(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    (tmp_path / "f").write_text("x")
+    assert cli.main(["demo", "--out", str(tmp_path / "f")]) == 2
+    assert "exists and is not a directory" in capsys.readouterr().err

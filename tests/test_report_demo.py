@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -91,6 +92,28 @@ def test_demo_runs_the_whole_pipeline(
     # Forecasts are in the annotated log, the original log is untouched and still readable.
     assert report_topics(out / "annotated" / "highway.mcap") >= {"/lanecast/forecast", "/lanecast/prediction"}
     assert registry.read_any([out / "logs" / "highway.mcap"]).num_rows > 0
+    # What it prints is what it wrote: the paths exist from the cwd, the figures are metrics.json's.
+    done = re.search(r"done\. Open (\S+) in Foxglove; the report is (\S+)$", printed, re.M)
+    assert done is not None and Path(done[1]).is_file() and Path(done[2]).is_file()
+    assert printed_rmse(printed) == [round(v, 2) for v in metrics["stcnn"]["rmse"]]
+    scored = metrics["meta"]["forecasts_scored"]
+    assert f"scored {scored:,} of {metrics['meta']['forecasts_in_logs']:,} forecasts in 1 log " in printed
+
+    # A rerun (the same command again, or after an interruption) redoes the demo in its own folder.
+    (out / "report" / "notes.txt").write_text("the user's")
+    assert main(["demo", "--out", str(out), "--minutes", "2", "--density", "low"]) == 0
+    again = capsys.readouterr().out
+    assert printed_rmse(again) == printed_rmse(printed)
+    assert (
+        json.loads((out / "report" / "metrics.json").read_text())["stcnn"]["rmse"] == metrics["stcnn"]["rmse"]
+    )
+    assert (out / "report" / "notes.txt").read_text() == "the user's"
+
+
+def printed_rmse(printed: str) -> list[float]:
+    line = re.search(r"RMSE 1-5 s \(m\): forecasts ([\d. ]+) \|", printed)
+    assert line is not None, printed
+    return [float(v) for v in line[1].split()]
 
 
 def report_topics(path: Path) -> set[str]:

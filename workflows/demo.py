@@ -8,12 +8,15 @@ future recorded in it, beside the kinematic baselines → print where everything
 from __future__ import annotations
 
 import argparse
+import shlex
 import time
 from pathlib import Path
 
 from lanecast.io_adapters import registry
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.datasets import highd
+from lanecast.io_adapters.errors import OutputError
+from lanecast.io_adapters.files import check_output
 from lanecast.io_adapters.sim.scenarios import DRIVING
 from lanecast.io_adapters.sim.sumo_highway import HighwayConfig, simulate
 from lanecast.workflows.annotate_log import AnnotateOptions
@@ -24,6 +27,10 @@ from lanecast.workflows.vocabulary import HelpFormatter, add_model_option
 
 # A seed the shipped weights never saw (benchmarks/train_shipped.py trains on seeds 11-15, tests on 901-902).
 DEMO_SEED = 2026
+
+# What the demo writes into --out; MARK says that a directory is a demo's, which a rerun redoes.
+OUTPUTS = ("highd", "tracks.parquet", "logs", "annotated", "report")
+MARK = ".lanecast-demo"
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -50,9 +57,40 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+def claim(out: Path) -> None:
+    """Make ``out`` the demo's directory, before anything is simulated: a new or empty directory, a
+    previous demo's (rerun: its outputs are made again), or one that holds none of the demo's
+    outputs. A directory where a demo output's name is taken by something the demo did not write
+    (``--out .`` beside a highD recording or a ``logs`` folder of one's own) is refused, not
+    overwritten."""
+    check_output(out, directory=True)
+    if (out / MARK).is_file():
+        return
+    taken = [name for name in OUTPUTS if (out / name).exists() or (out / name).is_symlink()]
+    if taken:
+        raise OutputError(
+            out / taken[0],
+            "exists and was not written by `lanecast demo`, which would overwrite it",
+            expected="a new --out directory, or one a previous `lanecast demo` wrote",
+        )
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        (out / MARK).write_text(
+            "written by `lanecast demo`: a rerun may replace its outputs\n", encoding="utf-8"
+        )
+    except OSError as exc:
+        raise OutputError(out, f"cannot write here: {exc.strerror or exc}") from exc
+
+
+def shown(path: Path) -> str:
+    """A path as printed: quoted where a shell would split it (spaces), so that it can be pasted."""
+    return shlex.quote(str(path))
+
+
 def run(args: argparse.Namespace) -> int:
     out: Path = args.out
     started = time.perf_counter()
+    claim(out)
 
     def step(text: str) -> None:
         print(f"[{time.perf_counter() - started:5.1f} s] {text}", flush=True)
@@ -63,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
         minutes=args.minutes,
         seed=args.seed,
         show_progress=True,
-        overwrite=True,  # the demo owns its folder: a rerun makes it again
+        overwrite=True,  # the demo owns its folder (claim): a rerun makes it again
         config=HighwayConfig(minutes=args.minutes, seed=args.seed, density=args.density, **DRIVING),
     )
     table = highd.read([sim_dir])
@@ -71,26 +109,26 @@ def run(args: argparse.Namespace) -> int:
     vehicles = sum(int(r["tracks"]) for r in rows)  # type: ignore[call-overload]
     changes = sum(int(r["lane_changes"]) for r in rows)  # type: ignore[call-overload]
     step(
-        f"highD-format recording in {sim_dir}: {vehicles} vehicles, {changes} lane changes, {table.num_rows:,} rows"
+        f"highD-format recording in {shown(sim_dir)}: {vehicles} vehicles, {changes} lane changes, "
+        f"{table.num_rows:,} rows"
     )
 
     parquet = track_table.write_parquet(table, out / "tracks.parquet")
-    step(f"track table (metres, 25 Hz, road frame): {parquet}")
+    rate = track_table.read_meta(table).frame_rate
+    step(f"track table (metres, {rate:g} Hz, road frame): {shown(parquet)}")
 
     log = registry.write_any(table, out / "logs" / "highway.mcap", "mcap")
-    step(f"drive log (foxglove.SceneUpdate, protobuf): {log} ({log.stat().st_size / 1e6:.1f} MB)")
+    step(f"drive log (foxglove.SceneUpdate, protobuf): {shown(log)} ({log.stat().st_size / 1e6:.1f} MB)")
 
     annotated_dir = out / "annotated"
     result = run_bulk([log], annotated_dir, AnnotateOptions(model_dir=args.model, every_s=1.0))
     if result.failed:
-        step(f"annotation failed: see {annotated_dir / 'manifest.jsonl'}")
+        step(f"annotation failed: see {shown(annotated_dir / 'manifest.jsonl')}")
         return 1
-    annotated = sorted(annotated_dir.glob("*.mcap"))
-    step(f"annotated log with /lanecast/forecast and /lanecast/prediction: {', '.join(map(str, annotated))}")
+    annotated = annotated_dir / log.name
+    step(f"annotated log with /lanecast/forecast and /lanecast/prediction: {shown(annotated)}")
 
     report_dir = out / "report"
     status = report_logs([annotated_dir], report_dir)
-    step(
-        f"done. Open {annotated[0] if annotated else annotated_dir} in Foxglove; the report is {report_dir / 'report.html'}"
-    )
+    step(f"done. Open {shown(annotated)} in Foxglove; the report is {shown(report_dir / 'report.html')}")
     return status

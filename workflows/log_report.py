@@ -391,8 +391,10 @@ def _write_reports(paths: list[Path], out: Path, topic: str | None, examples: in
     m = metrics["stcnn"]
     rmse = " ".join(f"{v:.2f}" if v is not None else "-" for v in m["rmse"])
     cv = " ".join(f"{v:.2f}" if v is not None else "-" for v in metrics["cv"]["rmse"])
+    n_logs = f"{len(parts)} log" + ("s" if len(parts) > 1 else "")
     print(
-        f"scored {meta['forecasts_scored']:,} of {meta['forecasts_in_logs']:,} forecasts in {len(parts)} log(s)"
+        f"scored {meta['forecasts_scored']:,} of {meta['forecasts_in_logs']:,} forecasts in {n_logs} "
+        "(those whose 5 s future is in the log)"
     )
     print(f"  RMSE 1-5 s (m): forecasts {rmse} | constant velocity {cv}")
     band_note = speed_band_note(metrics)
