@@ -1,20 +1,24 @@
-"""A new user's first run: --help on any terminal, reports in any locale, no warnings about HOME,
-the demo's --out."""
+"""A new user's first run: `lanecast` alone, --help on any terminal, reports in any locale, the
+demo's --out, the --help examples in order, and errors that say what an example needs."""
 
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
-from conftest import synthetic_windows
+from conftest import make_track_table, synthetic_windows
 
+from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.contracts.windows import save_windows
 from lanecast.workflows import cli, demo
 
 REPO = Path(__file__).resolve().parents[1]
+SUFFIXES = (".parquet", ".mcap", ".bag", ".csv", ".txt", ".json", ".safetensors")
 
 
 def lanecast(*args: str, env: dict[str, str], cwd: Path) -> subprocess.CompletedProcess[str]:
@@ -32,6 +36,13 @@ def lanecast(*args: str, env: dict[str, str], cwd: Path) -> subprocess.Completed
     )
 
 
+def test_lanecast_alone_shows_the_commands(capsys: pytest.CaptureFixture[str]) -> None:
+    assert cli.main([]) == 0
+    out = capsys.readouterr().out
+    assert "Start with: lanecast demo" in out
+    assert all(f"    {command} " in out for command in cli.COMMANDS)
+
+
 @pytest.mark.parametrize("encoding", ["ascii", "latin-1"])
 def test_help_on_a_terminal_that_is_not_utf8(encoding: str, tmp_path: Path) -> None:
     """`lanecast demo --help` printed a traceback at its first arrow; now arrows are spelled."""
@@ -42,8 +53,6 @@ def test_help_on_a_terminal_that_is_not_utf8(encoding: str, tmp_path: Path) -> N
 
 
 def test_unencodable_characters_are_spelled_and_file_name_bytes_kept() -> None:
-    """The error handler cli registers for stdout and stderr: ASCII spellings, "?", a name's own bytes."""
-    assert cli.ASCII_SPELLING["→"] == "->"
     text = "a → b … 3 × 4 ≥ 2 ✓ \udce9t\udce9.mcap"
     assert text.encode("ascii", errors="lanecast-ascii") == b"a -> b ... 3 x 4 >= 2 ? \xe9t\xe9.mcap"
 
@@ -107,3 +116,101 @@ def test_demo_refuses_a_file_as_out(tmp_path: Path, capsys: pytest.CaptureFixtur
     (tmp_path / "f").write_text("x")
     assert cli.main(["demo", "--out", str(tmp_path / "f")]) == 2
     assert "exists and is not a directory" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------------------- --help examples
+
+
+def help_examples() -> list[tuple[str, bool]]:
+    """Every --help example in command order, with whether it needs what a new user has not got
+    (the examples under a 'with a dataset downloaded:' or 'with a Ray cluster:' line)."""
+    parser = cli.build_parser()
+    commands = next(a for a in parser._actions if a.dest == "command").choices  # type: ignore[union-attr]
+    examples = []
+    for name in cli.COMMANDS:
+        epilog = commands[name].epilog or ""  # type: ignore[index]
+        download = False
+        for line in epilog.splitlines():
+            if line.startswith("with "):
+                download = True
+            elif line.startswith("  lanecast "):
+                examples.append((line.split("#", 1)[0].strip(), download))
+    return examples
+
+
+def test_help_examples_run_in_order_on_what_earlier_ones_made() -> None:
+    """In a new directory, in order, every relative input an example names was made by an earlier
+    example (the first is the demo); only the examples under 'with a dataset …' or 'with a Ray
+    cluster' need more."""
+    made = {"lanecast-demo/" + name for name in demo.OUTPUTS}
+    downloads = []
+    for line, download in help_examples():
+        words = line.split()
+        outputs = {words[i + 1].rstrip("/") for i, w in enumerate(words) if w == "--out"}
+        if words[1] == "export":  # writes beside the model it is given
+            outputs.add(words[2])
+        values = {words[i + 1] for i, w in enumerate(words) if w in ("--model", "--init")}
+        inputs = [
+            w
+            for w in words[2:]
+            if not w.startswith("-") and "://" not in w and ("/" in w or Path(w).suffix in SUFFIXES)
+        ]
+        needed = {p.rstrip("/") for p in [*inputs, *values] if p != "default" and not p.startswith("/")}
+        needed -= outputs
+        missing = [
+            p
+            for p in needed
+            if not any(p == m or f"{m}/".startswith(f"{p}/") or p.startswith(f"{m}/") for m in made)
+        ]
+        if download:
+            downloads.append(line)
+            assert missing or "--engine ray" in line, f"{line}: under 'with …' but needs nothing new"
+        else:
+            assert not missing, f"{line}: {missing} is made by no earlier example"
+        made |= outputs
+    assert downloads == [
+        "lanecast convert ngsim/ --out us101.parquet",
+        "lanecast annotate logs/ --out /shared/annotated --engine ray --address ray://head:10001",
+    ]
+
+
+def test_a_missing_input_says_what_the_argument_takes(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert cli.main(["convert", str(tmp_path / "ngsim/"), "--out", str(tmp_path / "us101.parquet")]) == 2
+    err = capsys.readouterr().err
+    assert err == (
+        f"lanecast convert: error: {tmp_path / 'ngsim'}: no such file or directory "
+        "(expected INPUT: highD, NGSIM, MCAP, ROS 1/2 bag or track-table files or directories)\n"
+    )
+
+
+def test_ray_install_advice_is_for_this_environment() -> None:
+    """`pip install 'lanecast[ray]'` would fetch another lanecast than a clone's."""
+    from lanecast.workflows import ray_engine
+
+    extra = re.search(r'^ray = \["([^"]+)"\]', (REPO / "pyproject.toml").read_text(), re.M)
+    assert extra is not None and extra.group(1) == ray_engine.RAY_REQUIREMENT
+    assert ray_engine.install_ray() == f"{sys.executable} -m pip install '{ray_engine.RAY_REQUIREMENT}'"
+
+
+def test_explain_says_when_a_track_of_a_table_has_windows(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A time off the log's clock (the --help example's time on another log) names the track's span."""
+    n = 100  # 10 s at 10 Hz
+    table = make_track_table(
+        {"track_id": np.repeat([1, 2], n), "frame": np.tile(np.arange(n), 2),
+         "x": np.concatenate([np.arange(n) * 3.0, np.arange(n) * 3.0 + 30]), "y": np.zeros(2 * n),
+         "lane_id": np.ones(2 * n, dtype=np.int32)},
+    )  # fmt: skip
+    path = track_table.write_parquet(table, tmp_path / "t.parquet")
+    args = ["explain", str(path), "--out", str(tmp_path / "e")]
+    assert cli.main([*args, "--track", "1", "--time", "1700000123.4"]) == 2
+    assert (
+        "track 1 has no window at t0 = 1700000123.4 s: it is in INPUT from 0.0 to 9.9 s "
+        "(expected a time after 3 s of gap-free history: 2.9 … 9.9 s)"
+    ) in capsys.readouterr().err
+    assert cli.main([*args, "--track", "7", "--time", "5"]) == 2
+    assert "no track 7 (expected a track id of INPUT (1 … 2;" in capsys.readouterr().err
+    assert not (tmp_path / "e").exists()

@@ -37,12 +37,17 @@ def register(sub: argparse._SubParsersAction) -> None:
             "examples:\n"
             "  lanecast annotate logs/ --out annotated/\n"
             "  lanecast annotate logs/ --out annotated/ --workers 2 --every 0.5   # redoes: other options\n"
+            "with a Ray cluster (the ray extra; logs and --out on storage every node mounts):\n"
             "  lanecast annotate logs/ --out /shared/annotated --engine ray --address ray://head:10001"
         ),
         formatter_class=HelpFormatter,
     )
     p.add_argument(
-        "inputs", nargs="+", type=Path, metavar="LOG_OR_DIR", help="logs, or directories searched for logs"
+        "inputs",
+        nargs="+",
+        type=Path,
+        metavar="LOG_OR_DIR",
+        help="MCAP logs or ROS 1/2 bags, or directories searched for them",
     )
     p.add_argument("--out", required=True, type=Path, metavar="OUT_DIR", help="output directory")
     add_model_option(p)

@@ -15,10 +15,11 @@ import os
 import signal
 import sys
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from types import FrameType
 
 from lanecast import __version__
-from lanecast.io_adapters.errors import LanecastError
+from lanecast.io_adapters.errors import InputError, LanecastError
 from lanecast.workflows.vocabulary import HelpFormatter
 
 COMMANDS = (
@@ -97,6 +98,25 @@ def _stdout_closed() -> int:
     return 141  # 128 + SIGPIPE, what a shell reports for a tool killed by the closed pipe
 
 
+def what_is_needed(exc: LanecastError, parser: argparse.ArgumentParser, args: argparse.Namespace) -> str:
+    """For an input named on the command line that does not exist (a --help example run before the
+    one that makes its input, or one on a dataset not at hand): which argument it is and what that
+    argument takes, from the command's own help."""
+    if (
+        not isinstance(exc, InputError)
+        or exc.expected is not None
+        or exc.reason != "no such file or directory"
+    ):
+        return ""
+    command = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    for action in command.choices[args.command]._actions:
+        given = getattr(args, action.dest, None)
+        values = given if isinstance(given, list) else [given]
+        if not action.option_strings and action.help and exc.path in {str(Path(v)) for v in values if v}:
+            return f" (expected {action.metavar}: {action.help})"
+    return ""
+
+
 class Terminated(KeyboardInterrupt):
     """SIGTERM (a batch system stopping the job): handled as Ctrl-C is, so that temporary outputs
     are removed on the way out instead of left beside the output."""
@@ -116,6 +136,9 @@ def _on_sigterm(pid: int) -> Callable[[int, FrameType | None], None]:
 def main(argv: Sequence[str] | None = None) -> int:
     printable_everywhere()
     parser = build_parser()
+    if not (sys.argv[1:] if argv is None else argv):  # `lanecast` alone: what it can do, not a usage error
+        parser.print_help()
+        return 0
     args = parser.parse_args(argv)
     try:
         previous = signal.signal(signal.SIGTERM, _on_sigterm(os.getpid()))
@@ -127,7 +150,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except BrokenPipeError:
         return _stdout_closed()
     except LanecastError as exc:
-        print(f"lanecast {args.command}: error: {exc}", file=sys.stderr)
+        print(f"lanecast {args.command}: error: {exc}{what_is_needed(exc, parser, args)}", file=sys.stderr)
         return 2
     except OSError as exc:  # the environment, not a bug: a full disk, a vanished or unwritable path
         where = f"{exc.filename}: " if exc.filename else ""

@@ -37,13 +37,19 @@ def register(sub: argparse._SubParsersAction) -> None:
             "  lanecast convert sim/ --out sim.parquet\n"
             "  lanecast convert sim.parquet --out logs/sim.mcap\n"
             "  lanecast convert sim.parquet --to ros2 --out logs/sim-bag   # a ROS 2 bag, MCAP storage\n"
-            "  lanecast convert data/highD/01_tracks.csv --out highd-01.parquet\n"
-            "  lanecast convert ngsim/ --out us101.parquet   # trajectories-0750am-0805am.txt … are US-101\n"
-            "  lanecast convert data/highD/ --out highd/ --partition --workers 2"
+            "  lanecast convert sim-queue/01_tracks.csv --out queue.parquet   # a highD recording, by any of its files\n"
+            "  lanecast convert lanecast-demo/highd/ --out highd/ --partition --workers 2   # the demo's, highD format\n"
+            "with a dataset downloaded (NGSIM: data.transportation.gov; highD: levelxdata.com):\n"
+            "  lanecast convert ngsim/ --out us101.parquet   # trajectories-0750am-0805am.txt … are US-101"
         ),
         formatter_class=HelpFormatter,
     )
-    p.add_argument("inputs", nargs="+", metavar="INPUT", help="files or directories to read")
+    p.add_argument(
+        "inputs",
+        nargs="+",
+        metavar="INPUT",
+        help="highD, NGSIM, MCAP, ROS 1/2 bag or track-table files or directories",
+    )
     p.add_argument("--out", required=True, type=Path, help="output path")
     p.add_argument("--format", choices=sorted(registry.READERS), help="input format (default: detected)")
     add_location_option(p)

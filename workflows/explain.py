@@ -15,9 +15,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
 
 from lanecast.io_adapters import registry
-from lanecast.io_adapters.contracts.windows import DATASET_FILES, Windows, load_windows
+from lanecast.io_adapters.contracts.windows import DATASET_FILES, HISTORY, Windows, load_windows
 from lanecast.io_adapters.errors import InputError, UsageError
 from lanecast.io_adapters.files import check_output_dir, staged_files
 from lanecast.models.explain import parse_removals, present_neighbours, what_if
@@ -44,7 +46,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         epilog=(
             "examples:\n"
             "  lanecast explain windows/sim --track 75 --time 58.3 --out explain/\n"
-            "  lanecast explain drive.mcap --track 12 --time 1700000123.4 --remove F,RL --out explain/\n"
+            "  lanecast explain logs/sim.mcap --track 19 --time 14 --remove F,RL --out explain/   # a log: --time on its clock\n"
             "  lanecast explain sim/ --track 75 --time 58.3 --remove F+FL --out explain/"
         ),
         formatter_class=HelpFormatter,
@@ -155,7 +157,47 @@ def window_of(args: argparse.Namespace, card: dict[str, Any]) -> tuple[Windows, 
             allow_empty=True,
             neighbour_range=float(neighbour_range),
         )
+        try:
+            return windows, pick_window(windows, args.track, t0_ns, args.recording, args.input)
+        except InputError as exc:
+            raise no_window_in_table(table, args.track, t0_ns, args.recording, args.input) from exc
     return windows, pick_window(windows, args.track, t0_ns, args.recording, args.input)
+
+
+def no_window_in_table(
+    table: pa.Table, track: int, t0_ns: int, recording: str | None, source: Path
+) -> InputError:
+    """Why a table or log has no window of ``track`` at ``t0_ns``, with the times it has one at
+    (a log's clock is its own: the --help example's time is no time in another log)."""
+    rows = pc.equal(table.column("track_id"), track)
+    if recording is not None:
+        rows = pc.and_(rows, pc.equal(table.column("recording"), recording))
+    times = table.column("time_ns").filter(rows)
+    where = f" in {recording}" if recording else ""
+    if len(times) == 0:
+        ids = table.column("track_id")
+        return InputError(
+            source,
+            f"no track {track}{where}",
+            column="--track",
+            expected=f"a track id of INPUT ({pc.min(ids).as_py()} … {pc.max(ids).as_py()}; `lanecast info` lists them)",
+        )
+    first, last = pc.min(times).as_py() / 1e9, pc.max(times).as_py() / 1e9
+    history_s = (HISTORY - 1) * STEP_NS / 1e9
+    span = f"it is in INPUT from {first:.1f} to {last:.1f} s"
+    if last - first < history_s:
+        return InputError(
+            source,
+            f"track {track}{where} has no window: {span}, less than the 3 s of history a window needs",
+            column="--track",
+            expected="a track in INPUT for 3 s or more",
+        )
+    return InputError(
+        source,
+        f"track {track}{where} has no window at t0 = {t0_ns / 1e9:.1f} s: {span}",
+        column="--time",
+        expected=f"a time after 3 s of gap-free history: {first + history_s:.1f} … {last:.1f} s",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -164,7 +206,10 @@ def run(args: argparse.Namespace) -> int:
     card: dict[str, Any] = getattr(forecaster, "card", None) or {}
     windows, i = window_of(args, card)
     inputs, present = np.asarray(windows.inputs[i]), np.asarray(windows.present[i])
-    removals = parse_removals(args.remove, present) if args.remove else []
+    try:
+        removals = parse_removals(args.remove, present) if args.remove else []
+    except InputError as exc:
+        raise exc.naming(args.input) from None
     if args.all or not args.remove:
         removals += [(n,) for n in present_neighbours(present) if (n,) not in removals]
     if not removals:

@@ -24,7 +24,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         epilog="examples:\n  lanecast info sim.parquet\n  lanecast info logs/sim.mcap",
         formatter_class=HelpFormatter,
     )
-    p.add_argument("paths", nargs="+", metavar="PATH")
+    p.add_argument(
+        "paths",
+        nargs="+",
+        metavar="PATH",
+        help="highD, NGSIM, MCAP, ROS 1/2 bag or track-table files or directories",
+    )
     p.add_argument("--format", choices=sorted(registry.READERS), help="input format (default: detected)")
     add_location_option(p)
     p.set_defaults(func=run)

@@ -10,13 +10,15 @@
 - Before any work, one task on the cluster checks that the workers see the inputs and OUT_DIR (by
   the same absolute paths): a path the workers cannot reach is refused, naming it.
 
-Ray is imported here only, inside the functions: it is optional (``pip install 'lanecast[ray]'``).
+Ray is imported here only, inside the functions: it is optional (the ``ray`` extra).
 """
 
 from __future__ import annotations
 
 import os
+import shlex
 import socket
+import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -28,15 +30,20 @@ PROBE_TIMEOUT_S = 5.0
 CONNECT_RETRIES = 10  # Ray's attempts (about 1 s each) to reach a GCS that passed the probe
 PATH_CHECK_TIMEOUT_S = 120.0
 ADDRESS_HELP = "host:port of the cluster's head (`ray start --head` prints it) or ray://host:10001"
+RAY_REQUIREMENT = "ray[client]>=2.30"  # pyproject.toml's `ray` extra (a test checks they agree)
+
+
+def install_ray() -> str:
+    """The command that installs Ray into the environment running lanecast, from any directory (not
+    ``pip install 'lanecast[ray]'``, which would fetch another lanecast than a clone's)."""
+    return f"{shlex.quote(sys.executable)} -m pip install '{RAY_REQUIREMENT}'"
 
 
 def ray_module() -> Any:
     try:
         import ray
     except ImportError as exc:
-        raise UsageError(
-            "--engine ray", "Ray is not installed", expected="pip install 'lanecast[ray]'"
-        ) from exc
+        raise UsageError("--engine ray", "Ray is not installed", expected=install_ray()) from exc
     return ray
 
 
@@ -113,7 +120,7 @@ def connect(address: str | None, workers: int) -> bool:
             raise UsageError(
                 f"--address {address}",
                 "ray:// addresses need Ray Client, which is not installed",
-                expected="pip install 'lanecast[ray]' (installs ray[client]), or a host:port address",
+                expected=f"{install_ray()}, or a host:port address",
             ) from exc
     target = address or running_local_cluster()
     if target:

@@ -41,7 +41,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         epilog=(
             "examples:\n  lanecast train windows/sim --out runs/model --epochs 20 --seed 1\n"
             "  lanecast train windows/sim --out runs/regonly --regression-only   # ablation: no maneuver input\n"
-            "  lanecast train windows/mine --init default --out runs/tuned --epochs 5   # fine-tune the shipped model"
+            "  lanecast train windows/queue --init default --out runs/tuned --epochs 5   # fine-tune the shipped model"
         ),
         formatter_class=HelpFormatter,
     )

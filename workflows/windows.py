@@ -33,8 +33,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         epilog=(
             "examples:\n"
             "  lanecast windows sim.parquet --out windows/sim\n"
-            "  lanecast windows us101.parquet --out windows/us101 --split hash --seed 3 --stride 5   # NGSIM\n"
-            "  lanecast windows data/highD/ --out windows/highd --workers 2"
+            "  lanecast windows sim-queue/ --out windows/queue --split hash --seed 3 --stride 5   # any input convert reads\n"
+            "  lanecast windows lanecast-demo/highd/ --out windows/demo --workers 2"
         ),
         formatter_class=HelpFormatter,
     )
