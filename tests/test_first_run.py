@@ -214,3 +214,24 @@ def test_explain_says_when_a_track_of_a_table_has_windows(
     assert cli.main([*args, "--track", "7", "--time", "5"]) == 2
     assert "no track 7 (expected a track id of INPUT (1 … 2;" in capsys.readouterr().err
     assert not (tmp_path / "e").exists()
+
+
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["simulate", "--minutes", "5", "--seed", "1"],
+        ["windows", "any.parquet"],
+        ["train", "any-windows"],
+        ["ablate", "any-windows", "--quick"],
+        ["demo"],
+    ],
+)
+def test_an_unwritable_out_is_refused_before_the_work(
+    command: list[str], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """In a read-only directory, simulate, train and ablate failed only after simulating or training
+    (simulate naming a temporary directory); now --out is checked first."""
+    (tmp_path / "file").write_text("a file where a directory would have to be")
+    out = tmp_path / "file" / "out"
+    assert cli.main([*command, "--out", str(out)]) == 2
+    assert capsys.readouterr().err.endswith(f"error: {out}: cannot write here: Not a directory\n")
