@@ -38,14 +38,14 @@ class InputError(LanecastError):
         self.expected = expected
         message = " ".join(str(message).split())  # one line, whatever a library's message holds
         self.reason = message
-        where = [self.path or "<input>"]
+        where = [self.path] if self.path is not None else []
         if line is not None:
             where.append(f"line {line}")
         if offset is not None:
             where.append(f"offset {offset}")
         if column is not None:
             where.append(f"column {column!r}")
-        text = ", ".join(where) + f": {message}"
+        text = ", ".join(where) + f": {message}" if where else message  # no "<input>: " for an option
         if expected is not None:
             text += f" (expected {expected})"
         super().__init__(text)

@@ -112,6 +112,17 @@ def test_demo_claims_a_new_empty_or_previous_demo_directory(tmp_path: Path) -> N
     demo.claim(tmp_path / "other")  # nothing the demo writes is there: it writes beside it
 
 
+def test_demo_checks_its_options_before_making_out(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`lanecast demo --minutes 0` said '<input>: invalid simulation parameter …' after making --out."""
+    assert cli.main(["demo", "--out", str(tmp_path / "d"), "--minutes", "0"]) == 2
+    assert capsys.readouterr().err == (
+        "lanecast demo: error: --minutes 0.0: invalid (expected a positive number of minutes)\n"
+    )
+    assert not (tmp_path / "d").exists()
+
+
 def test_demo_refuses_a_file_as_out(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     (tmp_path / "f").write_text("x")
     assert cli.main(["demo", "--out", str(tmp_path / "f")]) == 2

@@ -274,11 +274,11 @@ def test_a_new_output_directory_gets_ordinary_permissions(tmp_path: Path) -> Non
 @pytest.mark.parametrize(
     ("kwargs", "column"),
     [
-        ({"density": "extreme"}, "density"),
-        ({"minutes": 0.0}, "minutes"),
-        ({"truck_share": 1.5}, "truck_share"),
-        ({"lanes_per_direction": 0}, "lanes_per_direction"),
-        ({"seed": -1}, "seed"),
+        ({"density": "extreme"}, "--density 'extreme': invalid"),
+        ({"minutes": 0.0}, "--minutes 0.0: invalid"),
+        ({"truck_share": 1.5}, r"--truck-share 1\.5: invalid"),
+        ({"lanes_per_direction": 0}, "--lanes-per-direction 0: invalid"),
+        ({"seed": -1}, "--seed -1: invalid"),
         ({"recording_id": 100}, "recording id"),
     ],
 )

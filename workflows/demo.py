@@ -90,6 +90,8 @@ def shown(path: Path) -> str:
 def run(args: argparse.Namespace) -> int:
     out: Path = args.out
     started = time.perf_counter()
+    config = HighwayConfig(minutes=args.minutes, seed=args.seed, density=args.density, **DRIVING)
+    config.check()  # a wrong --minutes before --out is made
     claim(out)
 
     def step(text: str) -> None:
@@ -102,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
         seed=args.seed,
         show_progress=True,
         overwrite=True,  # the demo owns its folder (claim): a rerun makes it again
-        config=HighwayConfig(minutes=args.minutes, seed=args.seed, density=args.density, **DRIVING),
+        config=config,
     )
     table = highd.read([sim_dir])
     rows = summarise(table)
@@ -126,7 +128,8 @@ def run(args: argparse.Namespace) -> int:
         step(f"annotation failed: see {shown(annotated_dir / 'manifest.jsonl')}")
         return 1
     annotated = annotated_dir / log.name
-    step(f"annotated log with /lanecast/forecast and /lanecast/prediction: {shown(annotated)}")
+    kept = " (kept: log, model and options unchanged since the last run)" if result.skipped else ""
+    step(f"annotated log with /lanecast/forecast and /lanecast/prediction: {shown(annotated)}{kept}")
 
     report_dir = out / "report"
     status = report_logs([annotated_dir], report_dir)

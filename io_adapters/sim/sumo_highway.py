@@ -219,11 +219,22 @@ class HighwayConfig:
             problems.append(("extra_warmup_s", f"{self.extra_warmup_s}", "a non-negative time"))
         if problems:
             name, got, expected = problems[0]
-            raise InputError(None, f"invalid simulation parameter {name} = {got}", expected=expected)
+            option = OPTIONS.get(name)
+            what = f"{option} {got}: invalid" if option else f"invalid simulation parameter {name} = {got}"
+            raise InputError(None, what, expected=expected)
 
 
 # ----------------------------------------------------------------------------------------------
 # Scenario files
+
+
+# The command-line options (`lanecast simulate`, `lanecast demo`) that set a HighwayConfig field.
+OPTIONS = {
+    "minutes": "--minutes", "seed": "--seed", "lanes_per_direction": "--lanes-per-direction",
+    "density": "--density", "truck_share": "--truck-share", "section_length_m": "--section-length",
+    "approach_length_m": "--approach-length", "lane_change_duration_s": "--lane-change-duration",
+    "lateral_smoothing_s": "--lateral-smoothing", "lateral_wander_m": "--weave", "drivers": "--drivers",
+}  # fmt: skip
 
 
 def _sumo_home() -> Path:
