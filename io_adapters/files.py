@@ -109,7 +109,11 @@ def check_output(path: str | Path, *, directory: bool = False) -> Path:
     if not stat.S_ISDIR(parent_info.st_mode):
         raise OutputError(path, f"{parent} is not a directory", expected="an output path in a directory")
     if not os.access(parent, os.W_OK | os.X_OK):
-        raise OutputError(path, f"the directory {parent} is not writable")
+        raise OutputError(
+            path,
+            f"the directory {parent} is not writable",
+            expected="an --out in a directory you can write to",
+        )
     return path
 
 

@@ -246,3 +246,18 @@ def test_an_unwritable_out_is_refused_before_the_work(
     out = tmp_path / "file" / "out"
     assert cli.main([*command, "--out", str(out)]) == 2
     assert capsys.readouterr().err.endswith(f"error: {out}: cannot write here: Not a directory\n")
+
+
+def test_demo_in_a_directory_it_cannot_write_says_so(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The README's command in a read-only directory: one line naming the directory, no traceback.
+    (os.access stands in for a read-only mount, which root's permission bits cannot give.)"""
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(os, "access", lambda *args, **kwargs: False)
+    assert cli.main(["demo"]) == 2
+    assert capsys.readouterr().err == (
+        "lanecast demo: error: lanecast-demo: the directory . is not writable "
+        "(expected an --out in a directory you can write to)\n"
+    )
+    assert list(tmp_path.iterdir()) == []
