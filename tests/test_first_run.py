@@ -112,6 +112,19 @@ def test_demo_claims_a_new_empty_or_previous_demo_directory(tmp_path: Path) -> N
     demo.claim(tmp_path / "other")  # nothing the demo writes is there: it writes beside it
 
 
+def test_demo_reruns_in_a_directory_an_earlier_version_made(tmp_path: Path) -> None:
+    """A demo folder from before the mark (no .lanecast-demo) is recognised by its annotation
+    manifest, whose input is the demo's log: the rerun after an upgrade is not refused."""
+    from lanecast.workflows.manifest import Manifest
+
+    (tmp_path / "tracks.parquet").write_bytes(b"the old demo's")
+    Manifest(tmp_path / "annotated").append(
+        {"input": str(tmp_path / "logs" / "highway.mcap"), "status": "done"}
+    )
+    demo.claim(tmp_path)
+    assert (tmp_path / demo.MARK).is_file()
+
+
 def test_demo_checks_its_options_before_making_out(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -15,13 +15,14 @@ from pathlib import Path
 from lanecast.io_adapters import registry
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.datasets import highd
-from lanecast.io_adapters.errors import OutputError
+from lanecast.io_adapters.errors import InputError, OutputError
 from lanecast.io_adapters.files import check_output
 from lanecast.io_adapters.sim.scenarios import DRIVING
 from lanecast.io_adapters.sim.sumo_highway import HighwayConfig, simulate
 from lanecast.workflows.annotate_log import AnnotateOptions
 from lanecast.workflows.bulk import run_bulk
 from lanecast.workflows.log_report import report_logs
+from lanecast.workflows.manifest import Manifest
 from lanecast.workflows.table_summary import summarise
 from lanecast.workflows.vocabulary import HelpFormatter, add_model_option
 
@@ -67,7 +68,7 @@ def claim(out: Path) -> None:
     if (out / MARK).is_file():
         return
     taken = [name for name in OUTPUTS if (out / name).exists() or (out / name).is_symlink()]
-    if taken:
+    if taken and not made_by_an_earlier_demo(out):
         raise OutputError(
             out / taken[0],
             "exists and was not written by `lanecast demo`, which would overwrite it",
@@ -80,6 +81,16 @@ def claim(out: Path) -> None:
         )
     except OSError as exc:
         raise OutputError(out, f"cannot write here: {exc.strerror or exc}") from exc
+
+
+def made_by_an_earlier_demo(out: Path) -> bool:
+    """A demo's directory from before the mark (lanecast 0.1.0 of wave 6): its annotation manifest
+    has the demo's log as its input, which a user's own folder does not."""
+    try:
+        inputs = Manifest(out / "annotated").latest()
+    except InputError:
+        return False
+    return any(Path(i).parts[-2:] == ("logs", "highway.mcap") for i in inputs)
 
 
 def shown(path: Path) -> str:
