@@ -108,7 +108,10 @@ def run(args: argparse.Namespace) -> int:
     def step(text: str) -> None:
         print(f"[{time.perf_counter() - started:5.1f} s] {text}", flush=True)
 
-    step(f"simulating {args.minutes:g} min of {args.density} highway traffic with SUMO (seed {args.seed})")
+    step(
+        f"simulating {args.minutes:g} min of {args.density} highway traffic with SUMO (seed {args.seed}), "
+        f"after {config.warmup_s:g} s in which the road fills"
+    )
     sim_dir = simulate(
         out / "highd",
         minutes=args.minutes,
