@@ -709,7 +709,15 @@ def test_a_signal_while_writing_leaves_nothing(tmp_path: Path, signal_name: str)
     out = tmp_path / "bag"
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     command = [sys.executable, "-m", "lanecast", "convert", str(source), "--to", "ros2", "--out", str(out)]
-    with subprocess.Popen(command, stderr=subprocess.PIPE, text=True, env=env) as process:
+    # SIGINT as a terminal's Ctrl-C delivers it: a pytest started in the background (`nohup … &`)
+    # passes SIGINT on ignored, and a Python started with SIGINT ignored rightly keeps ignoring it.
+    with subprocess.Popen(
+        command,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    ) as process:
         assert process.stderr is not None
         for line in process.stderr:  # the first progress line: the bag is being written
             if line.startswith("writing bag"):

@@ -208,7 +208,10 @@ def test_cli_reports_project_errors_as_one_line(tmp_path: Path, capsys: pytest.C
     missing = tmp_path / "nope.csv"
     assert main(["info", str(missing)]) == 2
     err = capsys.readouterr().err
-    assert err.strip() == f"lanecast info: error: {missing}: no such file or directory"
+    assert err.strip() == (
+        f"lanecast info: error: {missing}: no such file or directory "
+        "(expected PATH: highD, NGSIM, MCAP, ROS 1/2 bag or track-table files or directories)"
+    )
 
 
 def test_convert_and_info_on_a_track_table(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
