@@ -46,7 +46,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         epilog=(
             "examples:\n"
             "  lanecast explain windows/sim --track 75 --time 58.3 --out explain/\n"
-            "  lanecast explain logs/sim.mcap --track 19 --time 14 --remove F,RL --out explain/   # a log: --time on its clock\n"
+            "  lanecast explain logs/sim.mcap --track 22 --time 7 --remove F,RL --out explain/   # a log: --time on its clock\n"
             "  lanecast explain sim/ --track 75 --time 58.3 --remove F+FL --out explain/"
         ),
         formatter_class=HelpFormatter,
