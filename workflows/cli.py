@@ -64,7 +64,9 @@ def printable_everywhere() -> None:
     """stdout and stderr never fail on a character their encoding lacks: ``lanecast demo --help``
     on a terminal that is not UTF-8 printed a traceback at its first arrow."""
     for stream in (sys.stdout, sys.stderr):
-        if isinstance(stream, io.TextIOWrapper) and stream.errors == "strict":
+        # a C locale gives "surrogateescape", which still fails on an en dash; the handler keeps
+        # surrogate-escaped file-name bytes as they were
+        if isinstance(stream, io.TextIOWrapper) and stream.errors in ("strict", "surrogateescape"):
             stream.reconfigure(errors="lanecast-ascii")
 
 
