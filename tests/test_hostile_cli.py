@@ -725,7 +725,9 @@ def test_a_signal_while_writing_leaves_nothing(tmp_path: Path, signal_name: str)
         process.send_signal(getattr(signal, signal_name))
         rest = process.stderr.read()
         status = process.wait(timeout=60)
-    assert status == (143 if signal_name == "SIGTERM" else 130), rest
+    # SIGINT: 130, or (seen once in a loaded full CI run, not reproduced alone) the process ending by
+    # the signal itself after the message, which a shell reports as 130 all the same
+    assert status in ((143,) if signal_name == "SIGTERM" else (130, -signal.SIGINT)), rest
     assert (
         rest.strip().splitlines()[-1]
         == f"lanecast convert: {'terminated' if signal_name == 'SIGTERM' else 'interrupted'}"
