@@ -441,12 +441,9 @@ def _highd_variant(tmp_path: Path, line: int, column: str, value: str) -> Path:
     [
         ("laneId", str(2**31), "within int32"),
         ("laneId", str(2**40), "within int32"),
-        # lane changes are changes of laneId: -1, 0, the median (4), the other carriageway's lane (2) or
-        # the road edge (7) was a lane change that never happened
-        *(
-            ("laneId", lane, "lower carriageway, 5 to 6 (the recordingMeta's 3")
-            for lane in ("-1", "0", "4", "2", "7")
-        ),
+        # lane changes are changes of laneId: -1, 0 or beyond the lower road edge (7) was a lane change
+        # that never happened
+        *(("laneId", lane, "a highD lane id, 1 to 7") for lane in ("-1", "0", "8")),
         ("width", "0.0", "a length > 0"),
         ("height", "-1.5", "a width > 0"),
         ("frame", "-3", "a frame from 0"),
@@ -460,6 +457,17 @@ def test_highd_values_out_of_range(tmp_path: Path, column: str, value: str, expe
         registry.read_any([path])
     assert err.value.path == str(path) and err.value.line == 3 and err.value.column == column
     assert expected in (err.value.expected or "")
+
+
+@pytest.mark.parametrize("lane", ["1", "4", "2", "7"])
+def test_highd_edge_median_and_other_carriageway_lanes_are_kept(tmp_path: Path, lane: str) -> None:
+    """The road edges (1, 7), the median (4) or the other carriageway's lane (2) are areas of highD's
+    numbering a real recording may place a vehicle in: read as given, not refused."""
+    table = registry.read_any([_highd_variant(tmp_path, 3, "laneId", lane)])
+    original = registry.read_any([HIGHD / "01_tracks.csv"])
+    assert table.num_rows == original.num_rows
+    changed = table.column("lane_id").to_numpy() != original.column("lane_id").to_numpy()
+    assert changed.sum() == 1 and table.column("lane_id").to_numpy()[changed][0] == int(lane)
 
 
 # ------------------------------------------------------------------------------------------- NGSIM

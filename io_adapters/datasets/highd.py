@@ -630,54 +630,39 @@ def _check_direction(
         )
 
 
-def lane_ids(markings: Mapping[int, Sequence[float]]) -> dict[int, tuple[int, int]]:
-    """highD's laneIds of each driving direction with lane markings: (first, last), inclusive.
+def last_lane_id(markings: Mapping[int, Sequence[float]]) -> int | None:
+    """The largest laneId highD gives with these lane markings, None when a direction has fewer than two.
 
-    highD numbers the marking areas and lanes across the road from the top of the image: id 1 is the
-    upper road edge, 2 … U the U - 1 upper lanes between the U upperLaneMarkings, U + 1 the median,
-    U + 2 … U + L the lower lanes, U + L + 1 the lower road edge. A direction with fewer than two
-    markings has no lanes known (the meta file left them out), nor has the lower one without the
-    upper markings (its numbering starts after them)."""
+    highD numbers the areas across the road from the top of the image: 1 the upper road edge, 2 … U
+    the lanes between the U upperLaneMarkings, U + 1 the median, U + 2 … U + L the lower lanes,
+    U + L + 1 the lower road edge."""
     upper, lower = len(markings[UPPER]), len(markings[LOWER])
-    known = {}
-    if upper >= 2:
-        known[UPPER] = (2, upper)
-        if lower >= 2:
-            known[LOWER] = (upper + 2, upper + lower)
-    return known
+    return upper + lower + 1 if upper >= 2 and lower >= 2 else None
 
 
-def _check_lanes(
-    path: Path, meta: _Meta, cols: dict[str, np.ndarray], source_row: np.ndarray, direction: np.ndarray
-) -> None:
-    """Refuse a laneId that is no lane of its vehicle's carriageway (-1, 0, a road edge, the other
-    direction's lane, 10**6): lane-change labels come from changes of laneId (pipeline/labels.py), so
-    one such row would be a lane change that never happened. Without markings for a direction, its
-    laneIds must be at least 1 (highD's numbering). ``cols``, ``source_row``, ``direction`` [N]."""
-    known = lane_ids(meta.markings)
+def _check_lanes(path: Path, meta: _Meta, cols: dict[str, np.ndarray], source_row: np.ndarray) -> None:
+    """Refuse a laneId that is no area of highD's numbering (-1, 0, 10**6): lane-change labels come
+    from changes of laneId (pipeline/labels.py), so one such row would be a lane change that never
+    happened. A road edge, the median or the other carriageway's lane is kept: a real recording may
+    place a vehicle there (a breakdown on the shoulder, a box across a marking), and refusing the
+    whole recording for it would lose it. ``cols``, ``source_row`` [N]."""
+    last = last_lane_id(meta.markings)
     lane = cols["laneId"]
-    low = np.ones(lane.size, dtype=np.int64)
-    high = np.full(lane.size, INT32_MAX, dtype=np.int64)
-    for d, (first, last) in known.items():
-        low = np.where(direction == d, first, low)
-        high = np.where(direction == d, last, high)
-    bad = np.flatnonzero((lane < low) | (lane > high))
+    bad = np.flatnonzero((lane < 1) | (lane > (INT32_MAX if last is None else last)))
     if not bad.size:
         return
     k = int(bad[np.argmin(source_row[bad])])  # the first in the file
-    d = int(direction[k])
-    if d in known:
-        first, last = known[d]
-        column = "upperLaneMarkings" if d == UPPER else "lowerLaneMarkings"
-        expected = (
-            f"a lane of the {DIRECTION_NAMES[d]} carriageway, {first} to {last} "
-            f"(the recordingMeta's {len(meta.markings[d])} {column})"
-        )
-    else:
+    if last is None:
         expected = "a lane id >= 1 (highD numbers lanes from the top of the image)"
+    else:
+        expected = (
+            f"a highD lane id, 1 to {last} (road edges, lanes and median numbered from the top of the "
+            f"image across the recordingMeta's {len(meta.markings[UPPER])} upper and "
+            f"{len(meta.markings[LOWER])} lower lane markings)"
+        )
     raise InputError(
         path,
-        f"laneId is {lane[k]} for vehicle {cols['id'][k]} (drivingDirection {d})",
+        f"laneId is {lane[k]} for vehicle {cols['id'][k]}",
         line=_line(path, int(source_row[k])),
         column="laneId",
         expected=expected,
@@ -759,7 +744,7 @@ def convert_tracks(
     _check_ranges(tracks_path, cols, source_row, meta.frame_rate)
     row_meta, direction = _check_meta(rec, meta_table, cols, source_row, all_tracks)
     _check_direction(rec, cols, row_meta, direction)
-    _check_lanes(tracks_path, meta, cols, source_row, direction)
+    _check_lanes(tracks_path, meta, cols, source_row)
     class_names, class_codes = _classes(meta_table, rec.path("tracksMeta"))
 
     length, width = cols["width"], cols["height"]
