@@ -117,6 +117,11 @@ def check_output(path: str | Path, *, directory: bool = False) -> Path:
     return path
 
 
+def first_of(names: list[str]) -> str:
+    """The first of ``names`` (quoted) and how many more: "'a.csv' and 2 more"."""
+    return f"{names[0]!r}" + (f" and {len(names) - 1} more" if len(names) > 1 else "")
+
+
 def check_replaceable(target: Path, replaces: tuple[str, ...] = ()) -> None:
     """OutputError if the existing directory ``target`` holds an entry matching none of the name
     patterns ``replaces`` (a user's file, which replacing the directory would delete)."""
@@ -126,9 +131,7 @@ def check_replaceable(target: Path, replaces: tuple[str, ...] = ()) -> None:
     if foreign:
         raise OutputError(
             target,
-            f"the directory holds {foreign[0]!r}"
-            + (f" and {len(foreign) - 1} more" if len(foreign) > 1 else "")
-            + ", which this output would delete",
+            f"the directory holds {first_of(foreign)}, which this output would delete",
             expected="a new or empty directory, or a previous output of the same command",
         )
 

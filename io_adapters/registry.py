@@ -19,7 +19,7 @@ import pyarrow as pa
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.datasets.csv_errors import not_text
 from lanecast.io_adapters.errors import FormatNotRecognisedError
-from lanecast.io_adapters.files import check_input
+from lanecast.io_adapters.files import check_input, first_of
 
 READERS: dict[str, str] = {
     "parquet": "lanecast.io_adapters.datasets.parquet",
@@ -83,9 +83,7 @@ def detect(path: str | Path) -> str:
         if storage:  # the files of a ROS 2 bag without the index that says what they hold
             raise FormatNotRecognisedError(
                 path,
-                f"the directory holds {storage[0]}"
-                + (f" and {len(storage) - 1} more" if len(storage) > 1 else "")
-                + " but no metadata.yaml, which a ROS 2 bag needs",
+                f"the directory holds {first_of(storage)} but no metadata.yaml, which a ROS 2 bag needs",
                 expected="a ROS 2 bag with its metadata.yaml (ros2 bag reindex writes one), or the log files",
             )
     raise FormatNotRecognisedError(path, "format not recognised", expected=expected)

@@ -986,6 +986,6 @@ def test_a_ros2_bag_without_metadata_yaml_says_so(tmp_path: Path) -> None:
     bag = tmp_path / "bag"
     bag.mkdir()
     (bag / "bag_0.db3").write_bytes(b"SQLite format 3\x00" + bytes(100))
-    with pytest.raises(LanecastError, match=r"holds bag_0\.db3 but no metadata\.yaml") as err:
+    with pytest.raises(LanecastError, match=r"holds 'bag_0\.db3' but no metadata\.yaml") as err:
         registry.read_any([bag])
     assert str(bag) in str(err.value)
