@@ -13,6 +13,8 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
 
 from lanecast.io_adapters.errors import InputError
 
@@ -134,17 +136,18 @@ def check_balanced_quotes(path: Path, data: bytes) -> None:
         )
 
 
-def check_one_line_per_row(path: Path, data: bytes, rows: int) -> None:
-    """Raise InputError when a CSV parser read ``rows`` rows from a file with a header and more data
-    lines (a quoted value ran on over line ends and swallowed the lines after it)."""
-    if b'"' not in data:  # without quotes every line is a row
+def holds_line_ends(values: pa.Array | pa.ChunkedArray) -> bool:
+    """Whether a parsed string value holds a line end: a double quote in the file opened it, and the
+    parser read the lines after it as part of that one value."""
+    return pc.any(pc.match_substring_regex(values, r"[\r\n]")).as_py() is True
+
+
+def check_one_line_per_row(path: Path, table: pa.Table) -> None:
+    """Raise InputError when a string value of ``table``, parsed from the CSV ``path``, ran on over
+    line ends and swallowed the rows after it, at the line of the unbalanced quote (the file is read
+    again only then; a number column cannot swallow lines silently: its parse fails)."""
+    strings = (c for c in table.columns if pa.types.is_string(c.type) or pa.types.is_large_string(c.type))
+    if not any(holds_line_ends(c) for c in strings):
         return
-    lines, _ = record_lines(data)
-    if rows == lines.size - 1:
-        return
-    check_balanced_quotes(path, data)
-    raise InputError(
-        path,
-        f"{lines.size - 1:,} data lines but {rows:,} rows: quoted values run on over line ends",
-        expected="one row per line",
-    )
+    check_balanced_quotes(path, path.read_bytes())
+    raise InputError(path, "a quoted value runs on over line ends", expected="one row per line")

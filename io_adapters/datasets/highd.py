@@ -280,7 +280,7 @@ def _read_csv(
         raise InputError(path, f"cannot read: {exc}") from exc
     if table.num_rows == 0:
         raise InputError(path, "no data rows", line=2, expected=f"at least one {what} row")
-    check_one_line_per_row(path, path.read_bytes(), table.num_rows)
+    check_one_line_per_row(path, table)
     _check_cells(path, table, names, {k: v for k, v in columns.items() if k not in may_be_empty})
     return table
 

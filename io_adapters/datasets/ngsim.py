@@ -425,7 +425,7 @@ def _parse_csv(path: Path, first: str, location: str | None) -> _Parsed:
         raise InputError(path, f"cannot parse: {exc}", expected="NGSIM CSV rows") from exc
     if table.num_rows == 0:
         raise InputError(path, "the file has a header but no rows", line=2, expected="NGSIM rows")
-    check_one_line_per_row(path, path.read_bytes(), table.num_rows)
+    check_one_line_per_row(path, table)
     columns = {n: table.column(by_lower[n]).to_numpy() for n in USED_COLUMNS}
     if not all(np.isfinite(v).all() for v in columns.values()) or not _integral(columns):
         check_field_counts(path, path.read_bytes(), header)

@@ -25,7 +25,7 @@ import pyarrow.compute as pc
 import pyarrow.csv as pacsv
 
 from lanecast.io_adapters.contracts import track_table
-from lanecast.io_adapters.datasets import ngsim
+from lanecast.io_adapters.datasets import csv_errors, ngsim
 from lanecast.io_adapters.errors import InputError
 
 BLOCK_BYTES = 16 << 20  # bytes of CSV per block: memory per block is a few times this
@@ -89,7 +89,7 @@ def _locations(column: pa.Array) -> tuple[np.ndarray, list[str]]:
     raw = pc.utf8_trim_whitespace(column)
     if np.asarray(pc.equal(raw, "")).any():
         raise ValueError("empty Location")
-    if np.asarray(pc.match_substring_regex(raw, r'[\r\n"]')).any():
+    if csv_errors.holds_line_ends(raw):
         raise ValueError("a quoted Location runs over line ends")  # the whole-file reader names the line
     encoded = raw.dictionary_encode()
     names = [ngsim._normalise_location(str(v)) for v in encoded.dictionary.to_pylist()]
