@@ -10,7 +10,7 @@ from pathlib import Path
 from lanecast.io_adapters import registry, streaming
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.errors import InputError, UsageError
-from lanecast.io_adapters.files import check_output, check_replaceable
+from lanecast.io_adapters.files import check_output, check_output_dir
 from lanecast.io_adapters.logs.log_conventions import BAG_FILES
 from lanecast.io_adapters.logs.rosbag_writer import STORAGES
 from lanecast.workflows import engines, heap
@@ -114,9 +114,10 @@ def run(args: argparse.Namespace) -> int:
         options["location"] = args.location
     fmt = output_format(args.out, args.to)
     directory = fmt == "ros2" or (fmt == "parquet" and args.partition)
-    check_output(args.out, directory=directory)
     if directory:  # a directory holding a user's files is refused before the work, not after it
-        check_replaceable(args.out, BAG_FILES if fmt == "ros2" else streaming.PARTS)
+        check_output_dir(args.out, replaces=BAG_FILES if fmt == "ros2" else streaming.PARTS)
+    else:
+        check_output(args.out)
     if os.path.realpath(args.out) in {os.path.realpath(p) for p in args.inputs}:
         raise InputError(args.out, "the output would overwrite an input", expected="a new output path")
     engines.check(args.workers, args.engine)
