@@ -69,7 +69,8 @@ SEEDS = {
     "stop_and_go": 9106,
     "urban": 9107,
     "signal": 9108,
-}  # never trained on (train_shipped: 101-108, 901-908)
+    "waves": 9109,
+}  # never trained on (train_shipped: 101-109, 901-909)
 
 
 def write_ngsim_txt(table, path: Path, *, noisy: bool, args: argparse.Namespace, seed: int) -> int:

@@ -3,8 +3,11 @@
 What says whether two recordings show the same kind of traffic: speeds (percentiles over all rows),
 density (vehicles per km and per km and lane, from the mean number of vehicles present per frame
 over the observed length of road), lane changes per vehicle and per vehicle-km (per vehicle alone
-depends on how long a stretch is filmed), and the lateral acceleration's percentiles (|a| across
-the direction of travel: how smooth the lane changes are). Column-wise over the whole table.
+depends on how long a stretch is filmed), the lateral acceleration's percentiles (|a| across
+the direction of travel: how smooth the lane changes are), and stop-and-go: speed dips per
+vehicle-minute (a dip: the speed at least 3 m/s below the highest of the 20 s before it and of the
+20 s after it, on the same vehicle; a wave passing a vehicle is a dip, braking into a queue that
+only crawls is not). Column-wise over the whole table.
 """
 
 from __future__ import annotations
@@ -12,6 +15,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+import pandas as pd
 import pyarrow as pa
 
 from lanecast.io_adapters.contracts import track_table
@@ -19,6 +23,31 @@ from lanecast.pipeline.neighbours import columns, road_coordinates
 
 SPEED_PERCENTILES = (5, 25, 50, 75, 95)
 LATERAL_PERCENTILES = (50, 95, 99)
+DIP_MPS = 3.0  # how far below the speeds around it a speed dip is
+DIP_SPAN_S = 20.0  # … before and after it
+
+
+def speed_dips(track: np.ndarray, speed: np.ndarray, rate_hz: float) -> int:
+    """Number of speed dips (module docstring) in one recording: ``track`` int [N] sorted
+    (contiguous tracks, frames in order), ``speed`` float [N] m/s, ``rate_hz`` frames per second.
+    Sampled at 1 Hz; a run of dipped samples on one vehicle counts once."""
+    if len(track) == 0:
+        return 0
+    starts = np.flatnonzero(np.r_[True, track[1:] != track[:-1]])
+    position = np.arange(len(track)) - np.repeat(starts, np.diff(np.r_[starts, len(track)]))
+    keep = position % max(round(rate_hz), 1) == 0
+    t, v = track[keep], speed[keep]
+    span = int(DIP_SPAN_S) + 1
+
+    def running_max(values: np.ndarray, keys: np.ndarray) -> np.ndarray:
+        return pd.Series(values).groupby(keys, sort=False).rolling(span, min_periods=1).max().to_numpy()
+
+    before = running_max(v, t)
+    after = running_max(v[::-1], t[::-1])[::-1]
+    dip = (v <= before - DIP_MPS) & (v <= after - DIP_MPS)
+    first = dip.copy()
+    first[1:] &= ~(dip[:-1] & (t[1:] == t[:-1]))
+    return int(first.sum())
 
 
 def traffic_statistics(table: pa.Table) -> dict[str, dict[str, Any]]:
@@ -26,7 +55,7 @@ def traffic_statistics(table: pa.Table) -> dict[str, dict[str, Any]]:
 
     Keys: vehicles, duration_s, speed_mps {p5 … p95, mean}, density_veh_per_km,
     density_veh_per_km_lane (None without lane ids), lanes, lane_changes, lane_changes_per_vehicle,
-    lane_changes_per_vehicle_km, lateral_acc_abs_mps2 {p50, p95, p99}.
+    lane_changes_per_vehicle_km, lateral_acc_abs_mps2 {p50, p95, p99}, speed_dips_per_vehicle_min.
     """
     meta = track_table.read_meta(table)
     cols = columns(table)
@@ -55,6 +84,8 @@ def traffic_statistics(table: pa.Table) -> dict[str, dict[str, Any]]:
         changes = int(change[rows].sum())
         sp = np.percentile(speed[rows], SPEED_PERCENTILES)
         la = np.percentile(lat_acc[rows], LATERAL_PERCENTILES)
+        vehicle_min = rows.sum() / rate / 60.0
+        dips = speed_dips(cols.track[rows], speed[rows], rate)
         out[str(name)] = {
             "vehicles": vehicles,
             "duration_s": float((frames.max() - frames.min() + 1) / rate),
@@ -71,5 +102,6 @@ def traffic_statistics(table: pa.Table) -> dict[str, dict[str, Any]]:
             "lateral_acc_abs_mps2": {
                 f"p{p}": round(float(v), 2) for p, v in zip(LATERAL_PERCENTILES, la, strict=True)
             },
+            "speed_dips_per_vehicle_min": round(dips / max(vehicle_min, 1e-9), 3),
         }
     return out

@@ -12,7 +12,7 @@ from lanecast.io_adapters.contracts.track_table import RecordingMeta, TableMeta,
 from lanecast.io_adapters.datasets import highd
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.sim import scenarios, sumo_highway
-from lanecast.pipeline.traffic import traffic_statistics
+from lanecast.pipeline.traffic import speed_dips, traffic_statistics
 from lanecast.workflows import cli
 
 
@@ -121,3 +121,34 @@ def test_traffic_statistics_by_hand() -> None:
     assert st["lanes"] == 2
     assert st["lateral_acc_abs_mps2"]["p50"] == pytest.approx(0.0)
     assert st["lateral_acc_abs_mps2"]["p99"] == pytest.approx(0.5)
+
+
+def test_speed_dips_by_hand() -> None:
+    """1 Hz speeds: a wave passing (12 → 6 → 12 m/s) is one dip; braking into a queue that then
+    crawls (12 → 3 m/s, held) is none; a fast vehicle just before a slow one in the table does not
+    make the slow one's start a dip; at 10 Hz the same speeds give the same count."""
+    t = np.arange(60.0)
+    wave = 12.0 - 6.0 * np.exp(-(((t - 30.0) / 4.0) ** 2))
+    brake = np.where(t < 20, 12.0, np.maximum(12.0 - 1.5 * (t - 20.0), 3.0))
+    track = np.repeat([1, 2, 3, 4], 60)
+    speed = np.r_[wave, brake, np.full(60, 20.0), np.linspace(5.0, 9.0, 60)]
+    assert speed_dips(track, speed, 1.0) == 1
+    assert speed_dips(track[60:], speed[60:], 1.0) == 0
+    assert speed_dips(np.repeat(track, 10), np.repeat(speed, 10), 10.0) == 1
+    assert speed_dips(np.zeros(0, np.int64), np.zeros(0), 10.0) == 0
+
+
+@pytest.mark.slow
+def test_waves_scenario_has_stop_and_go_where_drivers_deciding_every_step_only_crawl(tmp_path: Path) -> None:
+    """The ``waves`` scenario's 1 s reaction time is what makes its queue stop and go: the same
+    road and demand with drivers deciding every step has far fewer speed dips per vehicle-minute."""
+    dips = {}
+    for reaction in (1.0, 0.0):
+        cfg = scenarios.scenario_config("waves", minutes=3.0, seed=5, reaction_time_s=reaction)
+        out = sumo_highway.simulate(
+            tmp_path / f"r{reaction:g}", minutes=3.0, seed=5, config=cfg, show_progress=False
+        )
+        stats = traffic_statistics(highd.read([out]))
+        dips[reaction] = np.mean([st["speed_dips_per_vehicle_min"] for st in stats.values()])
+        assert all(1.0 < st["speed_mps"]["p50"] < 12.0 for st in stats.values()), stats
+    assert dips[1.0] > 0.4 and dips[1.0] > 2 * dips[0.0], dips

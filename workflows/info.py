@@ -53,7 +53,8 @@ def run(args: argparse.Namespace) -> int:
             f"{r['frame_rate']:>6g}Hz{r['lane_changes']:>10,}  {classes}"
         )
     print(
-        "  traffic (speed percentiles p5/p50/p95; density; lane changes; |lateral acceleration| p50/p95/p99):"
+        "  traffic (speed percentiles p5/p50/p95; density; lane changes; |lateral acceleration| p50/p95/p99; "
+        "stop-and-go: speed dips of 3 m/s per vehicle-minute):"
     )
     stats = traffic_statistics(table)
     width = max([28, *(len(n) + 2 for n in stats)])
@@ -67,7 +68,8 @@ def run(args: argparse.Namespace) -> int:
             f"  {name:<{width}}speed {sp['p5']:.1f}/{sp['p50']:.1f}/{sp['p95']:.1f} m/s; {density}; "
             f"{st['lane_changes_per_vehicle']:.3f} lane changes per vehicle "
             f"({st['lane_changes_per_vehicle_km']:.2f} per vehicle-km); "
-            f"lat. acc. {la['p50']:.2f}/{la['p95']:.2f}/{la['p99']:.2f} m/s²"
+            f"lat. acc. {la['p50']:.2f}/{la['p95']:.2f}/{la['p99']:.2f} m/s²; "
+            f"{st['speed_dips_per_vehicle_min']:.2f} speed dips per vehicle-minute"
         )
     total_tracks = sum(int(r["tracks"]) for r in rows)  # type: ignore[call-overload]
     total_changes = sum(int(r["lane_changes"]) for r in rows)  # type: ignore[call-overload]

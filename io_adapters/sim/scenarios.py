@@ -9,6 +9,9 @@ mixed drivers (three car styles: IDM and Krauss with imperfection, headways 0.8-
 speeds spread ±10 % around 0.9-1.1 × the limit). Lane changes last 4 s and their lateral motion is
 smoothed into an S-curve (peak lateral acceleration ≈ 0.6 m/s²); between lane changes drivers
 weave slowly inside their lane (std 0.15 m, periods 6-40 s) instead of holding its centre exactly.
+Drivers decide every step (0.1 s), so a queue behind a slow zone crawls at the zone's pace; in
+``waves`` they react after 1 s, which makes the queue unstable: stop-and-go waves run upstream
+through it, as on a congested real freeway (speeds swinging between standing and 10 m/s).
 
 The training mix of the shipped model (``benchmarks/train_shipped.py``) uses every scenario.
 """
@@ -79,7 +82,7 @@ SCENARIOS: dict[str, tuple[str, dict[str, Any]]] = {
         },
     ),
     "stop_and_go": (
-        "3 lanes, 100 km/h, a 15 km/h slow zone downstream (roadworks): stop-and-go waves",
+        "3 lanes, 100 km/h, a 15 km/h slow zone downstream (roadworks): braking into a slowly moving queue",
         {
             "lanes_per_direction": 3,
             "speed_limit_kmh": 100.0,
@@ -87,6 +90,20 @@ SCENARIOS: dict[str, tuple[str, dict[str, Any]]] = {
             "bottleneck": "slow_zone",
             "bottleneck_speed_kmh": 15.0,
             "truck_share": 0.15,
+            "extra_warmup_s": 120.0,
+        },
+    ),
+    "waves": (
+        "3 lanes of 3.5 m dropping to 2, 80 km/h, heavy demand, drivers reacting after 1 s: "
+        "stop-and-go waves run upstream through the queue",
+        {
+            "lanes_per_direction": 3,
+            "lane_width_m": 3.5,
+            "speed_limit_kmh": 80.0,
+            "demand_per_s": 1.6,
+            "bottleneck": "lane_drop",
+            "reaction_time_s": 1.0,
+            "truck_share": 0.2,
             "extra_warmup_s": 120.0,
         },
     ),

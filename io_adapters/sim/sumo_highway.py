@@ -141,6 +141,10 @@ class HighwayConfig:
     lateral_wander_m: float = 0.0
     #: extra warm-up before frame 1 (s), e.g. for a queue to grow back from a bottleneck
     extra_warmup_s: float = 0.0
+    #: how often drivers decide (s; SUMO's actionStepLength; 0: every simulation step). Real drivers
+    #: react after about 1 s; the delay makes a dense queue unstable, so that stop-and-go waves form
+    #: and run upstream through it, where drivers deciding every step only crawl at the bottleneck's pace
+    reaction_time_s: float = 0.0
     #: simulation steps = frames per second (highD: 25; 10 is what the windows use, 2.5× cheaper)
     frame_rate: float = FRAME_RATE
 
@@ -217,6 +221,8 @@ class HighwayConfig:
             problems.append(("lateral_wander_m", f"{self.lateral_wander_m}", "0 … 0.5 m"))
         if not self.extra_warmup_s >= 0.0:
             problems.append(("extra_warmup_s", f"{self.extra_warmup_s}", "a non-negative time"))
+        if not 0.0 <= self.reaction_time_s <= 3.0:
+            problems.append(("reaction_time_s", f"{self.reaction_time_s}", "0 … 3 s"))
         if problems:
             name, got, expected = problems[0]
             option = OPTIONS.get(name)
@@ -435,8 +441,9 @@ def write_routes(cfg: HighwayConfig, directory: Path) -> Path:
     """Vehicle types and one Poisson flow per carriageway (plus one per on-ramp)."""
     lines = ["<routes>"]
     types = vehicle_types(cfg.truck_share, cfg.drivers)
+    reaction = f' actionStepLength="{cfg.reaction_time_s:g}"' if cfg.reaction_time_s > 0 else ""
     for type_id, cls, length, width, _ in types:
-        attrs = _type_attributes(type_id, cls, cfg.drivers)
+        attrs = _type_attributes(type_id, cls, cfg.drivers) + reaction
         lines.append(f'  <vType id="{type_id}" length="{length}" width="{width}" {attrs}/>')
     ids = " ".join(t[0] for t in types)
     probs = " ".join(f"{t[4]:.6f}" for t in types)
