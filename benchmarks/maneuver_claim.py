@@ -109,14 +109,14 @@ def with_true_maneuvers(
     import torch
 
     from lanecast.io_adapters.contracts.windows import normalise
-    from lanecast.models.baselines import forward_only, reference_offsets
+    from lanecast.models.baselines import kinematic_limits, reference_offsets
 
     x = torch.from_numpy(normalise(inputs, present, model.input_stats))
     with torch.inference_mode():
         out = model.model.regressor(x, torch.from_numpy(maneuver)).numpy()
     out = out * model.future_std + model.future_mean
     base = reference_offsets(inputs, model.relative_to)
-    return forward_only(out if base is None else out + base)
+    return kinematic_limits(out if base is None else out + base)
 
 
 def main() -> int:

@@ -405,6 +405,12 @@ def main() -> int:
     )
     ap.add_argument("--max-test-windows", type=int, default=6000, help="per held-out recording")
     ap.add_argument("--jobs", type=int, default=2, help="simulations in parallel")
+    ap.add_argument(
+        "--evaluate-only",
+        action="store_true",
+        help="train nothing: evaluate the weights in --out and --work/regression-only again and rewrite "
+        "the card's metrics (after a change to the prediction path; the training sections are kept)",
+    )
     args = ap.parse_args()
 
     from lanecast.io_adapters.contracts.windows import load_windows, subset
@@ -539,17 +545,27 @@ def main() -> int:
         "counts": windows.manifest["counts"],
         "label_direction_agreement": direction_agreement(windows),
     }
-    t0 = time.perf_counter()
-    result = train(windows, config, data_card=data)
-    print(
-        f"trained ST-CNN in {time.perf_counter() - t0:.0f} s, best epochs {result.card['training']['best_epoch']}",
-        flush=True,
-    )
-    reg_cfg = dataclasses.replace(config, model=STCNNConfig(maneuver_input=False))
-    t0 = time.perf_counter()
-    reg = train(windows, reg_cfg, data_card=data, classifier_from=result.model)  # same classifier
-    print(f"trained regression-only in {time.perf_counter() - t0:.0f} s", flush=True)
-    save_checkpoint(reg.model, {**reg.card, "metrics": {}}, args.work / "regression-only")
+    if args.evaluate_only:
+        from lanecast.models.checkpoint import load_checkpoint
+
+        net, trained = load_checkpoint(args.out / f"{SHIPPED_STEM}.json")
+        result = SimpleNamespace(model=net, card=trained)
+        net, trained = load_checkpoint(args.work / "regression-only")
+        reg = SimpleNamespace(model=net, card=trained)
+        reproduce = result.card["reproduce"]
+    else:
+        t0 = time.perf_counter()
+        result = train(windows, config, data_card=data)
+        print(
+            f"trained ST-CNN in {time.perf_counter() - t0:.0f} s, best epochs {result.card['training']['best_epoch']}",
+            flush=True,
+        )
+        reg_cfg = dataclasses.replace(config, model=STCNNConfig(maneuver_input=False))
+        t0 = time.perf_counter()
+        reg = train(windows, reg_cfg, data_card=data, classifier_from=result.model)  # same classifier
+        print(f"trained regression-only in {time.perf_counter() - t0:.0f} s", flush=True)
+        save_checkpoint(reg.model, {**reg.card, "metrics": {}}, args.work / "regression-only")
+        reproduce = "python benchmarks/train_shipped.py " + " ".join(sys.argv[1:])
 
     stcnn = STCNNForecaster(result.model, result.card, "stcnn")
     reg_only = STCNNForecaster(reg.model, reg.card, "stcnn_regression_only")
@@ -600,7 +616,7 @@ def main() -> int:
             "real_ngsim_peachtree_sample": real,
         },
         "beyond_the_paper": deviations(config, levels, ilevels),
-        "reproduce": "python benchmarks/train_shipped.py " + " ".join(sys.argv[1:]),
+        "reproduce": reproduce,
     }
     card_path = save_checkpoint(result.model, card, args.out, SHIPPED_STEM)
     report = args.work / "report"

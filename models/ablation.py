@@ -33,7 +33,7 @@ import torch
 
 from lanecast.io_adapters.contracts.windows import ROWS, TARGET_ROW, NormStats, Windows, labelled, normalise
 from lanecast.io_adapters.errors import InputError
-from lanecast.models.baselines import forward_only, reference_offsets
+from lanecast.models.baselines import kinematic_limits, reference_offsets
 from lanecast.models.metrics import (
     accuracy,
     confusion_matrix,
@@ -210,7 +210,7 @@ def predict_variant(
     base = reference_offsets(np.asarray(inputs), str(fut.get("relative_to", "none")))
     if base is not None:  # offsets relative to the constant-velocity extrapolation
         offsets += base
-    forward_only(offsets)  # as the library's prediction path (lanecast.models.predict)
+    kinematic_limits(offsets)  # as the library's prediction path (lanecast.models.predict)
     return VariantForecast(offsets, probs, chosen)
 
 

@@ -65,18 +65,26 @@ def reference_offsets(inputs: np.ndarray, relative_to: str) -> np.ndarray | None
     return extrapolate(inputs, degree=1, span=CV_SPAN)
 
 
-def forward_only(offsets: np.ndarray) -> np.ndarray:
-    """Forecast offsets float32 [..., 5, 2] (window frame: x along the road) with no reversing: x
-    clamped to at least 0 and to at least its value at the previous horizon, in place; returned.
+def kinematic_limits(offsets: np.ndarray) -> np.ndarray:
+    """Forecast offsets float32 [..., 5, 2] (window frame: x along the road, y to its left) moved
+    within what a vehicle can do, in place; returned:
 
-    Vehicles in traffic do not roll backwards, yet a network extrapolating a standing car from
-    measured inputs can put it a few decimetres behind itself (the real NGSIM Peachtree sample:
-    72 % of the shipped model's 1 s forecasts of standing cars pointed backwards, docs/design.md
-    §3). The window's x axis follows the road or the history's direction of travel, so this only
-    removes motion no vehicle in the training data made."""
+    * forward only: x at least 0 and at least its value at the previous horizon. Vehicles in
+      traffic do not roll backwards, yet a network extrapolating a standing car from measured
+      inputs can put it a few decimetres behind itself (the real NGSIM Peachtree sample: 72 % of an
+      earlier model's 1 s forecasts of standing cars pointed backwards, docs/design.md §3);
+    * no sliding sideways: |y| at most x at every horizon (a chord at most 45° off the direction of
+      travel; a quarter turn ends exactly at 45°). Wheels roll, they do not slide: a car that
+      moves 0.2 m forwards cannot move 0.8 m across, yet a network shown a standing car in a
+      neighbourhood it never saw can forecast that (the Peachtree sample's standing cars, with
+      some weights). Lane changes are far inside the bound (3.5 m across while tens of metres along).
+
+    The window's x axis follows the road or the history's direction of travel, so neither limit
+    removes motion a vehicle on a road makes, except a turn of more than 90° within 5 s."""
     along = offsets[..., 0]
     np.maximum(along, 0.0, out=along)
     np.maximum.accumulate(along, axis=-1, out=along)
+    offsets[..., 1] = np.clip(offsets[..., 1], -along, along)
     return offsets
 
 

@@ -30,7 +30,7 @@ from lanecast.io_adapters.files import atomic_path
 from lanecast.models.baselines import CV_SPAN, _fit_matrix
 from lanecast.models.card import file_sha256, lanecast_version, normalisation_sha256, write_card
 from lanecast.models.checkpoint import load_checkpoint, resolve
-from lanecast.models.onnx_predict import OnnxForecaster
+from lanecast.models.onnx_predict import GRAPH_VERSION, OnnxForecaster
 from lanecast.models.predict import FusedSTCNN, STCNNForecaster, all_sequences
 from lanecast.models.stcnn import STCNN
 
@@ -118,17 +118,20 @@ class PredictionGraph(nn.Module):
             velocity = (track * self.cv_weights).sum(-1)  # [N, 2]
             base = track[:, None, :, -1] + velocity[:, None, :] * self.horizons  # [N, 5, 2]
             offsets = offsets + base.float()[:, None]
-        return log_probs.exp(), logits.argmax(dim=2), seqs, best.exp(), _forward_only(offsets)
+        return log_probs.exp(), logits.argmax(dim=2), seqs, best.exp(), _kinematic_limits(offsets)
 
 
-def _forward_only(offsets: torch.Tensor) -> torch.Tensor:
-    """lanecast.models.baselines.forward_only in the graph: [N, K, H, 2] → x ≥ 0 and non-decreasing
-    over the horizons (a running maximum unrolled over the fixed H steps: ONNX has no cummax)."""
+def _kinematic_limits(offsets: torch.Tensor) -> torch.Tensor:
+    """lanecast.models.baselines.kinematic_limits in the graph: [N, K, H, 2] → x ≥ 0 and
+    non-decreasing over the horizons (a running maximum unrolled over the fixed H steps: ONNX has no
+    cummax), |y| ≤ x."""
     along = offsets[..., 0].clamp(min=0.0)
     steps = [along[..., 0]]
     for h in range(1, along.shape[-1]):
         steps.append(torch.maximum(steps[-1], along[..., h]))
-    return torch.stack((torch.stack(steps, dim=-1), offsets[..., 1]), dim=-1)
+    forward = torch.stack(steps, dim=-1)
+    across = torch.minimum(torch.maximum(offsets[..., 1], -forward), forward)
+    return torch.stack((forward, across), dim=-1)
 
 
 def export_onnx(model: Path | str | None, out_dir: Path | str | None = None) -> Path:
@@ -181,6 +184,7 @@ def export_onnx(model: Path | str | None, out_dir: Path | str | None = None) -> 
         "weights_sha256": file_sha256(weights_path),
         "normalisation_sha256": normalisation_sha256(card),
         "opset": OPSET,
+        "graph_version": GRAPH_VERSION,
         "exporter": f"torch.onnx.export (TorchScript), torch {torch.__version__}",
         "lanecast_version": lanecast_version(),
         "inputs": {k: {"dtype": t, "shape": s} for k, (t, s) in GRAPH_INPUTS.items()},

@@ -32,6 +32,11 @@ def default_threads() -> int:
     return max(1, int(value)) if value.strip().isdigit() else 1
 
 
+#: What the exported graph computes, recorded in the card at export: 1 forward-only forecasts, 2 also
+#: |y| ≤ x (lanecast.models.baselines.kinematic_limits). An export of another version is stale.
+GRAPH_VERSION = 2
+
+
 def onnx_file(card_path: Path, weights_path: Path, card: dict[str, Any]) -> tuple[Path | None, str]:
     """(the card's ONNX file, "") when it is present and was exported from these weights, else (None, why)."""
     section = card.get("onnx")
@@ -49,6 +54,11 @@ def onnx_file(card_path: Path, weights_path: Path, card: dict[str, Any]) -> tupl
         return None, f"{path.name} is stale: the card's normalisation changed since the export"
     if section.get("sha256") != file_sha256(path):
         return None, f"{path.name} was modified after the export"
+    if section.get("graph_version", 1) != GRAPH_VERSION:
+        return (
+            None,
+            f"{path.name} is stale: exported by a lanecast whose prediction path differs (lanecast export again)",
+        )
     return path, ""
 
 

@@ -23,7 +23,7 @@ from torch.nn import functional as F
 
 from lanecast.io_adapters.contracts.windows import NormStats, normalise
 from lanecast.models import ood
-from lanecast.models.baselines import forward_only, reference_offsets
+from lanecast.models.baselines import kinematic_limits, reference_offsets
 from lanecast.models.checkpoint import load_checkpoint
 from lanecast.models.forecaster import Predictions
 from lanecast.models.forecasts import forecasts_table as forecasts_table
@@ -175,7 +175,7 @@ class STCNNForecaster:
         base = reference_offsets(inputs, self.relative_to)
         if base is not None:
             out.top_offsets += base[:, None]
-        forward_only(out.top_offsets)
+        kinematic_limits(out.top_offsets)
         out.offsets[:] = out.top_offsets[:, 0]  # the top sequence is the per-step argmax
         distribution = self.card.get("training", {}).get("data", {}).get("distribution")
         out.out_of_distribution = ood.out_of_distribution(

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lanecast.models.baselines import constant_acceleration, constant_velocity, extrapolate, forward_only
+from lanecast.models.baselines import constant_acceleration, constant_velocity, extrapolate, kinematic_limits
 from lanecast.models.predict import STCNNForecaster
 
 T_HIST = (np.arange(30) - 29) * 0.1
@@ -68,14 +68,22 @@ def test_bad_degree_or_span() -> None:
         extrapolate(inputs, degree=2, span=2)
 
 
-def test_forward_only_removes_reversing_and_keeps_lateral_offsets() -> None:
+def test_kinematic_limits_remove_reversing_and_sliding_and_keep_lane_changes() -> None:
+    """By hand: reversing removed, then |y| ≤ x (a car 0.5 m on has not slid 0.8 m across); a lane
+    change at highway speed (3.5 m across over 120 m along) is untouched."""
     offsets = np.array(
-        [[[-0.2, 0.1], [0.5, 0.2], [0.3, 0.3], [1.0, 0.4], [0.9, -0.5]]], np.float32
-    )  # [1, 5, 2]
-    out = forward_only(offsets)
+        [
+            [[-0.2, 0.1], [0.5, 0.2], [0.3, 0.8], [1.0, 0.4], [0.9, -1.5]],
+            [[25.0, 0.2], [50.0, 1.0], [74.0, 2.2], [98.0, 3.2], [121.0, 3.5]],
+        ],
+        np.float32,
+    )  # [2, 5, 2]
+    lane_change = offsets[1].copy()
+    out = kinematic_limits(offsets)
     assert out is offsets  # in place
-    np.testing.assert_allclose(out[0, :, 0], [0.0, 0.5, 0.5, 1.0, 1.0])  # by hand
-    np.testing.assert_allclose(out[0, :, 1], [0.1, 0.2, 0.3, 0.4, -0.5])
+    np.testing.assert_allclose(out[0, :, 0], [0.0, 0.5, 0.5, 1.0, 1.0])
+    np.testing.assert_allclose(out[0, :, 1], [0.0, 0.2, 0.5, 0.4, -1.0])
+    np.testing.assert_array_equal(out[1], lane_change)
 
 
 def test_the_shipped_model_never_forecasts_a_standing_car_behind_itself() -> None:
@@ -92,4 +100,5 @@ def test_the_shipped_model_never_forecasts_a_standing_car_behind_itself() -> Non
         pred = model.predict(x, p, top_k=3)
         assert pred.top_offsets[..., 0].min() >= 0.0
         assert np.all(np.diff(pred.top_offsets[..., 0], axis=-1) >= 0.0)
+        assert np.all(np.abs(pred.top_offsets[..., 1]) <= pred.top_offsets[..., 0])  # no sliding sideways
         assert np.abs(pred.offsets[0, 0]).max() < 0.5  # a standing car stays near where it is at 1 s
