@@ -989,3 +989,41 @@ def test_a_ros2_bag_without_metadata_yaml_says_so(tmp_path: Path) -> None:
     with pytest.raises(LanecastError, match=r"holds 'bag_0\.db3' but no metadata\.yaml") as err:
         registry.read_any([bag])
     assert str(bag) in str(err.value)
+
+
+# ------------------------------------------------------------------------------- wave 8: tables
+
+
+def _cell_edit(column: str, value: str) -> Callable[[str], str]:
+    """An edit for :func:`_quoted` replacing the (unquoted) ``column`` of a highD tracks or NGSIM CSV line."""
+
+    def edit(text: str) -> str:
+        header = (HIGHD / "01_tracks.csv" if column == "x" else PEACHTREE).read_text().split("\n", 1)[0]
+        cells = text.split(",")
+        cells[header.split(",").index(column)] = value
+        return ",".join(cells)
+
+    return edit
+
+
+@pytest.mark.parametrize(
+    ("victim", "column", "value"),
+    [
+        ("01_tracks.csv", "x", '"952,93"'),  # a decimal comma, quoted by the spreadsheet that wrote it
+        ("01_tracks.csv", "x", '"1,952.5"'),  # a thousands separator
+        ("peachtree.csv", "Local_Y", '"4,566"'),
+    ],
+)
+def test_a_quoted_comma_is_a_bad_cell_not_a_wrong_field_count(
+    tmp_path: Path, victim: str, column: str, value: str
+) -> None:
+    """A comma inside a quoted value separates no fields: the CSV parser reads the line's fields
+    right, so the error names the cell that is no number, not "wrong number of fields"."""
+    for kind in ("tracks", "tracksMeta", "recordingMeta"):
+        (tmp_path / f"01_{kind}.csv").write_bytes((HIGHD / f"01_{kind}.csv").read_bytes())
+    source = PEACHTREE if victim == "peachtree.csv" else HIGHD / victim
+    path = _quoted(source, tmp_path / victim, 3, _cell_edit(column, value))
+    with pytest.raises(InputError) as err:
+        registry.read_any([path])
+    assert (err.value.path, err.value.line, err.value.column) == (str(path), 3, column)
+    assert value.strip('"') in str(err.value) and "number of fields" not in str(err.value)

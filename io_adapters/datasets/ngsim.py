@@ -46,6 +46,7 @@ rows, mixed locations, heading flips), which are read together; the bad-line fin
 
 from __future__ import annotations
 
+import csv
 import math
 import re
 import sys
@@ -549,7 +550,7 @@ def _check_values(path: Path, columns: dict[str, np.ndarray], names: Sequence[st
     line = int(record_lines(data, whitespace=not header)[0][first_row + (1 if header else 0)])
     starts, ends = line_spans(data)
     text = data[starts[line - 1] : ends[line - 1]].decode("utf-8", errors="replace")
-    cells = text.split(",") if header else text.split()
+    cells = next(csv.reader([text])) if header else text.split()  # "40,5" is one cell
     index = lower.index(first_col)
     cell = cells[index].strip() if index < len(cells) else ""
     integer = first_col in INTEGER_COLUMNS
