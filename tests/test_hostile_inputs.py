@@ -1027,3 +1027,34 @@ def test_a_quoted_comma_is_a_bad_cell_not_a_wrong_field_count(
         registry.read_any([path])
     assert (err.value.path, err.value.line, err.value.column) == (str(path), 3, column)
     assert value.strip('"') in str(err.value) and "number of fields" not in str(err.value)
+
+
+@pytest.mark.parametrize(
+    ("victim", "edit", "match", "line"),
+    [
+        # a Latin-1 "é" (a file saved by a spreadsheet in the locale's encoding): pyarrow's message
+        # named a column number and no line
+        ("01_tracksMeta.csv", lambda text: text.replace(",Car,", ",C\xe9r,", 1), "not UTF-8", 2),
+        ("01_tracks.csv", lambda text: text.replace(",", "\xe9,", 1), "not UTF-8", 3),
+        ("peachtree.csv", lambda text: text.replace(",peachtree", ",peacht\xe9ree"), "not UTF-8", 3),
+        # a line longer than the parser's block: "straddling object straddles two block boundaries"
+        ("01_tracks.csv", lambda text: text.replace(",", "," + "0" * (1 << 21), 1), "a line of 2,097,", 3),
+        (
+            "peachtree.csv",
+            lambda text: text.replace(",peachtree", ",peachtree" + "x" * (1 << 21)),
+            "a line of",
+            3,
+        ),
+    ],
+)
+def test_bytes_the_csv_parser_cannot_read_as_text_are_named_at_their_line(
+    tmp_path: Path, victim: str, edit: Callable[[str], str], match: str, line: int
+) -> None:
+    for kind in ("tracks", "tracksMeta", "recordingMeta"):
+        (tmp_path / f"01_{kind}.csv").write_bytes((HIGHD / f"01_{kind}.csv").read_bytes())
+    source = PEACHTREE if victim == "peachtree.csv" else HIGHD / victim
+    path = _quoted(source, tmp_path / victim, line, edit)
+    path.write_bytes(path.read_text().encode("latin-1"))
+    with pytest.raises(InputError, match=match) as err:
+        registry.read_any([path])
+    assert err.value.path == str(path) and err.value.line == line

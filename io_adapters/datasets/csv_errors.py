@@ -156,6 +156,46 @@ def check_balanced_quotes(path: Path, data: bytes) -> None:
         )
 
 
+MAX_LINE_BYTES = 1 << 20  # pyarrow's CSV block: a longer row straddles blocks and is not parsed
+
+
+def check_parseable(path: Path, data: bytes) -> None:
+    """Where even a parse of every cell as text failed: raise InputError at the first line that is
+    no UTF-8, longer than ``MAX_LINE_BYTES`` or whose open quote runs on over the lines after it
+    (the parser's own message names no line)."""
+    at = 0
+    while at < len(data):  # decoded a block at a time: no copy of a large file as text
+        end = min(at + (16 << 20), len(data))
+        for _ in range(3):  # not inside a character (of at most 4 bytes)
+            if end < len(data) and data[end] & 0xC0 == 0x80:
+                end -= 1
+        try:
+            data[at:end].decode("utf-8")
+        except UnicodeDecodeError as exc:
+            offset = at + exc.start
+            starts, _ = line_spans(data)
+            line = int(np.searchsorted(starts, offset, side="right"))
+            raise InputError(
+                path,
+                f"bytes that are not UTF-8 ({data[offset : offset + 4]!r}…: {exc.reason})",
+                line=line,
+                offset=offset,
+                expected="UTF-8 text (save the file as UTF-8)",
+            ) from exc
+        at = end
+    starts, ends = line_spans(data)
+    long = np.flatnonzero(ends - starts > MAX_LINE_BYTES)
+    if long.size:
+        i = int(long[0])
+        raise InputError(
+            path,
+            f"a line of {int(ends[i] - starts[i]):,} bytes",
+            line=i + 1,
+            expected=f"rows of at most {MAX_LINE_BYTES:,} bytes",
+        )
+    check_balanced_quotes(path, data)
+
+
 def holds_line_ends(values: pa.Array | pa.ChunkedArray) -> bool:
     """Whether a parsed string value holds a line end: a double quote in the file opened it, and the
     parser read the lines after it as part of that one value."""

@@ -36,9 +36,9 @@ import pyarrow.csv as pacsv
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.contracts.track_runs import run_bounds
 from lanecast.io_adapters.datasets.csv_errors import (
-    check_balanced_quotes,
     check_field_counts,
     check_one_line_per_row,
+    check_parseable,
     check_text,
     record_lines,
 )
@@ -302,7 +302,7 @@ def _diagnose(path: Path, names: list[str], columns: Mapping[str, str]) -> None:
             ),
         )
     except pa.ArrowInvalid:
-        check_balanced_quotes(path, data)
+        check_parseable(path, data)
         return  # not a cell problem: the caller reports pyarrow's own message
     first_bad: tuple[int, str] | None = None
     for name in names:

@@ -64,9 +64,9 @@ import pyarrow.csv as pacsv
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.contracts.track_runs import along_track_derivative, row_extent, run_starts
 from lanecast.io_adapters.datasets.csv_errors import (
-    check_balanced_quotes,
     check_field_counts,
     check_one_line_per_row,
+    check_parseable,
     check_text,
     line_spans,
     record_lines,
@@ -415,7 +415,7 @@ def _parse_csv(path: Path, first: str, location: str | None) -> _Parsed:
                 ),
             )
         except pa.ArrowInvalid:
-            check_balanced_quotes(path, path.read_bytes())
+            check_parseable(path, path.read_bytes())
             raise InputError(path, f"cannot parse: {exc}", expected="NGSIM CSV rows") from exc
         checked = [n for n in (*USED_COLUMNS, "direction") if n in by_lower]
         columns = {
