@@ -34,12 +34,14 @@ def as_input_error(path: str | Path | None, what: str, exc: FieldError) -> Input
 
 
 def loads(text: str | bytes, name: str = "document") -> Any:
-    """Parse JSON text; FieldError if it is not JSON or nests deeper than :data:`MAX_DEPTH`."""
+    """Parse JSON text; FieldError if it is not JSON or nests deeper than :data:`MAX_DEPTH`. A
+    UTF-8 byte order mark (Windows editors write one) is no part of the document."""
     if isinstance(text, bytes):
         try:
             text = text.decode("utf-8")
         except UnicodeDecodeError as exc:
             raise FieldError(name, f"not UTF-8 ({exc.reason} at byte {exc.start})", "UTF-8 JSON") from exc
+    text = text.removeprefix("\ufeff")
     depth = _max_depth(text)
     if depth > MAX_DEPTH:
         raise FieldError(name, f"nested {depth} levels deep", f"at most {MAX_DEPTH} levels")

@@ -1058,3 +1058,20 @@ def test_bytes_the_csv_parser_cannot_read_as_text_are_named_at_their_line(
     with pytest.raises(InputError, match=match) as err:
         registry.read_any([path])
     assert err.value.path == str(path) and err.value.line == line
+
+
+def test_json_with_a_utf8_byte_order_mark_is_read(tmp_path: Path) -> None:
+    """Windows editors save "UTF-8" JSON with a BOM: a training config or a windows manifest.json
+    so saved was refused ("Unexpected UTF-8 BOM")."""
+    from lanecast.io_adapters.contracts.windows import load_windows, save_windows
+    from lanecast.models.train import TrainConfig
+
+    from conftest import synthetic_windows
+
+    config = tmp_path / "config.json"
+    config.write_bytes(b'\xef\xbb\xbf{\r\n  "epochs": 3\r\n}\r\n')
+    assert TrainConfig.from_file(config).epochs == 3
+    directory = save_windows(synthetic_windows(n=20), tmp_path / "windows")
+    manifest = directory / "manifest.json"
+    manifest.write_bytes(b"\xef\xbb\xbf" + manifest.read_bytes())
+    assert load_windows(directory).manifest == json.loads(manifest.read_bytes()[3:])

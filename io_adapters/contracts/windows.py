@@ -344,7 +344,7 @@ def load_windows(directory: str | Path, mmap: bool = True, check_values: bool = 
         raise InputError(directory / "windows.parquet", f"damaged windows dataset: {exc}") from exc
     _check_index(directory / "windows.parquet", index)
     try:
-        manifest = json.loads((directory / "manifest.json").read_text(encoding="utf-8"))
+        manifest = json.loads((directory / "manifest.json").read_text(encoding="utf-8-sig"))
     except (OSError, ValueError) as exc:
         raise InputError(directory / "manifest.json", f"damaged windows dataset: {exc}") from exc
     if not isinstance(manifest, dict):
