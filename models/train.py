@@ -35,7 +35,7 @@ import torch
 from lanecast.io_adapters import json_fields as jf
 from lanecast.io_adapters.contracts.windows import NormStats, Windows, compute_stats, labelled, normalise
 from lanecast.io_adapters.errors import InputError
-from lanecast.io_adapters.files import bar
+from lanecast.io_adapters.files import bar, check_input
 from lanecast.models import ood
 from lanecast.models.augment import Augmentation, augment
 from lanecast.models.baselines import CV_SPAN, RELATIVE_TO, reference_offsets
@@ -170,8 +170,9 @@ class TrainConfig:
     def from_file(cls, path: Path) -> TrainConfig:
         """Read a JSON config file (keys of TrainConfig; ``model`` holds STCNNConfig keys)."""
         try:
-            # jf.loads: not UTF-8, NaN-free JSON or nested too deep is a FieldError naming the file
-            data = jf.check(jf.loads(Path(path).read_bytes(), "config"), "config", "object")
+            # jf.loads: not UTF-8, NaN-free JSON or nested too deep is a FieldError naming the file;
+            # check_input: a FIFO would block the read, /dev/zero would never end it
+            data = jf.check(jf.loads(check_input(path).read_bytes(), "config"), "config", "object")
             if "model" in data:  # checked before torch sees it
                 check_architecture(data["model"], "model")
             return cls.from_dict(data)

@@ -1075,3 +1075,27 @@ def test_json_with_a_utf8_byte_order_mark_is_read(tmp_path: Path) -> None:
     manifest = directory / "manifest.json"
     manifest.write_bytes(b"\xef\xbb\xbf" + manifest.read_bytes())
     assert load_windows(directory).manifest == json.loads(manifest.read_bytes()[3:])
+
+
+def test_a_training_config_that_is_a_fifo_is_refused_without_reading_it(tmp_path: Path) -> None:
+    """`--config` naming a FIFO blocked forever, /dev/zero ran out of memory (MemoryError traceback)."""
+    import threading
+
+    from lanecast.models.train import TrainConfig
+
+    fifo = tmp_path / "config.json"
+    os.mkfifo(fifo)
+
+    def unblock() -> None:  # should the read block again, give it a document: the test fails, not hangs
+        with open(fifo, "w") as fh:
+            fh.write("{}")
+
+    writer = threading.Timer(5.0, unblock)
+    writer.daemon = True
+    writer.start()
+    try:
+        with pytest.raises(InputError, match="not a regular file") as err:
+            TrainConfig.from_file(fifo)
+    finally:
+        writer.cancel()
+    assert err.value.path == str(fifo)
