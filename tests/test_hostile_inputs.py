@@ -15,9 +15,11 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
+from conftest import synthetic_windows
 
 from lanecast.io_adapters import registry
 from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.contracts.windows import load_windows, save_windows
 from lanecast.io_adapters.errors import InputError, LanecastError, LogError, TrackTableError
 from lanecast.io_adapters.logs import mcap_reader
 from lanecast.workflows.cli import main
@@ -1063,10 +1065,7 @@ def test_bytes_the_csv_parser_cannot_read_as_text_are_named_at_their_line(
 def test_json_with_a_utf8_byte_order_mark_is_read(tmp_path: Path) -> None:
     """Windows editors save "UTF-8" JSON with a BOM: a training config or a windows manifest.json
     so saved was refused ("Unexpected UTF-8 BOM")."""
-    from lanecast.io_adapters.contracts.windows import load_windows, save_windows
     from lanecast.models.train import TrainConfig
-
-    from conftest import synthetic_windows
 
     config = tmp_path / "config.json"
     config.write_bytes(b'\xef\xbb\xbf{\r\n  "epochs": 3\r\n}\r\n')
@@ -1099,3 +1098,23 @@ def test_a_training_config_that_is_a_fifo_is_refused_without_reading_it(tmp_path
     finally:
         writer.cancel()
     assert err.value.path == str(fifo)
+
+
+@pytest.mark.parametrize(
+    ("column", "value", "shown"),
+    [("track_id", None, "null"), ("recording", None, "null"), ("origin_x", float("nan"), "nan")],
+)
+def test_a_windows_index_with_nulls_is_refused_at_its_row(
+    tmp_path: Path, column: str, value: object, shown: str
+) -> None:
+    """A null track_id in windows.parquet was trained on and evaluated silently."""
+    directory = save_windows(synthetic_windows(n=20), tmp_path / "windows")
+    index = pq.read_table(directory / "windows.parquet")
+    values = index.column(column).to_pylist()
+    values[7] = value
+    i = index.schema.get_field_index(column)
+    index = index.set_column(i, index.schema.field(column), pa.array(values, index.schema.field(column).type))
+    pq.write_table(index, directory / "windows.parquet")
+    with pytest.raises(InputError, match=f"row 7: {column} is {shown}") as err:
+        load_windows(directory)
+    assert err.value.path == str(directory / "windows.parquet") and err.value.column == column

@@ -367,7 +367,8 @@ def load_windows(directory: str | Path, mmap: bool = True, check_values: bool = 
 
 
 def _check_index(path: Path, index: pa.Table) -> None:
-    """The windows index has INDEX_SCHEMA's columns and types, and every split is one of SPLITS."""
+    """The windows index has INDEX_SCHEMA's columns and types, no nulls, finite origins, and every
+    split is one of SPLITS."""
     for f in INDEX_SCHEMA:
         if f.name not in index.column_names:
             columns = ", ".join(f"{g.name} ({g.type})" for g in INDEX_SCHEMA)
@@ -375,6 +376,19 @@ def _check_index(path: Path, index: pa.Table) -> None:
         if index.schema.field(f.name).type != f.type:
             raise InputError(
                 path, f"column type {index.schema.field(f.name).type}", column=f.name, expected=str(f.type)
+            )
+        column = index.column(f.name)
+        bad = pc.is_null(column, nan_is_null=pa.types.is_floating(f.type))
+        if pa.types.is_floating(f.type):
+            bad = pc.or_(bad, pc.is_inf(column))
+        if pc.any(bad).as_py():
+            row = int(np.flatnonzero(np.asarray(bad))[0])
+            value = column[row].as_py()
+            raise InputError(
+                path,
+                f"row {row}: {f.name} is {'null' if value is None else value}",
+                column=f.name,
+                expected="a finite number" if pa.types.is_floating(f.type) else "a value in every row",
             )
     split = index.column("split")
     bad = np.flatnonzero(~np.asarray(pc.is_in(split, value_set=pa.array(SPLITS)).fill_null(False)))
