@@ -1118,3 +1118,22 @@ def test_a_windows_index_with_nulls_is_refused_at_its_row(
     with pytest.raises(InputError, match=f"row 7: {column} is {shown}") as err:
         load_windows(directory)
     assert err.value.path == str(directory / "windows.parquet") and err.value.column == column
+
+
+@pytest.mark.parametrize("command", ["convert", "info"])
+def test_a_dataset_part_that_is_no_parquet_is_named(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], command: str
+) -> None:
+    """A CSV saved under a part's name in a dataset directory made the whole directory "format not
+    recognised", naming neither the part nor what is wrong with it."""
+    dataset = tmp_path / "dataset"
+    dataset.mkdir()
+    _parquet(dataset)[0].rename(dataset / "part-00000.parquet")
+    (dataset / "src.mcap").unlink()
+    (dataset / "part-00001.parquet").write_bytes((HIGHD / "01_tracks.csv").read_bytes())
+    args = [command, str(dataset)] + (
+        ["--out", str(tmp_path / "out.parquet")] if command == "convert" else []
+    )
+    status, err = cli(args, capsys)
+    assert_one_line_error(status, err, command, str(dataset / "part-00001.parquet"))
+    assert "Parquet" in err and not (tmp_path / "out.parquet").exists()

@@ -29,9 +29,10 @@ def dataset_files(directory: Path) -> list[Path]:
 
 
 def sniff(path: Path) -> bool:
+    """A Parquet file, or a dataset directory: one whose ``*.parquet`` files are Parquet, but for
+    damaged ones (a part cut short, or another file under a part's name) that the reader names."""
     if path.is_dir():
-        found = dataset_files(path)
-        return bool(found) and all(_is_parquet(p) for p in found)
+        return any(_is_parquet(p) for p in dataset_files(path))
     return _is_parquet(path)
 
 
