@@ -1137,3 +1137,20 @@ def test_a_dataset_part_that_is_no_parquet_is_named(
     status, err = cli(args, capsys)
     assert_one_line_error(status, err, command, str(dataset / "part-00001.parquet"))
     assert "Parquet" in err and not (tmp_path / "out.parquet").exists()
+
+
+@pytest.mark.parametrize("form", ["highd", "ngsim-txt", "ngsim-csv"])
+def test_a_huge_bad_cell_is_shown_cut_short(tmp_path: Path, form: str) -> None:
+    """A damaged file's bad "cell" may be megabytes (a run of NULs after a crash): the one-line error
+    quoted all of it."""
+    junk = "7" + "z" * 100_000
+    if form == "highd":
+        path = _highd_variant(tmp_path, 3, "x", junk)
+    elif form == "ngsim-txt":
+        path = _txt_variant(tmp_path, {(3, 5): junk})
+    else:
+        path = _quoted(PEACHTREE, tmp_path / "peachtree.csv", 3, _cell_edit("Local_Y", junk))
+    with pytest.raises(InputError) as err:
+        registry.read_any([path])
+    assert err.value.line == 3 and "'7zzz" in str(err.value) and "100,001 characters" in str(err.value)
+    assert len(str(err.value)) < 400

@@ -32,6 +32,16 @@ _NOT_TEXT = (
 )
 
 
+SHOWN_CHARS = 40  # of a bad cell in a message: a damaged file's "cell" may be megabytes
+
+
+def shown(cell: str) -> str:
+    """``repr(cell)``, cut to SHOWN_CHARS characters (and its length) when longer: one short line."""
+    if len(cell) <= SHOWN_CHARS:
+        return repr(cell)
+    return f"{cell[:SHOWN_CHARS]!r}… ({len(cell):,} characters)"
+
+
 def not_text(head: bytes) -> str | None:
     """What a file is whose first bytes ``head`` show it is no UTF-8 text (another encoding, a
     compressed file), or None."""

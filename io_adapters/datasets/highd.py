@@ -41,6 +41,7 @@ from lanecast.io_adapters.datasets.csv_errors import (
     check_parseable,
     check_text,
     record_lines,
+    shown,
 )
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import progress
@@ -325,7 +326,7 @@ def _diagnose(path: Path, names: list[str], columns: Mapping[str, str]) -> None:
         value = table.column(name)[row].as_py()
         raise InputError(
             path,
-            f"cell {value!r} is not {_EXPECTED[kind]}",
+            f"cell {shown(value)} is not {_EXPECTED[kind]}",
             line=int(lines[row]),
             column=name,
             expected=_EXPECTED[kind],

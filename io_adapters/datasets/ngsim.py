@@ -70,6 +70,7 @@ from lanecast.io_adapters.datasets.csv_errors import (
     check_text,
     line_spans,
     record_lines,
+    shown,
 )
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import progress
@@ -557,13 +558,13 @@ def _check_values(path: Path, columns: dict[str, np.ndarray], names: Sequence[st
     if cell == "":
         problem = "empty cell"
     elif cell.lower() in _NAN_LITERALS:
-        problem = f"missing value {cell!r}"
+        problem = f"missing value {shown(cell)}"
     elif cell.lower().lstrip("+-") in {"inf", "infinity"}:
-        problem = f"infinite value {cell!r}"
+        problem = f"infinite value {shown(cell)}"
     elif math.isfinite(columns[first_col][first_row]):
-        problem = f"{cell!r} is not a whole number"
+        problem = f"{shown(cell)} is not a whole number"
     else:
-        problem = f"{cell!r} is not a finite number"
+        problem = f"{shown(cell)} is not a finite number"
     raise InputError(
         path,
         problem,
