@@ -9,7 +9,9 @@ nearly stopped at frame 3).
 
 from __future__ import annotations
 
+import gzip
 import math
+import os
 import shutil
 from collections.abc import Callable
 from pathlib import Path
@@ -378,3 +380,34 @@ def test_reads_the_sumo_simulators_recordings(sim_recording_dir: Path) -> None:
     assert dy.size > 0 and (dy > 0).all()
     _, dy = _neighbour_offsets(t, "right_following_id")
     assert dy.size > 0 and (dy < 0).all()
+
+
+@pytest.mark.parametrize(
+    ("victim", "make", "words"),
+    [
+        (T, lambda p: os.mkfifo(p), "not a regular file"),
+        (M, lambda p: os.symlink("/dev/zero", p), "not a regular file"),
+        (
+            T,
+            lambda p: p.with_name(p.name + ".gz").write_bytes(gzip.compress((DATA / T).read_bytes())),
+            ".gz beside",
+        ),
+        (
+            R,
+            lambda p: p.with_name(p.name + ".xz").write_bytes(b"\xfd7zXZ\x00"),
+            ".xz beside it is compressed",
+        ),
+    ],
+)
+def test_a_recording_file_that_is_no_regular_file_says_what_it_is(
+    tmp_path: Path, victim: str, make: Callable[[Path], object], words: str
+) -> None:
+    """A FIFO or /dev/zero under a recording's file name was "no such file"; a file left compressed
+    beside its name was "no such file" without a word of the compressed one."""
+    for name in (T, M, R):
+        if name != victim:
+            shutil.copy(DATA / name, tmp_path / name)
+    make(tmp_path / victim)
+    with pytest.raises(InputError, match=words) as info:
+        highd.read([tmp_path])
+    assert Path(info.value.path or "").name == victim

@@ -211,12 +211,26 @@ def recordings(paths: Sequence[str | Path]) -> list[Recording]:
                     expected="NN_tracks.csv, NN_tracksMeta.csv or NN_recordingMeta.csv",
                 )
             if not path.is_file():
-                what = "a directory, not a file" if path.is_dir() else "no such file"
-                raise InputError(path, what, expected=f"the highD {match.group('kind')} CSV file")
+                raise InputError(path, not_a_file(path), expected=f"the highD {match.group('kind')} CSV file")
             candidates = [Recording(path.parent, match.group("prefix"))]
         for rec in candidates:
             found.setdefault((rec.directory.resolve(), rec.prefix), rec)
     return list(found.values())
+
+
+COMPRESSED_SUFFIXES = (".gz", ".bz2", ".xz", ".zst", ".zip")
+
+
+def not_a_file(path: Path) -> str:
+    """Why ``path``, which is no regular file, cannot be read: missing (and, where a compressed copy
+    lies beside it, which), a directory, or a FIFO, socket or device (which nothing may open)."""
+    if path.is_dir():
+        return "a directory, not a file"
+    if path.exists():
+        return "not a regular file (a FIFO, socket or device)"
+    packed = [path.with_name(path.name + s) for s in COMPRESSED_SUFFIXES]
+    found = [p.name for p in packed if p.is_file()]
+    return f"no such file ({found[0]} beside it is compressed: decompress it)" if found else "no such file"
 
 
 # --------------------------------------------------------------------------------------------
@@ -716,9 +730,12 @@ def _read_one(
     """Columns (numpy, with ``recording`` as names + codes) and metadata of one highD recording."""
     for kind in KINDS:
         if not rec.path(kind).is_file():
+            reason = not_a_file(rec.path(kind))
             raise InputError(
                 rec.path(kind),
-                f"missing companion file of highD recording {rec.prefix!r}",
+                f"missing companion file of highD recording {rec.prefix!r}{reason.removeprefix('no such file')}"
+                if reason.startswith("no such file")
+                else f"companion file of highD recording {rec.prefix!r}: {reason}",
                 expected=f"a file {rec.path(kind).name}"
                 + (f" beside {rec.path('tracks').name}" if kind != "tracks" else ""),
             )
