@@ -449,3 +449,23 @@ def test_arterial_vehicle_that_never_moves_takes_its_heading_from_direction(tmp_
     row = _row(ngsim.read([path]), "ngsim-peachtree-parked", 352, 3382)
     assert row["heading"] == pytest.approx(math.pi)
     assert row["x"] == pytest.approx(7.5 * FT) and row["y"] == pytest.approx(5.359 * FT)
+
+
+def test_compressed_files_in_a_folder_are_not_left_out_without_a_word(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A folder of NGSIM's .txt.gz downloads was "format not recognised"; one beside a decompressed
+    file was left out silently."""
+    import gzip
+
+    folder = tmp_path / "ngsim"
+    folder.mkdir()
+    packed = folder / "trajectories-0400-0415.txt.gz"
+    packed.write_bytes(gzip.compress(TXT.read_bytes()))
+    with pytest.raises(InputError, match="gzip-compressed") as err:
+        registry.read_any([folder])
+    assert err.value.path == str(packed) and "decompress" in (err.value.expected or "")
+    shutil.copy(TXT, folder / "trajectories-0500-0515.txt")
+    table = registry.read_any([folder])
+    assert table.num_rows == registry.read_any([TXT]).num_rows
+    assert f"{packed}: gzip-compressed, left out" in capsys.readouterr().err

@@ -69,6 +69,7 @@ from lanecast.io_adapters.datasets.csv_errors import (
     check_parseable,
     check_text,
     line_spans,
+    not_text,
     record_lines,
     shown,
 )
@@ -166,8 +167,8 @@ def sniff(path: Path) -> bool:
     """True for an NGSIM CSV (header with Vehicle_ID, Frame_ID, Local_X, Local_Y) or .txt (18
     numbers), or a directory holding such files."""
     path = Path(path)
-    if path.is_dir():
-        return bool(files_in(path))
+    if path.is_dir():  # compressed files too: the reader says to decompress them
+        return bool(files_in(path) or compressed_in(path))
     if not path.is_file():
         return False
     try:
@@ -210,12 +211,32 @@ def files_in(folder: Path) -> list[Path]:
     ]
 
 
+COMPRESSED = (".gz", ".bz2", ".xz", ".zst", ".zip")  # trajectories-0400-0415.txt.gz is left out, not read
+
+
+def compressed_in(folder: Path) -> list[Path]:
+    """The compressed .txt and .csv files below ``folder`` (``*.txt.gz``, …; hidden ones left out)."""
+    return [
+        p
+        for p in sorted(Path(folder).rglob("*"))
+        if p.suffix.lower() in COMPRESSED
+        and p.with_suffix("").suffix.lower() in (".txt", ".csv")
+        and not any(part.startswith(".") for part in p.relative_to(folder).parts)
+        and p.is_file()
+    ]
+
+
 def _folder_files(folder: Path) -> list[Path]:
     """:func:`files_in`, refusing a damaged NGSIM file there instead of leaving it out: an empty or
     non-text ``.txt``/``.csv``, or one named ``trajectories*`` that is not NGSIM. Other text files
     (notes, other tables) are left out with a line on stderr."""
     found = files_in(folder)
+    packed = compressed_in(folder)
+    compressed = []
     for p in sorted(Path(folder).rglob("*")):
+        if p in packed:
+            compressed.append(p)
+            continue
         if (
             p in found
             or p.suffix.lower() not in (".txt", ".csv")
@@ -233,6 +254,14 @@ def _folder_files(folder: Path) -> list[Path]:
                 p, "not an NGSIM file: neither 18 numbers a line nor an NGSIM CSV header", line=1
             )
         print(f"lanecast: {p}: not an NGSIM file, left out", file=sys.stderr)
+    for p in compressed:  # read nothing of a folder of them without a word, a copy beside its text with one
+        with p.open("rb") as fh:
+            kind = not_text(fh.read(8)) or "compressed"
+        if not found:
+            raise InputError(
+                p, f"the file is {kind}", offset=0, expected="NGSIM .txt or .csv files: decompress it"
+            )
+        print(f"lanecast: {p}: {kind}, left out (decompress it to read it)", file=sys.stderr)
     return found
 
 
