@@ -471,3 +471,33 @@ def test_baseline_forecasts_without_maneuvers_are_drawn_in_the_unknown_colour_wi
     meta = {kv["key"]: kv["value"] for kv in scene["entities"][0]["metadata"]}
     assert (meta["maneuver"], meta["maneuver_probs"]) == ("unknown", "null")
     assert scene["entities"][0]["frame_id"] == "odom"
+
+
+def test_a_refused_run_and_a_finished_run_leave_no_lock_in_out_dir(tmp_path: Path) -> None:
+    """A run that refused to overwrite a user's file in OUT_DIR left `.lanecast-annotate.lock` there;
+    now the lock is removed at the end of every run, refused or not."""
+    import pyarrow.parquet as pq
+
+    from lanecast.io_adapters.errors import InputError
+    from lanecast.workflows.bulk import LOCK, locked, run_bulk
+
+    log = make_mcap(tmp_path / "drive.mcap", n=40)
+    pq.write_table(forecasts_for("drive", [1, 2], [1]), tmp_path / "fc.parquet")
+    options = AnnotateOptions(forecasts=tmp_path / "fc.parquet")
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "drive.mcap").write_bytes(b"the user's own file\n")
+    with pytest.raises(InputError, match="refusing to overwrite it"):
+        run_bulk([log], out, options)
+    assert sorted(p.name for p in out.iterdir()) == ["drive.mcap"]
+    assert (out / "drive.mcap").read_bytes() == b"the user's own file\n"
+    (out / "drive.mcap").unlink()
+    result = run_bulk([log], out, options)
+    assert len(result.done) == 1 and not (out / LOCK).exists()
+    assert sorted(p.name for p in out.iterdir()) == ["drive.mcap", "manifest.jsonl"]
+    with locked(out):  # a second run is still kept out while one holds the lock
+        with pytest.raises(InputError, match="another `lanecast annotate` run is writing here"):
+            with locked(out):
+                pass
+        assert (out / LOCK).exists()
+    assert not (out / LOCK).exists()

@@ -150,7 +150,6 @@ def test_two_worker_processes_annotate_every_log_once(tmp_path: Path) -> None:
     result = run_bulk([logs], out, AnnotateOptions(forecasts=fc), workers=2)
     assert len(result.done) == 4 and not result.failed
     assert sorted(p.relative_to(out).as_posix() for p in out.rglob("*")) == [
-        ".lanecast-annotate.lock",
         "day2",
         "day2/log02.mcap",
         "day2/log03.mcap",

@@ -114,25 +114,40 @@ def locked(out_dir: Path) -> Iterator[None]:
     """Hold an exclusive lock on ``out_dir`` (released by the OS if the process dies).
 
     The lock file is opened without following a symlink and without truncating: a planted
-    ``OUT_DIR/.lanecast-annotate.lock`` symlink can neither redirect nor empty another file.
+    ``OUT_DIR/.lanecast-annotate.lock`` symlink can neither redirect nor empty another file. It is
+    removed when the run ends, refused or not, while still held: a run that opened it meanwhile
+    finds its file gone once it holds it, and locks a new one.
     """
     out_dir.mkdir(parents=True, exist_ok=True)
     lock = out_dir / LOCK
+    while True:
+        try:
+            fd = os.open(lock, os.O_WRONLY | os.O_CREAT | os.O_NOFOLLOW, 0o644)
+        except OSError as exc:
+            raise not_ours(lock, exc) from exc
+        with open(fd, "w") as f:
+            try:
+                fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError as exc:
+                raise InputError(
+                    out_dir, "another `lanecast annotate` run is writing here", expected="one run per OUT_DIR"
+                ) from exc
+            if not _same_file(lock, os.fstat(fd)):
+                continue  # removed by the run that held it: lock the file that is there now
+            try:
+                yield
+            finally:
+                lock.unlink(missing_ok=True)
+                fcntl.flock(f, fcntl.LOCK_UN)
+            return
+
+
+def _same_file(path: Path, held: os.stat_result) -> bool:
     try:
-        fd = os.open(lock, os.O_WRONLY | os.O_CREAT | os.O_NOFOLLOW, 0o644)
-    except OSError as exc:
-        raise not_ours(lock, exc) from exc
-    with open(fd, "w") as f:
-        try:
-            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError as exc:
-            raise InputError(
-                out_dir, "another `lanecast annotate` run is writing here", expected="one run per OUT_DIR"
-            ) from exc
-        try:
-            yield
-        finally:
-            fcntl.flock(f, fcntl.LOCK_UN)
+        st = os.stat(path, follow_symlinks=False)
+    except FileNotFoundError:
+        return False
+    return (st.st_dev, st.st_ino) == (held.st_dev, held.st_ino)
 
 
 def model_identity(model_dir: Path | None) -> dict[str, str]:
