@@ -980,7 +980,7 @@ def test_own_bags_without_checksums_carry_a_payload_digest(
     storage_file.write_bytes(bytes(bad))
     with pytest.raises(LogError, match="do not match the checksum") as err:
         rosbag_reader.read(bag)
-    assert err.value.path == str(bag)
+    assert err.value.path == str(storage_file)  # the .db3 of a ROS 2 bag, not its directory
 
 
 def test_a_ros2_bag_without_metadata_yaml_says_so(tmp_path: Path) -> None:

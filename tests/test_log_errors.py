@@ -294,3 +294,57 @@ def test_bad_sqlite3_message_names_where_reading_stopped(
     with pytest.raises(LogError, match=r"cannot read the bag at message \d+ \(topic '/") as err:
         rosbag_reader.read(bag)
     assert err.value.path == str(bag)
+
+
+def _damage_first_message(bag: Path, topic: str, at: int, new: bytes) -> int:
+    """Overwrite bytes ``at`` of the first message on ``topic`` in place in the bag's sqlite3 file
+    (a damaged page that sqlite's own check cannot see); its file offset."""
+    import sqlite3
+
+    db = bag / f"{bag.name}.db3"
+    with sqlite3.connect(db) as con:
+        (raw,) = con.execute(
+            "SELECT data FROM messages JOIN topics ON topics.id = topic_id WHERE name = ? ORDER BY timestamp",
+            (topic,),
+        ).fetchone()
+    data = bytearray(db.read_bytes())
+    offset = data.find(raw[:256])
+    assert offset > 0 and data.find(raw[:256], offset + 1) < 0
+    data[offset + at : offset + at + len(new)] = new
+    db.write_bytes(bytes(data))
+    return offset
+
+
+def test_undecodable_message_in_a_sqlite3_page_names_its_offset_and_page(
+    tmp_path: Path, table: pa.Table
+) -> None:
+    """A message whose bytes on its page were damaged (sqlite's quick_check sees only the b-trees)
+    was 'cannot read the bag at message 2 … or the next: … Invalid string length' naming the bag
+    directory and no offset; now the .db3, the message's byte offset and its page."""
+    from lanecast.io_adapters.logs import rosbag_writer
+
+    bag = rosbag_writer.write(table, tmp_path / "b", "ros2", storage="sqlite3")
+    offset = _damage_first_message(bag, "/tracked_objects", 12, b"\xf0\xff\xff\x7f")  # frame_id's length
+    with pytest.raises(
+        LogError, match=r"cannot read the bag at message \d+ \(topic '/tracked_objects'"
+    ) as err:
+        rosbag_reader.read(bag)
+    assert err.value.path == str(bag / "b.db3")
+    assert err.value.offset == offset
+    assert f"on page {offset // 4096 + 1}:" in str(err.value) and "or the next" not in str(err.value)
+    assert err.value.expected == "a valid autoware_perception_msgs/msg/TrackedObjects message"
+
+
+def test_changed_message_bytes_that_still_decode_name_the_sqlite3_file(
+    tmp_path: Path, table: pa.Table
+) -> None:
+    """A changed byte of a message that still decodes was caught by lanecast's payload checksum only,
+    naming the bag directory; now the .db3 whose bytes changed, and that sqlite3 finds it intact."""
+    from lanecast.io_adapters.logs import rosbag_writer
+
+    bag = rosbag_writer.write(table, tmp_path / "b", "ros2", storage="sqlite3")
+    _damage_first_message(bag, "/tracked_objects", 4, b"\x01")  # the header's stamp (seconds)
+    with pytest.raises(LogError, match="do not match the checksum lanecast wrote") as err:
+        rosbag_reader.read(bag)
+    assert err.value.path == str(bag / "b.db3")
+    assert "sqlite3's own check finds the database intact" in str(err.value)

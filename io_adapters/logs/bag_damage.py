@@ -9,6 +9,9 @@ look at the file's own structure, record headers only, and name the first thing 
   (index_pos 0, its recorder killed) or whose index lies beyond the end, a chunk whose bz2/lz4
   data does not decompress to the size it states.
 * sqlite3: the database header's page size and page count against the file's size.
+
+A message whose bytes cannot be decoded is found in the storage file by its bytes
+(:func:`message_offset`: sqlite3 keeps the first few hundred bytes of every row on its page).
 """
 
 from __future__ import annotations
@@ -164,3 +167,34 @@ def _integrity(path: Path, page_size: int) -> tuple[int, str] | None:
     page = re.search(r"[Pp]age (\d+)", report)
     offset = (int(page.group(1)) - 1) * page_size if page else 0
     return offset, f"damaged sqlite3 database: {' '.join(report.split())}"
+
+
+#: Bytes of a message searched for: fewer than a sqlite3 row keeps on its own page (at least
+#: 489 of a 4096-byte page's payload), enough to tell two messages of one time and topic apart.
+_NEEDLE = 256
+
+
+def message_offset(path: Path, raw: object) -> int | None:
+    """The byte offset in ``path`` of the message whose bytes are ``raw``, where they are there
+    once (stored uncompressed), else None."""
+    if not isinstance(raw, (bytes, bytearray, memoryview)) or len(raw) < 8:
+        return None
+    needle = bytes(raw[:_NEEDLE])
+    with open(path, "rb") as f:
+        if f.seek(0, 2) < len(needle):
+            return None
+        with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
+            at = mm.find(needle)
+            if at < 0 or mm.find(needle, at + 1) >= 0:
+                return None
+            return at
+
+
+def sqlite_page(path: Path, offset: int) -> int | None:
+    """The 1-based page of a sqlite3 file that holds byte ``offset``, or None."""
+    with open(path, "rb") as f:
+        head = f.read(18)
+    if len(head) < 18 or not head.startswith(SQLITE_MAGIC):
+        return None
+    (page_size,) = struct.unpack_from(">H", head, 16)
+    return offset // (65536 if page_size == 1 else page_size) + 1

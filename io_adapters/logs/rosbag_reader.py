@@ -102,16 +102,19 @@ def read_log(
             for conn, timestamp, raw in reader.messages(connections=wanted):
                 at = (at[0] + 1, conn.topic, timestamp)
                 if conn.topic == conv.META_TOPIC and conn.msgtype == ros_types.STRING:
-                    meta_msg: Any = reader.deserialize(raw, conn.msgtype)
+                    meta_msg: Any = _decode(reader, path, target, ros1, at, conn.msgtype, raw)
                     log_meta = conv.parse_log_metadata(path, meta_msg.data)
                     continue
                 if own and not conn.topic.startswith(conv.OWN_TOPIC_PREFIX):  # not forecasts added later
                     digest.add(conn.topic, timestamp, raw)
                 handler = handlers.get(conn.id)
                 if handler is not None:
-                    handler(reader.deserialize(raw, conn.msgtype), timestamp)
+                    handler(_decode(reader, path, target, ros1, at, conn.msgtype, raw), timestamp)
             if own:
-                conv.check_payload_digest(path, log_meta, digest)
+                try:
+                    conv.check_payload_digest(path, log_meta, digest)
+                except LogError as exc:
+                    raise _digest_mismatch(target, ros1, exc) from exc
     except LogError:
         raise
     except Exception as exc:  # rosbags reader/serde errors: damaged or unreadable bag
@@ -151,6 +154,62 @@ def _located_damage(target: Path, ros1: bool) -> tuple[Path, int, str] | None:
         if found is not None:
             return (file, *found)
     return None
+
+
+def _storage_files(target: Path, ros1: bool) -> list[Path]:
+    return [target] if ros1 else sorted([*target.glob("*.db3"), *target.glob("*.mcap")])
+
+
+def _decode(
+    reader: Any, path: Path, target: Path, ros1: bool, at: tuple[int, str, int], msgtype: str, raw: Any
+) -> Any:
+    """The message ``raw`` deserialized, or the LogError naming where its bytes are damaged."""
+    try:
+        return reader.deserialize(raw, msgtype)
+    except Exception as exc:  # this message's bytes, not the reading of the bag
+        raise _undecodable(path, target, ros1, at, msgtype, raw, exc) from exc
+
+
+def _undecodable(
+    path: Path, target: Path, ros1: bool, at: tuple[int, str, int], msgtype: str, raw: Any, exc: Exception
+) -> LogError:
+    """The error for a message whose bytes cannot be decoded: at its offset in the bag's storage
+    file where sqlite3's own check or the message's bytes show it (stored uncompressed), else in
+    the bag."""
+    damage = _located_damage(target, ros1)
+    if damage is not None:
+        return LogError(damage[0], damage[2], offset=damage[1], expected="an intact ROS bag")
+    what = f"cannot read the bag at message {at[0]} (topic {at[1]!r}, log time {at[2]} ns)"
+    reason = f"{type(exc).__name__}: {exc}"
+    expected = f"a valid {msgtype} message"
+    for file in _storage_files(target, ros1):
+        try:
+            offset = bag_damage.message_offset(file, raw)
+        except OSError:
+            continue
+        if offset is not None:
+            page = bag_damage.sqlite_page(file, offset) if file.suffix == ".db3" else None
+            where = f", on page {page}" if page is not None else ""
+            return LogError(file, f"{what}{where}: {reason}", offset=offset, expected=expected)
+    return LogError(path, f"{what}: {reason}", expected=expected)
+
+
+def _digest_mismatch(target: Path, ros1: bool, exc: LogError) -> LogError:
+    """The payload checksum does not match: the damage sqlite3's own check (or the ROS 1 record
+    walk) locates, else the checksum's error naming the one storage file whose bytes changed."""
+    damage = _located_damage(target, ros1)
+    if damage is not None:
+        return LogError(damage[0], damage[2], offset=damage[1], expected="an intact ROS bag")
+    files = _storage_files(target, ros1)
+    if len(files) != 1 or files[0] == target:
+        return exc
+    check = "sqlite3's own check finds the database intact: " if files[0].suffix == ".db3" else ""
+    return LogError(
+        files[0],
+        f"{exc.reason} ({check}a message's bytes, topic or log time changed; the checksum covers the "
+        "whole bag and cannot say which)",
+        expected=exc.expected,
+    )
 
 
 def _handler(
