@@ -91,9 +91,9 @@ def test_empty_and_foreign_files(tmp_path: Path) -> None:
     broken = tmp_path / "broken"
     broken.mkdir()
     (broken / "metadata.yaml").write_text("rosbag2_bagfile_information: [\n")
-    with pytest.raises(LogError, match="cannot read the bag") as err:
+    with pytest.raises(LogError, match="not YAML") as err:  # named with its line, not the bag directory
         rosbag_reader.read(broken)
-    assert err.value.path == str(broken)
+    assert err.value.path == str(broken / "metadata.yaml") and err.value.line == 2
 
 
 @pytest.mark.parametrize("fraction", [0.001, 0.3, 0.55, 0.9, 0.999])

@@ -237,3 +237,71 @@ def test_uuid_track_ids() -> None:
     assert to.uuid_to_track_id(to.track_id_to_uuid(123456789)) == 123456789
     foreign = np.arange(16, dtype=np.uint8)
     assert to.uuid_to_track_id(foreign) == to.uuid_to_track_id(foreign.copy()) > 0
+
+
+@pytest.mark.parametrize(
+    ("edit", "line", "key", "match"),
+    [
+        (
+            ("version: 9", "version: 99"),
+            0,
+            "version",
+            "rosbag2 metadata version 99 .expected a version from 1 to 9",
+        ),
+        (
+            ("storage_identifier: sqlite3", "storage_identifier: hdf5"),
+            0,
+            "storage_identifier",
+            "plugin 'hdf5'",
+        ),
+        (("  - b.db3", "  - b.db3\n  - b.db3"), 0, "relative_file_paths", "lists 'b.db3' twice"),
+        (("  - b.db3", "  - ../b.db3x"), 0, "relative_file_paths", "lists '../b.db3x', which is not in"),
+        (("serialization_format: cdr", "serialization_format: ros1"), 0, "serialization_format", "as 'ros1'"),
+        (("rosbag2_bagfile_information:", "rosbag2_bagfile_information: ["), None, None, "not YAML"),
+        (("rosbag2_bagfile_information:", "other:"), 1, None, "no rosbag2_bagfile_information mapping"),
+    ],
+)
+def test_bad_ros2_metadata_yaml_is_named_with_its_line_and_key(
+    tmp_path: Path, edit: tuple[str, str], line: int | None, key: str | None, match: str
+) -> None:
+    """metadata.yaml that rosbags misreads was 'bag: cannot read the bag: AnyReaderError: Rosbag2
+    version 99 not supported' (or 'Invalid bag metadata: …', or a file listed twice read twice);
+    now metadata.yaml, its line and the key."""
+    bag = rosbag_writer.write(make_table(), tmp_path / "b", "ros2", storage="sqlite3")
+    meta = bag / "metadata.yaml"
+    text = meta.read_text()
+    assert edit[0] in text
+    meta.write_text(text.replace(edit[0], edit[1], 1))
+    with pytest.raises(LogError, match=match) as err:
+        rosbag_reader.read(bag)
+    assert err.value.path == str(meta) and err.value.column == key
+    if line == 0:  # the line of the key
+        at = next(
+            i for i, t in enumerate(meta.read_text().splitlines(), 1) if t.strip().startswith(key + ":")
+        )
+        assert err.value.line == at
+    elif line is not None:
+        assert err.value.line == line
+    else:
+        assert err.value.line is not None
+
+
+@pytest.mark.parametrize(
+    ("sql", "match"),
+    [
+        ("UPDATE topics SET serialization_format = 'json'", "stored with serialization format 'json'"),
+        ("ALTER TABLE messages RENAME TO msgs", "no table 'messages'"),
+        ("ALTER TABLE topics DROP COLUMN serialization_format", "table topics: no such column"),
+    ],
+)
+def test_sqlite3_tables_rosbags_cannot_read_are_named(tmp_path: Path, sql: str, match: str) -> None:
+    """Topics stored as JSON were 'the supported topics hold no objects' (rosbags read none of
+    their messages); a table missing was 'cannot read the bag: … or database missing tables'."""
+    import sqlite3
+
+    bag = rosbag_writer.write(make_table(), tmp_path / "b", "ros2", storage="sqlite3")
+    with sqlite3.connect(bag / "b.db3") as con:
+        con.execute(sql)
+    with pytest.raises(LogError, match=match) as err:
+        rosbag_reader.read(bag)
+    assert err.value.path == str(bag / "b.db3")

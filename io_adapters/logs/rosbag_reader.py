@@ -17,7 +17,7 @@ import pyarrow as pa
 
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.errors import LogError
-from lanecast.io_adapters.logs import bag_damage, frame_transforms, log_assembly, ros_types
+from lanecast.io_adapters.logs import bag_damage, bag_metadata, frame_transforms, log_assembly, ros_types
 from lanecast.io_adapters.logs import log_conventions as conv
 from lanecast.io_adapters.logs import tracked_objects as to
 from lanecast.io_adapters.logs.mcap_crc import verify_crcs
@@ -68,12 +68,14 @@ def read_log(
         )
     ros1 = target.suffix == ".bag"
     if target.is_dir():  # rosbags does not check MCAP CRCs: check them first (sqlite3 has none)
+        bag_metadata.check_metadata(target)
         for storage_file in sorted(target.glob("*.mcap")):
             verify_crcs(storage_file)
         for storage_file in sorted(target.glob("*.db3")):  # a file cut short may still open
             cut = bag_damage.sqlite_truncation(storage_file)
             if cut is not None:
                 raise LogError(storage_file, cut[1], offset=cut[0], expected="an intact ROS bag")
+            bag_metadata.check_sqlite_tables(storage_file)
     topics: dict[str, log_assembly.TopicData] = {}
     transforms = frame_transforms.Transforms()
     log_meta: dict[str, Any] | None = None

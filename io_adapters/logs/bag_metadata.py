@@ -1,0 +1,128 @@
+"""Check a ROS 2 bag's ``metadata.yaml`` before rosbags reads it.
+
+rosbags' errors about a bag's metadata name the bag directory and say neither which file nor which
+line is wrong ("Invalid bag metadata: 'NoneType' object is not subscriptable", "Rosbag2 version 99
+not supported"), and a storage file listed twice is read twice. :func:`check_metadata` reads the
+small YAML file itself (ruamel, rosbags' own library, with line numbers) and refuses, naming
+``metadata.yaml``, the line and the key: text that is not UTF-8 or not YAML, no
+``rosbag2_bagfile_information`` mapping, a version rosbags cannot read, a storage plugin other than
+sqlite3 and mcap, storage files missing, listed twice or of the other plugin's format, and topics
+serialized as anything but CDR.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path, PurePath
+from typing import Any
+
+from lanecast.io_adapters.errors import LogError
+
+VERSIONS = range(1, 10)  # the rosbag2 metadata versions rosbags reads
+STORAGE_MAGIC = {"sqlite3": b"SQLite format 3\x00", "mcap": b"\x89MCAP0\r\n"}
+INFO = "rosbag2_bagfile_information"
+
+
+def check_metadata(bag: Path) -> None:
+    """LogError naming ``bag/metadata.yaml`` (line, key) for metadata rosbags would misread."""
+    from ruamel.yaml import YAML
+    from ruamel.yaml.error import MarkedYAMLError, YAMLError
+
+    path = bag / "metadata.yaml"
+    raw = path.read_bytes()
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise LogError(
+            path, f"not UTF-8 text ({exc.reason})", offset=exc.start, expected="YAML text"
+        ) from exc
+    try:
+        doc = YAML(typ="rt").load(text)
+    except YAMLError as exc:
+        mark = exc.problem_mark if isinstance(exc, MarkedYAMLError) else None
+        line = mark.line + 1 if mark is not None else None
+        problem = getattr(exc, "problem", None) or str(exc)
+        raise LogError(path, f"not YAML: {problem}", line=line, expected="a rosbag2 metadata.yaml") from exc
+    info = doc.get(INFO) if isinstance(doc, dict) else None
+    if not isinstance(info, dict):
+        raise LogError(path, f"no {INFO} mapping", line=1, expected="a rosbag2 metadata.yaml")
+
+    def fail(node: Any, key: str, message: str, expected: str) -> LogError:
+        line = node.lc.key(key)[0] + 1 if key in node and hasattr(node, "lc") else None
+        return LogError(path, message, line=line, column=key, expected=expected)
+
+    version = info.get("version")
+    if type(version) is not int or version not in VERSIONS:
+        raise fail(info, "version", f"rosbag2 metadata version {version!r}", "a version from 1 to 9")
+    storage = info.get("storage_identifier")
+    if storage not in STORAGE_MAGIC:
+        raise fail(info, "storage_identifier", f"storage plugin {storage!r}", "sqlite3 or mcap")
+    files = info.get("relative_file_paths")
+    if not isinstance(files, list) or not files or not all(isinstance(f, str) for f in files):
+        raise fail(info, "relative_file_paths", "no list of storage files", "the bag's storage files")
+    names = [PurePath(f).name for f in files]
+    for i, name in enumerate(names):
+        if name in names[:i]:
+            raise fail(info, "relative_file_paths", f"lists {name!r} twice", "each storage file once")
+        file = bag / name
+        if not file.is_file():
+            raise fail(
+                info,
+                "relative_file_paths",
+                f"lists {files[i]!r}, which is not in {bag}",
+                "the bag's storage files",
+            )
+        if (info.get("compression_mode") or "").lower() != "file":
+            with open(file, "rb") as f:
+                head = f.read(16)
+            wrong = [s for s, magic in STORAGE_MAGIC.items() if s != storage and head.startswith(magic)]
+            if wrong:
+                raise fail(
+                    info,
+                    "storage_identifier",
+                    f"storage plugin {storage!r}, but {name} is a {wrong[0]} file",
+                    f"storage_identifier: {wrong[0]}",
+                )
+    for entry in info.get("topics_with_message_count") or []:
+        topic = entry.get("topic_metadata") if isinstance(entry, dict) else None
+        if isinstance(topic, dict) and topic.get("serialization_format", "cdr") != "cdr":
+            raise fail(
+                topic,
+                "serialization_format",
+                f"topic {topic.get('name')!r} is serialized as {topic['serialization_format']!r}",
+                "cdr (lanecast reads ROS 2 messages in CDR)",
+            )
+
+
+def check_sqlite_tables(db: Path) -> None:
+    """LogError naming ``db`` for a rosbag2 sqlite3 file without its tables, or whose topics are
+    stored in another serialization than CDR (rosbags then reads none of their messages)."""
+    import sqlite3
+
+    try:
+        con = sqlite3.connect(f"file:{db}?mode=ro&immutable=1", uri=True)
+        try:
+            tables = {r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+            missing = sorted({"topics", "messages"} - tables)
+            if missing:
+                raise LogError(
+                    db,
+                    f"no table {missing[0]!r} (tables: {', '.join(sorted(tables)) or 'none'})",
+                    expected="a rosbag2 sqlite3 file with the tables topics and messages",
+                )
+            try:
+                rows = con.execute("SELECT name, serialization_format FROM topics").fetchall()
+            except sqlite3.OperationalError as exc:  # a column missing (a damaged file is DatabaseError)
+                raise LogError(
+                    db, f"table topics: {exc}", expected="the columns name and serialization_format"
+                ) from exc
+        finally:
+            con.close()
+    except sqlite3.Error:
+        return  # a damaged file: the reader's own path locates the damage
+    for name, fmt in rows:
+        if fmt != "cdr":
+            raise LogError(
+                db,
+                f"topic {name!r} is stored with serialization format {fmt!r} (table topics)",
+                expected="cdr (lanecast reads ROS 2 messages in CDR)",
+            )
