@@ -305,3 +305,15 @@ def test_sqlite3_tables_rosbags_cannot_read_are_named(tmp_path: Path, sql: str, 
     with pytest.raises(LogError, match=match) as err:
         rosbag_reader.read(bag)
     assert err.value.path == str(bag / "b.db3")
+
+
+@pytest.mark.parametrize("first_line", [b"#ROSBAG V1.2\n", b"#ROSBAG V2.0 ", b"#ROSBAG Vx.y\n"])
+def test_ros1_bag_of_another_version_says_which(tmp_path: Path, first_line: bytes) -> None:
+    """A ROS 1 bag whose version line is not '#ROSBAG V2.0\\n' was 'format not recognised'; now a
+    ROS 1 bag of another version, the line it has and the one lanecast reads."""
+    bag = rosbag_writer.write(make_table(), tmp_path / "b.bag", "ros1")
+    bag.write_bytes(first_line + bag.read_bytes()[len(first_line) :])
+    with pytest.raises(LogError, match="a ROS 1 bag of another format version") as err:
+        registry.read_any([bag])
+    assert err.value.path == str(bag) and err.value.offset == 0
+    assert first_line.rstrip(b"\n").decode() in str(err.value) and "'#ROSBAG V2.0'" in str(err.value)

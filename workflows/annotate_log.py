@@ -41,7 +41,7 @@ from lanecast.workflows.forecast import forecast_table, forecast_windows, what_i
 
 LOG_KINDS = ("mcap", "ros2", "ros1")
 MCAP_MAGIC = b"\x89MCAP0\r\n"
-ROS1_MAGIC = b"#ROSBAG V2.0"
+ROS1_MAGIC = b"#ROSBAG V"  # any version: the reader says which one it cannot read
 
 
 @dataclass(frozen=True)

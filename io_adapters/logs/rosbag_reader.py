@@ -24,6 +24,7 @@ from lanecast.io_adapters.logs.mcap_crc import verify_crcs
 
 FORMAT = "rosbag"
 ROS1_MAGIC = b"#ROSBAG V2.0\n"
+ROS1_PREFIX = b"#ROSBAG V"  # any version: recognised as a ROS 1 bag, refused unless 2.0
 OBJECT_TYPES = (ros_types.TRACKED_OBJECTS, ros_types.MARKER_ARRAY)
 SUPPORTED = "autoware_perception_msgs/msg/TrackedObjects or visualization_msgs/msg/MarkerArray"
 
@@ -37,7 +38,7 @@ def bag_path(path: str | Path) -> Path | None:
         if path.suffix in (".db3", ".mcap") and (path.parent / "metadata.yaml").is_file():
             return path.parent
         with path.open("rb") as f:
-            if f.read(len(ROS1_MAGIC)) == ROS1_MAGIC:
+            if f.read(len(ROS1_PREFIX)) == ROS1_PREFIX:
                 return path
     return None
 
@@ -66,7 +67,18 @@ def read_log(
             offset=0,
             expected="a ROS 1 .bag (#ROSBAG V2.0) or a ROS 2 bag directory with metadata.yaml",
         )
-    ros1 = target.suffix == ".bag"
+    ros1 = target.is_file()
+    if ros1:
+        with target.open("rb") as f:
+            first = f.read(len(ROS1_MAGIC))
+        if first != ROS1_MAGIC:
+            version = first.partition(b"\n")[0].decode("latin-1")
+            raise LogError(
+                path,
+                f"a ROS 1 bag of another format version ({version!r})",
+                offset=0,
+                expected="'#ROSBAG V2.0' (the only ROS 1 bag version lanecast reads)",
+            )
     if target.is_dir():  # rosbags does not check MCAP CRCs: check them first (sqlite3 has none)
         bag_metadata.check_metadata(target)
         for storage_file in sorted(target.glob("*.mcap")):
