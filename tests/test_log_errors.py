@@ -348,3 +348,91 @@ def test_changed_message_bytes_that_still_decode_name_the_sqlite3_file(
         rosbag_reader.read(bag)
     assert err.value.path == str(bag / "b.db3")
     assert "sqlite3's own check finds the database intact" in str(err.value)
+
+
+def _ros1_records(data: bytes) -> list[tuple[int, dict[str, bytes], int, int]]:
+    """(offset, header fields, data offset, data length) of every record of a ROS 1 bag."""
+    out, pos = [], 13
+    while pos < len(data):
+        (header_len,) = struct.unpack_from("<I", data, pos)
+        fields, q = {}, pos + 4
+        while q < pos + 4 + header_len:
+            (n,) = struct.unpack_from("<I", data, q)
+            name, _, value = data[q + 4 : q + 4 + n].partition(b"=")
+            fields[name.decode()] = value
+            q += 4 + n
+        (data_len,) = struct.unpack_from("<I", data, q)
+        out.append((pos, fields, q + 4, data_len))
+        pos = q + 4 + data_len
+    return out
+
+
+def _small_chunks_ros1_bag(table: pa.Table, path: Path) -> Path:
+    """lanecast's ROS 1 bag of ``table`` rewritten by rosbags into uncompressed chunks of ~4 kB."""
+    from rosbags.rosbag1 import Reader, Writer
+
+    from lanecast.io_adapters.logs import rosbag_writer
+
+    src = rosbag_writer.write(table, path.with_name("src.bag"), "ros1")
+    with Reader(src) as r:
+        w = Writer(path)
+        w.chunk_threshold = 4096
+        with w:
+            conns = {
+                c.id: w.add_connection(c.topic, c.msgtype, msgdef=c.msgdef.data, md5sum=c.digest)
+                for c in r.connections
+            }
+            for c, t, raw in r.messages():
+                w.write(conns[c.id], t, raw)
+    return path
+
+
+def _ros1_damage(kind: str, data: bytearray) -> tuple[int, str]:
+    """Damage ``data`` (a ROS 1 bag) in place: (the offset of the record the error must name, its text)."""
+    recs = _ros1_records(bytes(data))
+    ops = [(off, f, d, n) for off, f, d, n in recs]
+    chunks = [r for r in ops if r[1]["op"] == b"\x05"]
+    if kind == "chunk info listing a listed chunk":
+        info = [r for r in ops if r[1]["op"] == b"\x06"][1]
+        at = data.index(b"chunk_pos=", info[0]) + len(b"chunk_pos=")
+        data[at : at + 8] = struct.pack("<Q", chunks[0][0])
+        return info[0], f"points at the chunk at offset {chunks[0][0]}, which another one lists"
+    if kind == "index data past its chunk":
+        index = next(r for r in ops if r[1]["op"] == b"\x04" and r[0] > chunks[1][0])
+        struct.pack_into("<I", data, index[2] + 8, 10**8)
+        return index[0], "lists a message at offset 100000000 of a chunk of"
+    if kind == "connection without message definition":
+        conn = next(r for r in ops if r[1]["op"] == b"\x07" and r[0] > chunks[-1][0])
+        at = data.index(b"message_definition=", conn[2])
+        data[at : at + 1] = b"x"
+        return conn[0], "has no message_definition field"
+    header = ops[0]
+    at = data.index(b"index_pos=", header[0]) + len(b"index_pos=")
+    data[at : at + 8] = struct.pack("<Q", chunks[1][0] + 7)
+    return header[0], f"puts the index at offset {chunks[1][0] + 7}, where no record starts"
+
+
+@pytest.mark.parametrize(
+    "kind",
+    [
+        "chunk info listing a listed chunk",
+        "index data past its chunk",
+        "connection without message definition",
+        "index_pos not at a record",
+    ],
+)
+def test_ros1_index_damage_names_its_record(tmp_path: Path, table: pa.Table, kind: str) -> None:
+    """A ROS 1 bag whose index lies (a chunk info pointing at a chunk another one lists, index data
+    past its chunk, a connection without its definition, index_pos inside a chunk) was 'cannot read
+    the bag: … Bag index looks damaged' or 'hash mismatch' or, for the chunk listed twice, a
+    checksum mismatch (lanecast's bags) or one chunk read twice and another never (others): no
+    offset. Now the record's offset and what it says."""
+    bag = _small_chunks_ros1_bag(table, tmp_path / "b.bag")
+    data = bytearray(bag.read_bytes())
+    assert sum(1 for r in _ros1_records(bytes(data)) if r[1]["op"] == b"\x05") >= 3
+    offset, text = _ros1_damage(kind, data)
+    bag.write_bytes(bytes(data))
+    with pytest.raises(LogError) as err:
+        rosbag_reader.read(bag)
+    assert err.value.path == str(bag) and err.value.offset == offset
+    assert text in str(err.value)

@@ -6,8 +6,10 @@ look at the file's own structure, record headers only, and name the first thing 
 
 * ROS 1 (``#ROSBAG V2.0``): records of ``header_len, header, data_len, data``; a record running
   past the end of the file, a header field running past its header, a bag that was never indexed
-  (index_pos 0, its recorder killed) or whose index lies beyond the end, a chunk whose bz2/lz4
-  data does not decompress to the size it states.
+  (index_pos 0, its recorder killed) or whose index lies beyond the end or not at a record, a chunk
+  whose bz2/lz4 data does not decompress to the size it states, index data listing a message past
+  its chunk, a chunk info pointing where no chunk starts (or at a chunk another one lists), an
+  indexed connection without a message definition.
 * sqlite3: the database header's page size and page count against the file's size.
 
 A message whose bytes cannot be decoded is found in the storage file by its bytes
@@ -25,7 +27,10 @@ from pathlib import Path
 ROS1_MAGIC = b"#ROSBAG V2.0\n"
 _U32 = struct.Struct("<I")
 _OP_BAG_HEADER = 0x03
+_OP_INDEX_DATA = 0x04
 _OP_CHUNK = 0x05
+_OP_CHUNK_INFO = 0x06
+_OP_CONNECTION = 0x07
 SQLITE_MAGIC = b"SQLite format 3\x00"
 
 
@@ -42,6 +47,11 @@ def ros1_damage(path: Path) -> tuple[int, str] | None:
 def _ros1_walk(mm: mmap.mmap, size: int) -> tuple[int, str] | None:
     pos = len(ROS1_MAGIC)
     index_pos: int | None = None
+    header_at = 0
+    starts: set[int] = set()  # where records start
+    chunks: dict[int, int | None] = {}  # chunk offset → uncompressed size it states
+    chunk_size: int | None = None  # of the chunk the IndexData records that follow it index
+    listed: set[int] = set()  # chunks a ChunkInfo record points at
     while pos < size:
         if pos + 4 > size:
             return pos, f"the file is truncated inside a record header ({size - pos} bytes left)"
@@ -64,8 +74,10 @@ def _ros1_walk(mm: mmap.mmap, size: int) -> tuple[int, str] | None:
                 f"the file is truncated: a record (op {opcode:#04x}) declares {data_len} bytes of data "
                 f"but the file ends {size - data} bytes later"
             )
+        starts.add(pos)
         if opcode == _OP_BAG_HEADER and len(fields.get("index_pos", b"")) == 8:
             (index_pos,) = struct.unpack("<Q", fields["index_pos"])
+            header_at = pos
             if index_pos == 0:
                 return pos, "the bag was never indexed (index_pos 0: its recorder did not close it)"
             if index_pos > size:
@@ -78,8 +90,82 @@ def _ros1_walk(mm: mmap.mmap, size: int) -> tuple[int, str] | None:
             problem = _chunk_problem(fields, mm[data:end])
             if problem is not None:
                 return pos, problem
+            chunk_size = _u32(fields.get("size"))
+            chunks[pos] = chunk_size
+        elif opcode == _OP_INDEX_DATA:
+            problem = _index_data_problem(fields, mm[data:end], chunk_size)
+            if problem is not None:
+                return pos, problem
+        elif opcode == _OP_CHUNK_INFO:
+            at = (
+                struct.unpack("<Q", fields["chunk_pos"])[0]
+                if len(fields.get("chunk_pos", b"")) == 8
+                else None
+            )
+            if at not in chunks:
+                return pos, f"a chunk info record points at offset {at}, where no chunk starts"
+            if at in listed:
+                return pos, f"a chunk info record points at the chunk at offset {at}, which another one lists"
+            listed.add(at)
+        elif opcode == _OP_CONNECTION and pos >= (index_pos or size):  # the index's copy, which rosbags reads
+            problem = _connection_problem(fields, mm[data:end])
+            if problem is not None:
+                return pos, problem
         pos = end
+    if index_pos is not None and index_pos not in starts:
+        return header_at, f"the bag header puts the index at offset {index_pos}, where no record starts"
     return None
+
+
+def _u32(raw: bytes | None) -> int | None:
+    return struct.unpack("<I", raw)[0] if raw is not None and len(raw) == 4 else None
+
+
+def _index_data_problem(fields: dict[str, bytes], data: bytes, chunk_size: int | None) -> str | None:
+    """An IndexData record (version 1: count × (time, offset)) listing a message past its chunk."""
+    conn, count = _u32(fields.get("conn")), _u32(fields.get("count"))
+    if count is None or len(data) < 12 * count:
+        return f"an index data record of connection {conn} lists {count} messages in {len(data)} bytes"
+    if chunk_size is None:
+        return None
+    for k in range(count):
+        (offset,) = _U32.unpack_from(data, 12 * k + 8)
+        if offset >= chunk_size:
+            return (
+                f"an index data record of connection {conn} lists a message at offset {offset} of a chunk "
+                f"of {chunk_size} bytes"
+            )
+    return None
+
+
+def _connection_problem(fields: dict[str, bytes], data: bytes) -> str | None:
+    """A connection record without a message definition (rosbags then refuses its type's hash)."""
+    conn, topic = _u32(fields.get("conn")), fields.get("topic", b"").decode("latin-1")
+    found = _fields_of(data)
+    if found is None:
+        return f"connection {conn} (topic {topic!r}): its fields run past the record"
+    definition = found.get("message_definition")
+    if definition is None:
+        return f"connection {conn} (topic {topic!r}) has no message_definition field"
+    text = definition.decode("latin-1")
+    if not any(line.split("#", 1)[0].strip() for line in text.splitlines()):
+        return f"connection {conn} (topic {topic!r}) has an empty message definition"
+    return None
+
+
+def _fields_of(data: bytes) -> dict[str, bytes] | None:
+    out: dict[str, bytes] = {}
+    pos = 0
+    while pos < len(data):
+        if pos + 4 > len(data):
+            return None
+        (n,) = _U32.unpack_from(data, pos)
+        if pos + 4 + n > len(data):
+            return None
+        name, _, value = data[pos + 4 : pos + 4 + n].partition(b"=")
+        out[name.decode("latin-1")] = value
+        pos += 4 + n
+    return out
 
 
 def _fields(mm: mmap.mmap, pos: int, end: int) -> dict[str, bytes] | None:

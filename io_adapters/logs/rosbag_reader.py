@@ -94,6 +94,10 @@ def read_log(
     at: tuple[int, str, int] = (0, "", 0)  # the messages read, the last one's topic and log time
     try:
         with AnyReader([target], default_typestore=ros_types.typestore(1 if ros1 else 2)) as reader:
+            if ros1 and _chunk_listed_twice(reader):  # rosbags would read one chunk twice, another never
+                raise _located_damage_error(target, ros1) or LogError(
+                    path, "two chunk info records list the same chunk", expected="an intact ROS bag"
+                )
             listing = ", ".join(sorted(f"{c.topic} [{c.msgtype}]" for c in reader.connections)) or "none"
             handlers: dict[int, Callable[[Any, int], None]] = {}
             for conn in reader.connections:
@@ -154,6 +158,18 @@ def read_log(
         topic=topic,
         fixed_frames=fixed_frames or conv.FIXED_FRAMES,
     )
+
+
+def _chunk_listed_twice(reader: Any) -> bool:
+    positions = [info.pos for r in reader.readers for info in getattr(r, "chunk_infos", [])]
+    return len(set(positions)) != len(positions)
+
+
+def _located_damage_error(target: Path, ros1: bool) -> LogError | None:
+    damage = _located_damage(target, ros1)
+    if damage is None:
+        return None
+    return LogError(damage[0], damage[2], offset=damage[1], expected="an intact ROS bag")
 
 
 def _located_damage(target: Path, ros1: bool) -> tuple[Path, int, str] | None:
