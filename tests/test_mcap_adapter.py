@@ -710,3 +710,31 @@ def test_entity_ids_parse_like_track_id_of() -> None:
     got = wire._track_ids(buf, starts, ends).tolist()
     assert got[:5] == [1, 42, -5, 7, 0] and got[11] == 999_999_999_999_999_999
     assert got == [to.track_id_of(s) for s in ids]
+
+
+def test_a_topic_picked_with_a_foreign_channel_beside_its_object_channel(tmp_path: Path) -> None:
+    """Two channels of one topic, a String first and TrackedObjects after: `--topic` refused the
+    topic at the String channel ('holds no tracked objects') though the other channel holds the
+    objects (read without `--topic`); now both read the objects, and a topic with only the String
+    channel is still refused at it."""
+
+    def build(w: Any) -> None:
+        chatter = _ros2_channel(w, "/objects", ros_types.STRING)
+        objects = _ros2_channel(w, "/objects", ros_types.TRACKED_OBJECTS)
+        only = _ros2_channel(w, "/chatter", ros_types.STRING)
+        store = ros_types.typestore(2)
+        s = bytes(store.serialize_cdr(ros_types.make(store, ros_types.STRING, data="hi"), ros_types.STRING))
+        for i in range(3):
+            t = 10**9 + i * 50_000_000
+            w.add_message(chatter, log_time=t, data=s, publish_time=t)
+            w.add_message(only, log_time=t, data=s, publish_time=t)
+            objs = _tracked_objects(t, "map", [(1, float(i), 0.0, 0.0, 1.0)])
+            w.add_message(objects, log_time=t, data=objs, publish_time=t)
+
+    path = _write_mcap(tmp_path / "shared.mcap", build)
+    picked = mcap_reader.read(path, topic="/objects")
+    np.testing.assert_allclose(picked.column("x").to_numpy(), [0.0, 1.0, 2.0])
+    assert picked.equals(mcap_reader.read(path))
+    with pytest.raises(LogError, match=r"topic '/chatter' has schema 'std_msgs/msg/String'") as err:
+        mcap_reader.read(path, topic="/chatter")
+    assert err.value.offset is not None

@@ -108,6 +108,7 @@ class _LogDecoder:
         self.log_meta: dict[str, Any] | None = None
         self.stats = ReadStats()
         self.offset = 0  # offset of the record being decoded (for errors)
+        self.foreign: dict[str, LogError] = {}  # the --topic's channels that hold no objects
 
     # -- records
     def schema(self, buf: Any, pos: int, end: int) -> None:
@@ -174,13 +175,18 @@ class _LogDecoder:
         name = schema.name if schema else ""
         name = _ROS_NAMES.get(name, name)
         if self.topic is not None and ch.topic == self.topic and name not in OBJECT_TYPES:
-            raise LogError(
-                self.path,
-                f"topic {ch.topic!r} has schema {name or '(none)'!r} "
-                f"({schema.encoding if schema else 'no schema'}), which holds no tracked objects",
-                offset=self.offset,
-                expected=SUPPORTED,
+            # the error if no other channel of the topic holds objects (a topic may have several)
+            self.foreign.setdefault(
+                ch.topic,
+                LogError(
+                    self.path,
+                    f"topic {ch.topic!r} has schema {name or '(none)'!r} "
+                    f"({schema.encoding if schema else 'no schema'}), which holds no tracked objects",
+                    offset=self.offset,
+                    expected=SUPPORTED,
+                ),
             )
+            return None
         if name == SCENE_UPDATE:
             return self._scene_update(ch, schema)
         if name in FRAME_TRANSFORMS:
@@ -446,6 +452,8 @@ def read_log(
 def _table(path: Path, dec: _LogDecoder, topic: str | None, fixed_frames: Sequence[str] | None) -> pa.Table:
     found = {t: d for t, d in dec.topics.items() if len(d.columns)}
     if topic is not None and topic not in dec.topics:
+        if topic in dec.foreign:
+            raise dec.foreign[topic]
         listing = _listing(dec)
         raise LogError(path, f"topic {topic!r} is not in the log (topics: {listing})", expected=SUPPORTED)
     if not found:
