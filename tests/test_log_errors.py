@@ -350,10 +350,13 @@ def test_changed_message_bytes_that_still_decode_name_the_sqlite3_file(
     assert "sqlite3's own check finds the database intact" in str(err.value)
 
 
-def _ros1_records(data: bytes) -> list[tuple[int, dict[str, bytes], int, int]]:
-    """(offset, header fields, data offset, data length) of every record of a ROS 1 bag."""
-    out, pos = [], 13
-    while pos < len(data):
+def _ros1_records(
+    data: bytes, pos: int = 13, stop: int | None = None
+) -> list[tuple[int, dict[str, bytes], int, int]]:
+    """(offset, header fields, data offset, data length) of every record of a ROS 1 bag (or of an
+    uncompressed chunk's records data[pos:stop])."""
+    out = []
+    while pos < (len(data) if stop is None else stop):
         (header_len,) = struct.unpack_from("<I", data, pos)
         fields, q = {}, pos + 4
         while q < pos + 4 + header_len:
@@ -406,6 +409,18 @@ def _ros1_damage(kind: str, data: bytearray) -> tuple[int, str]:
         at = data.index(b"message_definition=", conn[2])
         data[at : at + 1] = b"x"
         return conn[0], "has no message_definition field"
+    if kind == "chunk compressed with an unknown method":
+        at = data.index(b"compression=none", chunks[1][0]) + len(b"compression=")
+        data[at : at + 4] = b"zzzz"
+        return chunks[1][0], "a chunk compressed with 'zzzz', which ROS 1 bags do not use"
+    if kind == "message on an undefined connection":
+        inner = _ros1_records(bytes(data), chunks[2][2], chunks[2][2] + chunks[2][3])
+        msg = next(r for r in inner if r[1]["op"] == b"\x02")
+        at = data.index(b"conn=", msg[0]) + len(b"conn=")
+        data[at : at + 4] = struct.pack("<I", 77)
+        return chunks[2][
+            0
+        ], f"a message at byte {msg[0] - chunks[2][2]} of the chunk's records is on connection 77"
     header = ops[0]
     at = data.index(b"index_pos=", header[0]) + len(b"index_pos=")
     data[at : at + 8] = struct.pack("<Q", chunks[1][0] + 7)
@@ -419,14 +434,17 @@ def _ros1_damage(kind: str, data: bytearray) -> tuple[int, str]:
         "index data past its chunk",
         "connection without message definition",
         "index_pos not at a record",
+        "chunk compressed with an unknown method",
+        "message on an undefined connection",
     ],
 )
 def test_ros1_index_damage_names_its_record(tmp_path: Path, table: pa.Table, kind: str) -> None:
     """A ROS 1 bag whose index lies (a chunk info pointing at a chunk another one lists, index data
     past its chunk, a connection without its definition, index_pos inside a chunk) was 'cannot read
     the bag: … Bag index looks damaged' or 'hash mismatch' or, for the chunk listed twice, a
-    checksum mismatch (lanecast's bags) or one chunk read twice and another never (others): no
-    offset. Now the record's offset and what it says."""
+    checksum mismatch (lanecast's bags) or one chunk read twice and another never (others); a chunk
+    compressed with 'zzzz' or a message on a connection never defined was 'Compression 'zzzz' is
+    not supported' or 'KeyError: 77': no offset. Now the record's offset and what it says."""
     bag = _small_chunks_ros1_bag(table, tmp_path / "b.bag")
     data = bytearray(bag.read_bytes())
     assert sum(1 for r in _ros1_records(bytes(data)) if r[1]["op"] == b"\x05") >= 3

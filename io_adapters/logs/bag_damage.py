@@ -26,6 +26,7 @@ from pathlib import Path
 
 ROS1_MAGIC = b"#ROSBAG V2.0\n"
 _U32 = struct.Struct("<I")
+_OP_MESSAGE_DATA = 0x02
 _OP_BAG_HEADER = 0x03
 _OP_INDEX_DATA = 0x04
 _OP_CHUNK = 0x05
@@ -52,6 +53,7 @@ def _ros1_walk(mm: mmap.mmap, size: int) -> tuple[int, str] | None:
     chunks: dict[int, int | None] = {}  # chunk offset → uncompressed size it states
     chunk_size: int | None = None  # of the chunk the IndexData records that follow it index
     listed: set[int] = set()  # chunks a ChunkInfo record points at
+    conns: set[int] = set()  # connections defined so far
     while pos < size:
         if pos + 4 > size:
             return pos, f"the file is truncated inside a record header ({size - pos} bytes left)"
@@ -87,7 +89,7 @@ def _ros1_walk(mm: mmap.mmap, size: int) -> tuple[int, str] | None:
                     f"ends at {size}",
                 )
         elif opcode == _OP_CHUNK:
-            problem = _chunk_problem(fields, mm[data:end])
+            problem = _chunk_problem(fields, mm[data:end], conns)
             if problem is not None:
                 return pos, problem
             chunk_size = _u32(fields.get("size"))
@@ -107,10 +109,12 @@ def _ros1_walk(mm: mmap.mmap, size: int) -> tuple[int, str] | None:
             if at in listed:
                 return pos, f"a chunk info record points at the chunk at offset {at}, which another one lists"
             listed.add(at)
-        elif opcode == _OP_CONNECTION and pos >= (index_pos or size):  # the index's copy, which rosbags reads
-            problem = _connection_problem(fields, mm[data:end])
-            if problem is not None:
-                return pos, problem
+        elif opcode == _OP_CONNECTION:
+            conns.add(_u32(fields.get("conn")) or 0)
+            if pos >= (index_pos or size):  # the index's copy, which rosbags reads
+                problem = _connection_problem(fields, mm[data:end])
+                if problem is not None:
+                    return pos, problem
         pos = end
     if index_pos is not None and index_pos not in starts:
         return header_at, f"the bag header puts the index at offset {index_pos}, where no record starts"
@@ -182,7 +186,9 @@ def _fields(mm: mmap.mmap, pos: int, end: int) -> dict[str, bytes] | None:
     return out
 
 
-def _chunk_problem(fields: dict[str, bytes], data: bytes) -> str | None:
+def _chunk_problem(fields: dict[str, bytes], data: bytes, conns: set[int]) -> str | None:
+    """What is wrong with a chunk: its compression, its size, or a record inside it (a message on a
+    connection no connection record defined before it; ``conns`` grows with those the chunk defines)."""
     compression = fields.get("compression", b"none").decode("latin-1")
     stated = struct.unpack("<I", fields["size"])[0] if len(fields.get("size", b"")) == 4 else None
     try:
@@ -192,12 +198,39 @@ def _chunk_problem(fields: dict[str, bytes], data: bytes) -> str | None:
             import lz4.frame
 
             raw = lz4.frame.decompress(data)
-        else:
+        elif compression == "none":
             raw = data
+        else:
+            return f"a chunk compressed with {compression!r}, which ROS 1 bags do not use (none, bz2 or lz4)"
     except (OSError, ValueError, RuntimeError) as exc:
         return f"a corrupt {compression} chunk: {exc}"
     if stated is not None and len(raw) != stated:
         return f"a {compression} chunk of {len(raw)} bytes, its header states {stated}"
+    return _chunk_records_problem(raw, conns)
+
+
+def _chunk_records_problem(raw: bytes, conns: set[int]) -> str | None:
+    pos = 0
+    while pos < len(raw):
+        if pos + 4 > len(raw):
+            return f"a record header at byte {pos} of the chunk's records runs past them"
+        (header_len,) = _U32.unpack_from(raw, pos)
+        header = _fields_of(raw[pos + 4 : pos + 4 + header_len]) if pos + 8 + header_len <= len(raw) else None
+        if header is None:
+            return f"a record at byte {pos} of the chunk's records runs past them"
+        (data_len,) = _U32.unpack_from(raw, pos + 4 + header_len)
+        end = pos + 8 + header_len + data_len
+        if end > len(raw):
+            return f"a record at byte {pos} of the chunk's records declares {data_len} bytes, past them"
+        op, conn = header.get("op", b"")[:1], _u32(header.get("conn"))
+        if op == bytes([_OP_CONNECTION]) and conn is not None:
+            conns.add(conn)
+        elif op == bytes([_OP_MESSAGE_DATA]) and conn not in conns:
+            return (
+                f"a message at byte {pos} of the chunk's records is on connection {conn}, which no "
+                "connection record defines before it"
+            )
+        pos = end
     return None
 
 
