@@ -292,11 +292,17 @@ def test_bad_ros2_metadata_yaml_is_named_with_its_line_and_key(
         ("UPDATE topics SET serialization_format = 'json'", "stored with serialization format 'json'"),
         ("ALTER TABLE messages RENAME TO msgs", "no table 'messages'"),
         ("ALTER TABLE topics DROP COLUMN serialization_format", "table topics: no such column"),
+        (
+            "UPDATE message_definitions SET encoded_message_definition = CAST(x'4142434445fe4647484950' AS TEXT) "
+            "WHERE rowid = 1",
+            "table message_definitions, row 1: the text is not UTF-8",
+        ),
     ],
 )
 def test_sqlite3_tables_rosbags_cannot_read_are_named(tmp_path: Path, sql: str, match: str) -> None:
     """Topics stored as JSON were 'the supported topics hold no objects' (rosbags read none of
-    their messages); a table missing was 'cannot read the bag: … or database missing tables'."""
+    their messages); a table missing was 'cannot read the bag: … or database missing tables'; a
+    message definition that is not UTF-8 was 'cannot read the bag: UnicodeDecodeError'."""
     import sqlite3
 
     bag = rosbag_writer.write(make_table(), tmp_path / "b", "ros2", storage="sqlite3")
@@ -305,6 +311,25 @@ def test_sqlite3_tables_rosbags_cannot_read_are_named(tmp_path: Path, sql: str, 
     with pytest.raises(LogError, match=match) as err:
         rosbag_reader.read(bag)
     assert err.value.path == str(bag / "b.db3")
+    if "UTF-8" in match:  # where the bytes are in the file, and the column
+        bad = bytes.fromhex("4142434445fe4647484950")
+        assert err.value.offset == (bag / "b.db3").read_bytes().index(bad)
+        assert err.value.column == "encoded_message_definition"
+
+
+def test_ros2_compression_mode_over_an_uncompressed_file_is_named(tmp_path: Path) -> None:
+    """compression_mode FILE over a plain .db3 was 'cannot read the bag: ZstdError: Unknown frame
+    descriptor' naming the bag; now metadata.yaml, the key and the file that is not compressed."""
+    bag = rosbag_writer.write(make_table(), tmp_path / "b", "ros2", storage="sqlite3")
+    meta = bag / "metadata.yaml"
+    text = meta.read_text()
+    text = text.replace("compression_format: ''", "compression_format: zstd")
+    meta.write_text(text.replace("compression_mode: ''", "compression_mode: FILE"))
+    with pytest.raises(LogError, match=r"compression_mode 'FILE', but b\.db3 is not zstd-compressed") as err:
+        rosbag_reader.read(bag)
+    assert (
+        err.value.path == str(meta) and err.value.column == "compression_mode" and err.value.line is not None
+    )
 
 
 @pytest.mark.parametrize("first_line", [b"#ROSBAG V1.2\n", b"#ROSBAG V2.0 ", b"#ROSBAG Vx.y\n"])

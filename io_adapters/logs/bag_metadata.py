@@ -20,6 +20,8 @@ from lanecast.io_adapters.errors import LogError
 VERSIONS = range(1, 10)  # the rosbag2 metadata versions rosbags reads
 STORAGE_MAGIC = {"sqlite3": b"SQLite format 3\x00", "mcap": b"\x89MCAP0\r\n"}
 INFO = "rosbag2_bagfile_information"
+ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"
+TEXT_TABLES = ("topics", "message_definitions", "metadata")  # small tables rosbags reads as text
 
 
 def check_metadata(bag: Path) -> None:
@@ -82,6 +84,19 @@ def check_metadata(bag: Path) -> None:
                     f"storage plugin {storage!r}, but {name} is a {wrong[0]} file",
                     f"storage_identifier: {wrong[0]}",
                 )
+    mode, compression = (info.get("compression_mode") or "").lower(), info.get("compression_format") or ""
+    if mode in ("file", "message") and compression != "zstd":
+        raise fail(info, "compression_format", f"compression {compression!r}", "zstd (what rosbag2 writes)")
+    if mode == "file":
+        for name in names:
+            with open(bag / name, "rb") as f:
+                if f.read(4) != ZSTD_MAGIC:
+                    raise fail(
+                        info,
+                        "compression_mode",
+                        f"compression_mode {info['compression_mode']!r}, but {name} is not zstd-compressed",
+                        "a zstd file, or no compression_mode",
+                    )
     for entry in info.get("topics_with_message_count") or []:
         topic = entry.get("topic_metadata") if isinstance(entry, dict) else None
         if isinstance(topic, dict) and topic.get("serialization_format", "cdr") != "cdr":
@@ -115,10 +130,22 @@ def check_sqlite_tables(db: Path) -> None:
                 raise LogError(
                     db, f"table topics: {exc}", expected="the columns name and serialization_format"
                 ) from exc
+            bad_text = _not_utf8(con, tables)
         finally:
             con.close()
     except sqlite3.Error:
         return  # a damaged file: the reader's own path locates the damage
+    if bad_text is not None:
+        table, rowid, column, raw, reason = bad_text
+        from lanecast.io_adapters.logs.bag_damage import message_offset
+
+        raise LogError(
+            db,
+            f"table {table}, row {rowid}: the text is not UTF-8 ({reason})",
+            offset=message_offset(db, raw),
+            column=column,
+            expected="UTF-8 text",
+        )
     for name, fmt in rows:
         if fmt != "cdr":
             raise LogError(
@@ -126,3 +153,20 @@ def check_sqlite_tables(db: Path) -> None:
                 f"topic {name!r} is stored with serialization format {fmt!r} (table topics)",
                 expected="cdr (lanecast reads ROS 2 messages in CDR)",
             )
+
+
+def _not_utf8(con: Any, tables: set[str]) -> tuple[str, int, str, bytes, str] | None:
+    """(table, rowid, column, bytes, why) of the first text value of the small tables that is not
+    UTF-8 (rosbags fails on it with a bare UnicodeDecodeError), or None."""
+    for table in TEXT_TABLES:
+        if table not in tables:
+            continue
+        columns = [r[1] for r in con.execute(f"PRAGMA table_info({table})")]
+        for column in columns:
+            query = f'SELECT rowid, CAST("{column}" AS BLOB) FROM {table} WHERE typeof("{column}") = \'text\''
+            for rowid, raw in con.execute(query):
+                try:
+                    bytes(raw).decode("utf-8")
+                except UnicodeDecodeError as exc:
+                    return table, rowid, column, bytes(raw), f"{exc.reason} at byte {exc.start}"
+    return None
