@@ -454,3 +454,69 @@ def test_ros1_index_damage_names_its_record(tmp_path: Path, table: pa.Table, kin
         rosbag_reader.read(bag)
     assert err.value.path == str(bag) and err.value.offset == offset
     assert text in str(err.value)
+
+
+def _mcap_records(data: bytes) -> list[tuple[int, int, int]]:
+    """(offset, opcode, length) of the top-level records of an MCAP up to its footer."""
+    out, pos = [], 8
+    while pos + 9 <= len(data) - 8:
+        op, n = struct.unpack_from("<BQ", data, pos)
+        out.append((pos, op, n))
+        if op == 0x02:
+            break
+        pos += 9 + n
+    return out
+
+
+@pytest.mark.parametrize("damage", ["name length", "data length", "crc"])
+def test_damaged_attachment_is_named_by_convert_and_annotate(tmp_path: Path, damage: str) -> None:
+    """An Attachment record whose fields do not fit it (or whose CRC is wrong) was read without a
+    word by convert and refused by annotate's copy as 'cannot copy the MCAP: ' (no reason, the
+    offset of the read buffer); now both name the record's offset and what is wrong."""
+    import zlib
+
+    import pyarrow.parquet as pq
+    from conftest import forecasts_for, make_mcap
+
+    from lanecast.workflows.annotate_log import AnnotateOptions, annotate_log
+
+    log = make_mcap(tmp_path / "log.mcap", n=40)
+    pq.write_table(forecasts_for("log", [1, 2], [1]), tmp_path / "fc.parquet")  # no track reading: the copy
+    data = bytearray(log.read_bytes())
+    at = next(o for o, op, _ in _mcap_records(bytes(data)) if op == 0x09)
+    if damage == "name length":
+        struct.pack_into("<I", data, at + 9 + 16, 10**6)
+    elif damage == "data length":
+        pos = at + 9 + 16
+        pos += 4 + struct.unpack_from("<I", data, pos)[0]
+        pos += 4 + struct.unpack_from("<I", data, pos)[0]
+        struct.pack_into("<Q", data, pos, 10**9)
+    else:
+        n = struct.unpack_from("<Q", data, at + 1)[0]
+        struct.pack_into("<I", data, at + 9 + n - 4, 0xDEADBEEF)
+    end = next(o for o, op, _ in _mcap_records(bytes(data)) if op == 0x0F)  # the writer meant it: data CRC ok
+    struct.pack_into("<I", data, end + 9, zlib.crc32(bytes(data[:end])))
+    log.write_bytes(bytes(data))
+    with pytest.raises(LogError, match="corrupt Attachment record") as err:
+        mcap_reader.read_log(log)
+    assert err.value.path == str(log) and err.value.offset == at
+    if damage == "crc":  # the mcap library's copy checks no attachment CRC (the data section's is right)
+        return
+    with pytest.raises(LogError, match="corrupt Attachment record") as err:
+        annotate_log(log, tmp_path / "out.mcap", AnnotateOptions(forecasts=tmp_path / "fc.parquet"))
+    assert err.value.offset == at and not (tmp_path / "out.mcap").exists()
+
+
+def test_annotating_a_file_of_only_the_mcap_magic_says_it_is_truncated(tmp_path: Path) -> None:
+    """'cannot read the MCAP header: ' (the mcap library's empty message) at offset 0; now the
+    reader's own error: truncated at 8 bytes, without a footer."""
+    from lanecast.workflows.annotate_log import AnnotateOptions, annotate_log
+
+    log = tmp_path / "log.mcap"
+    log.write_bytes(b"\x89MCAP0\r\n")
+    with pytest.raises(LogError, match="the file is truncated: it ends at 8 bytes without a footer") as err:
+        annotate_log(log, tmp_path / "out.mcap", AnnotateOptions())
+    assert err.value.offset == 8
+    log.write_bytes(b"")
+    with pytest.raises(LogError, match="the file is empty"):
+        annotate_log(log, tmp_path / "out.mcap", AnnotateOptions())

@@ -70,6 +70,10 @@ def log_kind(path: Path) -> str:
             head = f.read(16)
     except OSError as exc:
         raise InputError(path, f"cannot open: {exc.strerror}") from exc
+    if not head:
+        raise LogError(
+            path, "the file is empty", offset=0, expected="an MCAP file, a ROS 1 bag or a ROS 2 bag directory"
+        )
     if head.startswith(MCAP_MAGIC):
         return "mcap"
     if head.startswith(ROS1_MAGIC):

@@ -28,7 +28,7 @@ MAGIC = b"\x89MCAP0\r\n"
 OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06
 
 
-OP_MESSAGE_INDEX, OP_STATISTICS, OP_METADATA, OP_DATA_END = 0x07, 0x0B, 0x0C, 0x0F
+OP_MESSAGE_INDEX, OP_ATTACHMENT, OP_STATISTICS, OP_METADATA, OP_DATA_END = 0x07, 0x09, 0x0B, 0x0C, 0x0F
 
 
 _MAX_OP = 0x10
@@ -170,6 +170,25 @@ def chunk_payload(buf: Any, body: int, end: int) -> bytes:
     if crc and zlib.crc32(data) != crc:
         raise ValueError(f"CRC mismatch (stored {crc:#010x}, computed {zlib.crc32(data):#010x})")
     return data
+
+
+def check_attachment(buf: Any, body: int, end: int) -> None:
+    """ValueError unless buf[body:end] is an Attachment record's body: log and create time, name,
+    media type, data, and a CRC (0: not computed) of everything before it."""
+    if body + 16 > end:
+        raise ValueError("too short for its times")
+    _name, pos = read_string(buf, body + 16, end)
+    _media_type, pos = read_string(buf, pos, end)
+    if pos + 8 > end:
+        raise ValueError("the data length runs past the record")
+    (n,) = struct.unpack_from("<Q", buf, pos)
+    if pos + 8 + n + 4 != end:
+        raise ValueError(f"{n:,} bytes of data and a CRC do not fill the record's {end - pos - 8:,} bytes")
+    (crc,) = struct.unpack_from("<I", buf, pos + 8 + n)
+    if crc and crc32_of(buf, body, pos + 8 + n) != crc:
+        raise ValueError(
+            f"CRC mismatch (stored {crc:#010x}, computed {crc32_of(buf, body, pos + 8 + n):#010x})"
+        )
 
 
 def index_offsets(buf: Any, pos: int, size: int) -> np.ndarray | None:
@@ -335,6 +354,13 @@ def walk(buf: Any, path: Path, dec: RecordSink, salvage: bool) -> None:
                 except (ValueError, struct.error) as exc:
                     raise LogDamage(
                         pos, f"corrupt {_OP_NAMES[op]} record: {exc}", f"a valid {_OP_NAMES[op]} record", True
+                    ) from exc
+            elif op == OP_ATTACHMENT:  # copied by annotate: its fields must hold, its CRC match
+                try:
+                    check_attachment(buf, body, nxt)
+                except (ValueError, struct.error) as exc:
+                    raise LogDamage(
+                        pos, f"corrupt Attachment record: {exc}", "a valid Attachment record", True
                     ) from exc
             elif op == OP_DATA_END:
                 data_end_seen = True
