@@ -342,3 +342,18 @@ def test_ros1_bag_of_another_version_says_which(tmp_path: Path, first_line: byte
         registry.read_any([bag])
     assert err.value.path == str(bag) and err.value.offset == 0
     assert first_line.rstrip(b"\n").decode() in str(err.value) and "'#ROSBAG V2.0'" in str(err.value)
+
+
+def test_files_beside_a_ros2_bag_that_metadata_yaml_does_not_list_are_not_read(tmp_path: Path) -> None:
+    """A cut-short .mcap left beside a sqlite3 bag's .db3 (not in metadata.yaml, so not the bag's)
+    made the bag unreadable ('old.mcap, offset 8: the file is truncated'); now only the listed
+    storage files are checked, and a listed file that is damaged is still named."""
+    bag = rosbag_writer.write(make_table(), tmp_path / "b", "ros2", storage="sqlite3")
+    (bag / "old.mcap").write_bytes(b"\x89MCAP0\r\n" + b"\x01" * 20)
+    (bag / "old.db3").write_bytes(b"SQLite format 3\x00" + b"\x10\x00" + bytes(82))
+    assert rosbag_reader.read(bag).num_rows == make_table().num_rows
+    data = (bag / "b.db3").read_bytes()
+    (bag / "b.db3").write_bytes(data[: len(data) // 2])
+    with pytest.raises(LogError, match="truncated") as err:
+        rosbag_reader.read(bag)
+    assert err.value.path == str(bag / "b.db3")

@@ -24,8 +24,9 @@ ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"
 TEXT_TABLES = ("topics", "message_definitions", "metadata")  # small tables rosbags reads as text
 
 
-def check_metadata(bag: Path) -> None:
-    """LogError naming ``bag/metadata.yaml`` (line, key) for metadata rosbags would misread."""
+def check_metadata(bag: Path) -> list[Path]:
+    """The storage files ``bag/metadata.yaml`` lists (the files rosbags reads, whatever else the
+    directory holds); LogError naming it (line, key) for metadata rosbags would misread."""
     from ruamel.yaml import YAML
     from ruamel.yaml.error import MarkedYAMLError, YAMLError
 
@@ -106,6 +107,7 @@ def check_metadata(bag: Path) -> None:
                 f"topic {topic.get('name')!r} is serialized as {topic['serialization_format']!r}",
                 "cdr (lanecast reads ROS 2 messages in CDR)",
             )
+    return [bag / name for name in names]
 
 
 def check_sqlite_tables(db: Path) -> None:

@@ -80,10 +80,10 @@ def read_log(
                 expected="'#ROSBAG V2.0' (the only ROS 1 bag version lanecast reads)",
             )
     if target.is_dir():  # rosbags does not check MCAP CRCs: check them first (sqlite3 has none)
-        bag_metadata.check_metadata(target)
-        for storage_file in sorted(target.glob("*.mcap")):
+        listed = bag_metadata.check_metadata(target)  # other files in the directory are not the bag's
+        for storage_file in (f for f in listed if f.suffix == ".mcap"):
             verify_crcs(storage_file)
-        for storage_file in sorted(target.glob("*.db3")):  # a file cut short may still open
+        for storage_file in (f for f in listed if f.suffix == ".db3"):  # a file cut short may still open
             cut = bag_damage.sqlite_truncation(storage_file)
             if cut is not None:
                 raise LogError(storage_file, cut[1], offset=cut[0], expected="an intact ROS bag")
@@ -175,8 +175,9 @@ def _located_damage_error(target: Path, ros1: bool) -> LogError | None:
 def _located_damage(target: Path, ros1: bool) -> tuple[Path, int, str] | None:
     """(file, byte offset, what is wrong) of a bag rosbags failed to read, where its structure
     shows it (a file cut short, a corrupt chunk), else None: rosbags' errors give no offset."""
-    files = [target] if ros1 else sorted(target.glob("*.db3"))
-    for file in files:
+    for file in _storage_files(target, ros1):
+        if not ros1 and file.suffix == ".mcap":
+            continue  # checked before reading (verify_crcs)
         try:
             found = bag_damage.ros1_damage(file) if ros1 else bag_damage.sqlite_damage(file)
         except OSError:
@@ -187,7 +188,7 @@ def _located_damage(target: Path, ros1: bool) -> tuple[Path, int, str] | None:
 
 
 def _storage_files(target: Path, ros1: bool) -> list[Path]:
-    return [target] if ros1 else sorted([*target.glob("*.db3"), *target.glob("*.mcap")])
+    return [target] if ros1 else bag_metadata.check_metadata(target)
 
 
 def _decode(
