@@ -738,3 +738,20 @@ def test_a_topic_picked_with_a_foreign_channel_beside_its_object_channel(tmp_pat
     with pytest.raises(LogError, match=r"topic '/chatter' has schema 'std_msgs/msg/String'") as err:
         mcap_reader.read(path, topic="/chatter")
     assert err.value.offset is not None
+
+
+def test_a_topic_whose_messages_all_have_one_log_time_is_refused(tmp_path: Path) -> None:
+    """A recorder that left every time 0 (log times and header stamps): was read as one frame per
+    track, the other rows dropped as duplicates with a warning; now refused, naming the topic and
+    the time."""
+
+    def build(w: Any) -> None:
+        objects = _ros2_channel(w, "/objects", ros_types.TRACKED_OBJECTS)
+        for i in range(5):
+            data = _tracked_objects(0, "map", [(1, float(i), 0.0, 0.0, 1.0)])
+            w.add_message(objects, log_time=0, data=data, publish_time=10**9 + i * 100_000_000)
+
+    path = _write_mcap(tmp_path / "zero.mcap", build)
+    with pytest.raises(LogError, match=r"topic '/objects': all 5 messages are stamped 0 ns") as err:
+        mcap_reader.read(path)
+    assert err.value.path == str(path)

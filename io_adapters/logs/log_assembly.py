@@ -28,7 +28,7 @@ from lanecast.io_adapters.contracts.track_runs import (
     row_extent,
     run_starts,
 )
-from lanecast.io_adapters.errors import FrameError
+from lanecast.io_adapters.errors import FrameError, LogError
 from lanecast.io_adapters.logs.frame_transforms import Transforms
 from lanecast.io_adapters.logs.log_conventions import FIXED_FRAMES, KNOWN_CLASSES, MARKER_SUFFIX
 from lanecast.io_adapters.logs.tracked_objects import Categorical, ObjectColumns, rotate
@@ -155,6 +155,14 @@ def assemble(
         spec = recordings_meta.get(name) if name else None
         rec_name = name or (f"{stem}-{tp.strip('/').replace('/', '-')}" if multi else stem)
         cols, classes, frame_ids = data.columns.arrays()
+        times = cols["msg_time"]
+        if data.columns.messages > 1 and times.size and times.min() == times.max():
+            raise LogError(
+                path,
+                f"topic {tp!r}: all {data.columns.messages:,} messages are stamped {int(times[0])} ns "
+                "(their recorder set no times): one frame, every other row a duplicate",
+                expected="message times (header stamps, else log times) that advance",
+            )
         marker = topics.get(tp + MARKER_SUFFIX)
         if spec is not None and marker is not None and marker is not data:
             classes = _merge_markers(cols, classes, marker.columns)
