@@ -520,3 +520,67 @@ def test_annotating_a_file_of_only_the_mcap_magic_says_it_is_truncated(tmp_path:
     log.write_bytes(b"")
     with pytest.raises(LogError, match="the file is empty"):
         annotate_log(log, tmp_path / "out.mcap", AnnotateOptions())
+
+
+def _prediction_doc() -> dict[str, object]:
+    target = {
+        "track_id": 4,
+        "origin": [0.0, 0.0],
+        "x": [1.0, 2.0, 3.0, 4.0, 5.0],
+        "y": [0.0] * 5,
+        "maneuver": [0] * 5,
+        "maneuver_probs": [[0.9, 0.05, 0.05]] * 5,
+        "alternatives": [{"prob": 0.1, "x": [1.0] * 5, "y": [0.5] * 5, "maneuver": [1] * 5}],
+    }
+    return {
+        "recording": "r",
+        "frame_id": "map",
+        "t0_ns": 3_000_000_000,
+        "horizon_s": [1, 2, 3, 4, 5],
+        "targets": [target],
+    }
+
+
+@pytest.mark.parametrize(
+    ("edit", "column", "expected"),
+    [
+        (lambda d: d["targets"][0].update(x=[1.0, 2.0, 3.0, 4.0]), "targets[0].x", "5 finite numbers"),
+        (lambda d: d["targets"][0]["y"].__setitem__(2, None), "targets[0].y", "5 finite numbers"),
+        (lambda d: d.pop("targets"), "targets", "a list"),
+        (lambda d: d["targets"][0].update(track_id="car-7"), "targets[0].track_id", "an integer"),
+        (lambda d: d.update(t0_ns="soon"), "t0_ns", "an integer (ns)"),
+        (lambda d: d["targets"][0].update(maneuver_probs=[[1, 0]]), "targets[0].maneuver_probs", "null or 5"),
+        (
+            lambda d: d["targets"][0]["alternatives"][0].pop("x"),
+            "targets[0].alternatives[0]",
+            "an object with",
+        ),
+    ],
+)
+def test_a_bad_prediction_document_names_its_message_and_field(
+    tmp_path: Path, edit: object, column: str, expected: str
+) -> None:
+    """`lanecast report` on a log whose /lanecast/prediction JSON has a field of the wrong shape or
+    type (4 points, a null coordinate, no targets, a string track id): a ValueError/KeyError/
+    TypeError traceback, or (a null point) NaN taken into the metrics; now the message, its log
+    time and the field."""
+    import json
+
+    from mcap.writer import Writer
+
+    from lanecast.workflows.log_report import prediction_documents
+
+    bad = _prediction_doc()
+    edit(bad)  # type: ignore[operator]
+    log = tmp_path / "annotated.mcap"
+    with log.open("wb") as f:
+        w = Writer(f)
+        w.start()
+        cid = w.register_channel("/lanecast/prediction", "json", 0)
+        for i, doc in enumerate([_prediction_doc(), bad]):
+            w.add_message(cid, log_time=(i + 1) * 10**9, data=json.dumps(doc).encode(), publish_time=0)
+        w.finish()
+    with pytest.raises(LogError, match=r"/lanecast/prediction message 2 \(log time 2000000000 ns\)") as err:
+        prediction_documents(log)
+    assert err.value.path == str(log) and err.value.column == column
+    assert (err.value.expected or "").startswith(expected)

@@ -25,6 +25,7 @@ from rosbags.highlevel import AnyReader
 
 from lanecast.io_adapters import registry
 from lanecast.io_adapters.annotations.forecast_messages import PREDICTION_TOPIC
+from lanecast.io_adapters.annotations.prediction_json import document_problem
 from lanecast.io_adapters.contracts.windows import to_window_frame
 from lanecast.io_adapters.errors import InputError, LanecastError, LogError
 from lanecast.io_adapters.files import progress, staged_files
@@ -96,9 +97,9 @@ def _prediction_documents(log: Path) -> list[dict[str, Any]]:
     if log.is_dir():  # a ROS 2 bag: std_msgs/msg/String holding the JSON
         with AnyReader([log]) as reader:
             conns = [c for c in reader.connections if c.topic == PREDICTION_TOPIC]
-            for conn, _, raw in reader.messages(connections=conns):
+            for conn, log_time, raw in reader.messages(connections=conns):
                 message: Any = reader.deserialize(raw, conn.msgtype)
-                docs.append(json.loads(message.data))
+                docs.append(_document(log, len(docs), log_time, message.data))
     else:
         with log.open("rb") as fh:
             mcap_reader = make_reader(fh, validate_crcs=True)
@@ -107,8 +108,28 @@ def _prediction_documents(log: Path) -> list[dict[str, Any]]:
                 if channel.message_encoding == "cdr":  # std_msgs/String: header, length, text, NUL
                     length = int.from_bytes(data[4:8], "little")
                     data = data[8 : 8 + length - 1]
-                docs.append(json.loads(data))
+                docs.append(_document(log, len(docs), message.log_time, data))
     return docs
+
+
+def _document(log: Path, index: int, log_time: int, text: str | bytes) -> dict[str, Any]:
+    """One /lanecast/prediction message's document, checked field by field (a log edited or
+    written by another tool): LogError naming the message, its log time and the field."""
+    where = f"{PREDICTION_TOPIC} message {index + 1} (log time {log_time} ns)"
+    try:
+        doc = json.loads(text)
+    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as exc:
+        raise LogError(
+            log, f"{where}: not JSON: {exc}", expected="a lanecast.Prediction JSON document"
+        ) from exc
+    problem = document_problem(doc)
+    if problem is not None:
+        field, expected = problem
+        what = f"field {field}" if field else "the document"
+        raise LogError(
+            log, f"{where}: {what} has the wrong type or shape", column=field or None, expected=expected
+        )
+    return dict(doc)
 
 
 def log_forecasts(docs: list[dict[str, Any]]) -> LogForecasts:

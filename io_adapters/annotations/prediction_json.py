@@ -174,3 +174,64 @@ def prediction_dict(frame: ForecastFrame) -> dict[str, Any]:
     """The /lanecast/prediction document of a frame (follows :data:`PREDICTION_SCHEMA`)."""
     doc: dict[str, Any] = json.loads(prediction_texts(ForecastBatch.of(frame))[0])
     return doc
+
+
+def document_problem(doc: Any) -> tuple[str, str] | None:
+    """(field, what it should be) of the first field of a /lanecast/prediction document that
+    :data:`PREDICTION_SCHEMA` (with ``N_STEPS`` points, finite coordinates, 3 probabilities a step)
+    does not allow, or None: the check a reader of a log it did not write needs."""
+    if not isinstance(doc, dict):
+        return "", "a JSON object"
+    if not isinstance(doc.get("recording"), str):
+        return "recording", "a string"
+    if not _is_int(doc.get("t0_ns")):
+        return "t0_ns", "an integer (ns)"
+    targets = doc.get("targets")
+    if not isinstance(targets, list):
+        return "targets", "a list"
+    for j, t in enumerate(targets):
+        where = f"targets[{j}]"
+        if not isinstance(t, dict):
+            return where, "an object"
+        if not _is_int(t.get("track_id")):
+            return f"{where}.track_id", "an integer"
+        for key in ("x", "y"):
+            if not _points(t.get(key)):
+                return f"{where}.{key}", f"{N_STEPS} finite numbers"
+        m = t.get("maneuver")
+        if not (isinstance(m, list) and len(m) == N_STEPS and all(_is_int(v) and -1 <= v <= 2 for v in m)):
+            return f"{where}.maneuver", f"{N_STEPS} integers from -1 to 2"
+        p = t.get("maneuver_probs")
+        if p is not None and not (
+            isinstance(p, list)
+            and len(p) == N_STEPS
+            and all(
+                isinstance(s, list) and len(s) == len(MANEUVERS) and all(_number(v) for v in s) for s in p
+            )
+        ):
+            return f"{where}.maneuver_probs", f"null or {N_STEPS} lists of {len(MANEUVERS)} numbers or nulls"
+        alts = t.get("alternatives", [])
+        if not isinstance(alts, list):
+            return f"{where}.alternatives", "a list"
+        for k, a in enumerate(alts):
+            if not isinstance(a, dict) or not _points(a.get("x")) or not _points(a.get("y")):
+                return f"{where}.alternatives[{k}]", f"an object with x and y of {N_STEPS} finite numbers"
+            if not _number(a.get("prob")):
+                return f"{where}.alternatives[{k}].prob", "a number or null"
+    return None
+
+
+def _is_int(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool) and -(2**63) <= v < 2**63
+
+
+def _number(v: Any) -> bool:
+    return v is None or (isinstance(v, (int, float)) and not isinstance(v, bool))
+
+
+def _points(v: Any) -> bool:
+    return (
+        isinstance(v, list)
+        and len(v) == N_STEPS
+        and all(isinstance(c, (int, float)) and not isinstance(c, bool) and np.isfinite(c) for c in v)
+    )
