@@ -501,3 +501,33 @@ def test_a_refused_run_and_a_finished_run_leave_no_lock_in_out_dir(tmp_path: Pat
                 pass
         assert (out / LOCK).exists()
     assert not (out / LOCK).exists()
+
+
+def test_a_corrupt_ros1_chunk_copied_with_given_forecasts_names_the_chunk(tmp_path: Path) -> None:
+    """Forecasts given (no tracks read first), a ROS 1 bag with a corrupt lz4 chunk: was
+    'RuntimeError: LZ4F_decompress failed' naming no file; now the bag and the chunk's offset."""
+    from rosbags.rosbag1 import Writer as Bag1Writer
+    from rosbags.typesys import Stores, get_typestore
+    from test_log_errors import _ros1_records
+
+    store = get_typestore(Stores.ROS1_NOETIC)
+    src = tmp_path / "drive1.bag"
+    w = Bag1Writer(src)
+    w.set_compression(Bag1Writer.CompressionFormat.LZ4)
+    w.chunk_threshold = 2048
+    with w:
+        conn = w.add_connection("/chatter", "std_msgs/msg/String", typestore=store)
+        for i in range(400):
+            msg = store.types["std_msgs/msg/String"](data=f"message {i} " * 4)
+            w.write(
+                conn, 10_000_000 + i * 100_000_000, bytes(store.serialize_ros1(msg, "std_msgs/msg/String"))
+            )
+    data = bytearray(src.read_bytes())
+    chunk = [r for r in _ros1_records(bytes(data)) if r[1]["op"] == b"\x05"][1]
+    data[chunk[2] + chunk[3] // 2 : chunk[2] + chunk[3] // 2 + 16] = bytes(16)
+    src.write_bytes(bytes(data))
+    out = tmp_path / "drive1.mcap"
+    with pytest.raises(LogError, match="a corrupt lz4 chunk") as err:
+        annotate_log(src, out, forecasts=forecasts_for("drive1", [1, 2], [4]))
+    assert err.value.path == str(src) and err.value.offset == chunk[0]
+    assert not out.exists()

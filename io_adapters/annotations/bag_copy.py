@@ -30,6 +30,8 @@ from lanecast.io_adapters.annotations.mcap_copy import (
     zstd_writer,
 )
 from lanecast.io_adapters.errors import LogError
+from lanecast.io_adapters.logs.bag_damage import ros1_damage, sqlite_damage
+from lanecast.io_adapters.logs.bag_metadata import check_metadata
 
 
 def copy_ros1_to_mcap(
@@ -38,7 +40,6 @@ def copy_ros1_to_mcap(
     """Every connection and message of ROS 1 bag ``src`` into an MCAP (no profile: the extra
     channels may use other encodings), merging ``merge``'s messages in log-time order."""
     from rosbags.rosbag1 import Reader
-    from rosbags.rosbag1.reader import ReaderError
 
     src = Path(src)
     merge = merge or Merge()
@@ -99,12 +100,30 @@ def copy_ros1_to_mcap(
                 writer.add_message(channel_of[conn.id], timestamp, bytes(data), timestamp, 0)
                 copying.copied()
             copying.before(None)
-    except ReaderError as exc:
-        raise LogError(src, f"cannot read the ROS 1 bag: {exc}") from exc
+    except LogError:
+        raise
+    except Exception as exc:  # rosbags' reading: ReaderError, a corrupt bz2/lz4 chunk, …
+        raise unreadable(src, exc, "ROS 1") from exc
     writer.finish()
     copying.done()
     stats.bytes_out = out.tell()
     return stats
+
+
+def unreadable(src: Path, exc: Exception, kind: str) -> Exception:
+    """The error for a bag rosbags failed to copy (read without lanecast's reader first, as with
+    precomputed forecasts): where its structure shows the damage, the file and offset; an error of
+    the system (a full disk: an OSError with an errno) as it is."""
+    if isinstance(exc, OSError) and exc.errno is not None:
+        return exc
+    files = [src] if kind == "ROS 1" else [f for f in check_metadata(src) if f.suffix == ".db3"]
+    for file in files:
+        found = ros1_damage(file) if kind == "ROS 1" else sqlite_damage(file)
+        if found is not None:
+            return LogError(file, found[1], offset=found[0], expected="an intact ROS bag")
+    return LogError(
+        src, f"cannot read the {kind} bag: {type(exc).__name__}: {exc}", expected="an intact ROS bag"
+    )
 
 
 def ros2_custom_data(bag: Path) -> dict[str, str]:
@@ -126,7 +145,6 @@ def copy_ros2_bag(src: Path, dst: Path, merge: Merge | None = None, *, typestore
     not exist; same storage plugin, the same ``custom_data`` in metadata.yaml), merging ``merge``'s
     messages on CDR topics registered from ``typestore``."""
     from rosbags.rosbag2 import Reader, Writer
-    from rosbags.rosbag2.errors import ReaderError
     from rosbags.rosbag2.writer import StoragePlugin
 
     src = Path(src)
@@ -171,8 +189,10 @@ def copy_ros2_bag(src: Path, dst: Path, merge: Merge | None = None, *, typestore
                 copying.before(None)
             finally:
                 writer.close()
-    except ReaderError as exc:
-        raise LogError(src, f"cannot read the ROS 2 bag: {exc}") from exc
+    except LogError:
+        raise
+    except Exception as exc:  # rosbags' reading: ReaderError, a damaged sqlite3 page, …
+        raise unreadable(src, exc, "ROS 2") from exc
     compress_bag_storage(dst)
     copying.done()
     stats.bytes_out = sum(p.stat().st_size for p in dst.rglob("*") if p.is_file())
