@@ -10,6 +10,7 @@ from text templates filled column-wise, without a dict per target. In ROS 2 logs
 from __future__ import annotations
 
 import json
+import math
 from typing import Any
 
 import numpy as np
@@ -230,8 +231,9 @@ def _number(v: Any) -> bool:
 
 
 def _points(v: Any) -> bool:
-    return (
-        isinstance(v, list)
-        and len(v) == N_STEPS
-        and all(isinstance(c, (int, float)) and not isinstance(c, bool) and np.isfinite(c) for c in v)
-    )
+    if not isinstance(v, list) or len(v) != N_STEPS:
+        return False
+    try:
+        return all(type(c) is not bool and math.isfinite(c) for c in v)
+    except TypeError:  # not a number (a string, null, a list)
+        return False
