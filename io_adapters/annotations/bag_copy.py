@@ -130,6 +130,7 @@ def ros2_custom_data(bag: Path) -> dict[str, str]:
     """The ``custom_data`` of a ROS 2 bag's metadata.yaml (string keys and values; empty if none)."""
     from ruamel.yaml import YAML  # rosbags' own YAML library
 
+    check_metadata(Path(bag))  # an alias bomb in custom_data is refused before it is expanded
     try:
         doc = YAML(typ="safe").load((Path(bag) / "metadata.yaml").read_text(encoding="utf-8"))
         custom = doc["rosbag2_bagfile_information"].get("custom_data") or {}

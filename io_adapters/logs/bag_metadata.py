@@ -20,6 +20,7 @@ from lanecast.io_adapters.errors import LogError
 VERSIONS = range(1, 10)  # the rosbag2 metadata versions rosbags reads
 STORAGE_MAGIC = {"sqlite3": b"SQLite format 3\x00", "mcap": b"\x89MCAP0\r\n"}
 INFO = "rosbag2_bagfile_information"
+MAX_VALUES = 200_000  # a metadata.yaml holds some 20 values per topic and file; an alias bomb, billions
 ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"
 TEXT_TABLES = ("topics", "message_definitions", "metadata")  # small tables rosbags reads as text
 
@@ -45,6 +46,12 @@ def check_metadata(bag: Path) -> list[Path]:
         line = mark.line + 1 if mark is not None else None
         problem = getattr(exc, "problem", None) or str(exc)
         raise LogError(path, f"not YAML: {problem}", line=line, expected="a rosbag2 metadata.yaml") from exc
+    if _expanded_size(doc, MAX_VALUES) > MAX_VALUES:  # before anything walks or copies it
+        raise LogError(
+            path,
+            f"expands to more than {MAX_VALUES:,} values (YAML aliases repeating one another)",
+            expected="a rosbag2 metadata.yaml (a few values per topic and file)",
+        )
     info = doc.get(INFO) if isinstance(doc, dict) else None
     if not isinstance(info, dict):
         raise LogError(path, f"no {INFO} mapping", line=1, expected="a rosbag2 metadata.yaml")
@@ -172,3 +179,15 @@ def _not_utf8(con: Any, tables: set[str]) -> tuple[str, int, str, bytes, str] | 
                 except UnicodeDecodeError as exc:
                     return table, rowid, column, bytes(raw), f"{exc.reason} at byte {exc.start}"
     return None
+
+
+def _expanded_size(node: Any, budget: int) -> int:
+    """The values of a loaded YAML document as a walk that follows its aliases meets them, counted
+    up to ``budget`` + 1 (nested aliases make a few lines billions of values)."""
+    count, stack = 1, [node]
+    while stack and count <= budget:
+        item = stack.pop()
+        values = item.values() if isinstance(item, dict) else item if isinstance(item, list) else ()
+        count += len(values)
+        stack.extend(v for v in values if isinstance(v, (dict, list)))
+    return count
