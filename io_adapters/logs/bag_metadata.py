@@ -16,6 +16,7 @@ from pathlib import Path, PurePath
 from typing import Any
 
 from lanecast.io_adapters.errors import LogError
+from lanecast.io_adapters.logs.bag_damage import message_offset
 
 VERSIONS = range(1, 10)  # the rosbag2 metadata versions rosbags reads
 STORAGE_MAGIC = {"sqlite3": b"SQLite format 3\x00", "mcap": b"\x89MCAP0\r\n"}
@@ -146,8 +147,6 @@ def check_sqlite_tables(db: Path) -> None:
         return  # a damaged file: the reader's own path locates the damage
     if bad_text is not None:
         table, rowid, column, raw, reason = bad_text
-        from lanecast.io_adapters.logs.bag_damage import message_offset
-
         raise LogError(
             db,
             f"table {table}, row {rowid}: the text is not UTF-8 ({reason})",
