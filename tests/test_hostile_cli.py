@@ -949,6 +949,28 @@ def test_a_log_that_fails_in_annotate_ends_stderr_with_its_error(
     assert (out / "good.mcap").is_file() and not (out / "cut.mcap").exists()
 
 
+def test_annotate_of_only_a_damaged_log_is_refused_and_leaves_nothing(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """One truncated log: exit 1 and an OUT_DIR holding only a manifest of the failure. Now exit 2
+    (a refused input, as every command) and no OUT_DIR; an OUT_DIR that existed keeps its manifest
+    (the resume state of earlier runs); exit 1 is for a run where other logs were annotated."""
+    from test_hostile_inputs import json_log, straight_messages
+
+    good = json_log(tmp_path / "good.mcap", straight_messages(n=60))
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(good.read_bytes()[: good.stat().st_size // 2])
+    out = tmp_path / "out"
+    assert main(["annotate", str(cut), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith(f"lanecast annotate: error: {cut}, offset "), err[-1]
+    assert not out.exists()
+    assert main(["annotate", str(good), "--out", str(out)]) == 0
+    assert main(["annotate", str(cut), "--out", str(out)]) == 2  # this run annotated nothing
+    assert (out / "good.mcap").is_file() and (out / "manifest.jsonl").is_file()
+    assert not (out / "cut.mcap").exists()
+
+
 @pytest.mark.parametrize("missing", ["inputs.npy", "manifest.json"])
 def test_explain_on_a_windows_dataset_missing_a_file_names_it(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], missing: str

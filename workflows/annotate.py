@@ -121,12 +121,16 @@ def run(args: argparse.Namespace) -> int:
     if not result.failed:
         return 0
     # The error of a failed log on stderr, last, as every command reports one (the summary above
-    # and the manifest list them all); status 1: the other logs are done.
+    # and the manifest, if kept, list them all); status 1 if other logs are done, else 2 as for any
+    # refused input (a run that made OUT_DIR and annotated nothing removed it again).
     failed = result.failed
+    kept = (result.out_dir / bulk.MANIFEST).is_file()
     more = (
-        f"{len(failed)} logs failed (see {result.out_dir / bulk.MANIFEST}), the first: "
+        f"{len(failed)} logs failed"
+        + (f" (see {result.out_dir / bulk.MANIFEST})" if kept else "")
+        + ", the first: "
         if len(failed) > 1
         else ""
     )
     print(f"lanecast annotate: error: {more}{failed[0]['error']}", file=sys.stderr)
-    return 1
+    return 1 if result.done or result.skipped else 2

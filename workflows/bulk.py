@@ -80,7 +80,11 @@ class BulkResult:
         lines = [
             f"annotated {len(self.done)} log(s), {len(self.failed)} failed, {len(self.skipped)} already done"
             + (f" (redone: {why})" if why else "")
-            + f" -> {self.out_dir} (manifest: {self.out_dir / MANIFEST})"
+            + (
+                f" -> {self.out_dir} (manifest: {self.out_dir / MANIFEST})"
+                if (self.out_dir / MANIFEST).is_file()
+                else f"; nothing written to {self.out_dir}"
+            )
         ]
         lines += [f"  FAILED {e['input']}: {e['error']}" for e in self.failed]
         counted = [
@@ -295,13 +299,25 @@ def run_bulk(
             None, f"no logs found in {', '.join(map(str, paths))}", expected="*.mcap, *.bag or ROS 2 bags"
         )
     ray_started_here = ray_engine.connect(address, workers) if engine == "ray" else False  # fail fast
+    created = not out_dir.exists()
     try:
-        return _run_bulk(
+        result = _run_bulk(
             inputs, paths, out_dir, options, workers=workers, engine=engine, retries=retries, force=force
         )
     finally:
         if ray_started_here:
             ray_engine.ray_module().shutdown()
+    if created and result.failed and not result.done:
+        _remove_failed_run(out_dir)
+    return result
+
+
+def _remove_failed_run(out_dir: Path) -> None:
+    """A run that made ``out_dir`` and annotated nothing leaves nothing: its manifest only records
+    failures (stderr names them), and there is no work to resume."""
+    (out_dir / MANIFEST).unlink(missing_ok=True)
+    with contextlib.suppress(OSError):  # not empty: something else was put there meanwhile
+        out_dir.rmdir()
 
 
 def _run_bulk(
