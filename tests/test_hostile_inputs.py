@@ -1154,3 +1154,30 @@ def test_a_huge_bad_cell_is_shown_cut_short(tmp_path: Path, form: str) -> None:
         registry.read_any([path])
     assert err.value.line == 3 and "'7zzz" in str(err.value) and "100,001 characters" in str(err.value)
     assert len(str(err.value)) < 400
+
+
+@pytest.mark.parametrize("form", ["highd", "ngsim-txt", "ngsim-csv"])
+def test_files_with_carriage_returns_alone_as_line_ends_are_read(tmp_path: Path, form: str) -> None:
+    """Line ends of a lone CR (old Mac editors and exports): an NGSIM .txt was "format not
+    recognised" and a highD recording had a header "line" of the whole file ("no column ...");
+    the parsers read such line ends, and the header detection now does too."""
+    if form == "highd":
+        sources = [HIGHD / f"01_{kind}.csv" for kind in ("tracks", "tracksMeta", "recordingMeta")]
+    else:
+        sources = [US101 if form == "ngsim-txt" else PEACHTREE]
+    for source in sources:
+        lines = source.read_bytes().split(b"\n")[:300]
+        (tmp_path / source.name).write_bytes(b"\r".join(line.rstrip(b"\r") for line in lines) + b"\r")
+        (tmp_path / "lf").mkdir(exist_ok=True)
+        (tmp_path / "lf" / source.name).write_bytes(b"\n".join(lines) + b"\n")
+    got = registry.read_any([tmp_path / sources[0].name])
+    want = registry.read_any([tmp_path / "lf" / sources[0].name])
+    assert got.num_rows > 0 and got.select(got.column_names[1:]).equals(want.select(want.column_names[1:]))
+    if form == "ngsim-txt":  # a bad cell in such a file is named at its line
+        path = tmp_path / sources[0].name
+        lines = path.read_bytes().split(b"\r")
+        lines[4] = lines[4].replace(lines[4].split()[5], b"x", 1)
+        path.write_bytes(b"\r".join(lines))
+        with pytest.raises(InputError) as err:
+            registry.read_any([path])
+        assert err.value.line == 5 and err.value.column == "Local_Y"

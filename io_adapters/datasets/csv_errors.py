@@ -9,6 +9,7 @@ parsers count them: LF, CRLF and a lone CR.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -57,6 +58,21 @@ def check_text(path: Path, head: bytes, what: str) -> None:
     if b"\x00" in head:
         at = head.index(b"\x00")
         raise InputError(path, "a NUL byte: binary data", offset=at, expected=f"{what} as UTF-8 text")
+
+
+FIRST_LINE_BYTES = 1 << 16  # of a file read for its header line: no header is longer
+
+
+def first_line(head: bytes) -> bytes:
+    """The bytes of ``head`` before its first line break: LF, CRLF or a lone CR (an old Mac's line
+    ends, which every parser here reads as line ends too)."""
+    return re.split(rb"\r\n?|\n", head, maxsplit=1)[0]
+
+
+def read_first_line(path: Path, limit: int = FIRST_LINE_BYTES) -> bytes:
+    """The first line of ``path`` (:func:`first_line` of its first ``limit`` bytes)."""
+    with path.open("rb") as fh:
+        return first_line(fh.read(limit))
 
 
 def line_spans(data: bytes) -> tuple[np.ndarray, np.ndarray]:

@@ -40,6 +40,7 @@ from lanecast.io_adapters.datasets.csv_errors import (
     check_one_line_per_row,
     check_parseable,
     check_text,
+    read_first_line,
     record_lines,
     shown,
 )
@@ -143,9 +144,7 @@ class Recording:
 
 def _header_names(path: Path, limit: int = 65536) -> list[str]:
     """The column names of the first line of ``path`` (stripped of blanks, quotes and a BOM)."""
-    with path.open("rb") as fh:
-        first = fh.readline(limit)
-    text = first.decode("utf-8-sig", errors="replace").rstrip("\r\n")
+    text = read_first_line(path, limit).decode("utf-8-sig", errors="replace")
     if not text.strip():
         return []
     return [name.strip().strip('"') for name in text.split(",")]

@@ -68,6 +68,7 @@ from lanecast.io_adapters.datasets.csv_errors import (
     check_one_line_per_row,
     check_parseable,
     check_text,
+    first_line,
     line_spans,
     not_text,
     record_lines,
@@ -176,7 +177,7 @@ def sniff(path: Path) -> bool:
             head = fh.read(4096)
     except OSError:
         return False
-    first = head.split(b"\n", 1)[0].decode("utf-8", errors="replace").lstrip("\ufeff").strip()
+    first = first_line(head).decode("utf-8", errors="replace").lstrip("\ufeff").strip()
     if "," in first:
         names = {name.strip().lower() for name in header_names(first)}
         # the key columns, or most of the used ones (the reader then names what is missing)
@@ -315,7 +316,7 @@ def _parse_file(path: Path, location: str | None) -> _Parsed:
         head = fh.read(1 << 16)
     if not head.strip() and path.stat().st_size <= len(head):
         raise InputError(path, "empty file", line=1, expected="NGSIM trajectory rows")
-    first = head.split(b"\n", 1)[0].decode("utf-8", errors="replace")
+    first = first_line(head).decode("utf-8", errors="replace")
     if "," in first:
         return _parse_csv(path, first, location)
     return _parse_txt(path, location)

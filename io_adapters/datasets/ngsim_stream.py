@@ -54,8 +54,7 @@ class SpilledRecording:
 
 def streamable(path: Path) -> bool:
     """A CSV export with a Location column (the form that mixes locations in one file)."""
-    with path.open("rb") as fh:
-        first = fh.readline(1 << 16).decode("utf-8", errors="replace")
+    first = csv_errors.read_first_line(path).decode("utf-8", errors="replace")
     if "," not in first:
         return False
     return "location" in {name.strip().lower() for name in ngsim.header_names(first)}
@@ -63,8 +62,7 @@ def streamable(path: Path) -> bool:
 
 def _layout(path: Path) -> tuple[str, dict[str, str], list[str], dict[str, pa.DataType]]:
     """(first line, lower-case name -> CSV name, columns to read, their types) as ngsim.read reads them."""
-    with path.open("rb") as fh:
-        first = fh.readline(1 << 16).decode("utf-8", errors="replace").rstrip("\n")
+    first = csv_errors.read_first_line(path).decode("utf-8", errors="replace")
     by_lower, wanted, types = ngsim.csv_columns(path, first)  # InputError: ngsim.read names it
     if "location" not in by_lower:
         raise ValueError("not a CSV export with a Location column")
