@@ -46,6 +46,24 @@ def _umask() -> int:
     return mask
 
 
+NOT_REGULAR = "not a regular file (a FIFO, socket or device)"
+
+
+def not_regular(path: Path) -> str | None:
+    """Why ``path``, an entry a reader found in an input directory, is no file it may open: a FIFO,
+    socket or device (opening it would block, or read forever), a symbolic link to nothing, a link
+    loop; None for a regular file or a directory. Only ``stat``: nothing is opened."""
+    try:
+        info = os.stat(path)
+    except FileNotFoundError:
+        return "a symbolic link to a missing file" if path.is_symlink() else None  # gone since listed
+    except OSError as exc:
+        return f"cannot open: {exc.strerror or exc}"
+    if stat.S_ISREG(info.st_mode) or stat.S_ISDIR(info.st_mode):
+        return None
+    return NOT_REGULAR
+
+
 def check_input(path: str | Path) -> Path:
     """``path`` as a Path if it is a readable regular file or directory; InputError otherwise.
 
@@ -66,11 +84,7 @@ def check_input(path: str | Path) -> Path:
             with open(path, "rb") as fh:
                 fh.read(1)
         else:
-            raise InputError(
-                path,
-                "not a regular file (a FIFO, socket or device)",
-                expected="a file or a directory",
-            )
+            raise InputError(path, NOT_REGULAR, expected="a file or a directory")
     except OSError as exc:
         raise InputError(path, f"cannot read: {exc.strerror or exc}") from exc
     return path

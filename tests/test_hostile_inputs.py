@@ -1181,3 +1181,37 @@ def test_files_with_carriage_returns_alone_as_line_ends_are_read(tmp_path: Path,
         with pytest.raises(InputError) as err:
             registry.read_any([path])
         assert err.value.line == 5 and err.value.column == "Local_Y"
+
+
+def _folder_with(tmp_path: Path, form: str) -> tuple[Path, str]:
+    """An input folder of ``form`` with one good file, and the name under which to plant an entry."""
+    folder = tmp_path / "in"
+    folder.mkdir()
+    if form == "ngsim":
+        (folder / US101.name).write_bytes(US101.read_bytes())
+        return folder, "x.txt"
+    if form == "highd":
+        for kind in ("tracks", "tracksMeta", "recordingMeta"):
+            (folder / f"01_{kind}.csv").write_bytes((HIGHD / f"01_{kind}.csv").read_bytes())
+        return folder, "02_tracks.csv"
+    _parquet(tmp_path)[0].rename(folder / "part-00000.parquet")
+    return folder, "part-00001.parquet"
+
+
+@pytest.mark.parametrize("form", ["ngsim", "highd", "parquet"])
+@pytest.mark.parametrize("entry", ["fifo", "device", "dangling link"])
+def test_an_entry_of_an_input_folder_that_is_no_file_is_named(tmp_path: Path, form: str, entry: str) -> None:
+    """A FIFO, a link to /dev/zero or a link to nothing under a data file's name in an NGSIM folder,
+    a highD folder or a Parquet dataset was left out without a word (its rows silently missing);
+    it is refused naming it, and never opened (a FIFO would block the run)."""
+    folder, name = _folder_with(tmp_path, form)
+    planted = folder / name
+    if entry == "fifo":
+        os.mkfifo(planted)
+    else:
+        planted.symlink_to("/dev/zero" if entry == "device" else tmp_path / "gone.txt")
+    with pytest.raises(InputError) as err:
+        registry.read_any([folder])
+    assert err.value.path == str(planted)
+    words = "a symbolic link to a missing file" if entry == "dangling link" else "not a regular file"
+    assert words in str(err.value)

@@ -45,7 +45,7 @@ from lanecast.io_adapters.datasets.csv_errors import (
     shown,
 )
 from lanecast.io_adapters.errors import InputError
-from lanecast.io_adapters.files import progress
+from lanecast.io_adapters.files import NOT_REGULAR, progress
 
 FORMAT = "highd"
 
@@ -160,10 +160,11 @@ def _looks_like(path: Path, kind: str) -> bool:
     return len(names & set(required)) * 2 >= len(required)
 
 
-def _named_files(directory: Path) -> list[tuple[Path, re.Match[str]]]:
-    """The regular files of ``directory`` named as highD's (NN_tracks.csv, …), with their match."""
+def _named_files(directory: Path, *, regular: bool = True) -> list[tuple[Path, re.Match[str]]]:
+    """The regular files of ``directory`` named as highD's (NN_tracks.csv, …), with their match
+    (``regular=False``: any entry but a directory: a FIFO or a link to nothing too)."""
     named = ((p, _NAME.match(p.name)) for p in sorted(directory.glob("*_*.csv")))
-    return [(p, m) for p, m in named if m is not None and p.is_file()]
+    return [(p, m) for p, m in named if m is not None and (p.is_file() if regular else not p.is_dir())]
 
 
 def _with_companions(path: Path, prefix: str) -> bool:
@@ -196,9 +197,10 @@ def recordings(paths: Sequence[str | Path]) -> list[Recording]:
         path = Path(raw)
         match = _NAME.match(path.name)
         if path.is_dir() and match is None:
-            # Every recording any of whose three files is here: one whose tracks file is missing
-            # (or is no file) is refused naming it, not left out.
-            prefixes = sorted({m.group("prefix") for _, m in _named_files(path)})
+            # Every recording any of whose three files is here (a FIFO or a link to nothing under
+            # its name too): one whose tracks file is missing or no file is refused naming it, not
+            # left out.
+            prefixes = sorted({m.group("prefix") for _, m in _named_files(path, regular=False)})
             if not prefixes:
                 raise InputError(path, "no highD recording in this directory", expected="NN_tracks.csv files")
             candidates = [Recording(path, prefix) for prefix in prefixes]
@@ -226,7 +228,9 @@ def not_a_file(path: Path) -> str:
     if path.is_dir():
         return "a directory, not a file"
     if path.exists():
-        return "not a regular file (a FIFO, socket or device)"
+        return NOT_REGULAR
+    if path.is_symlink():
+        return "a symbolic link to a missing file"
     packed = [path.with_name(path.name + s) for s in COMPRESSED_SUFFIXES]
     found = [p.name for p in packed if p.is_file()]
     return f"no such file ({found[0]} beside it is compressed: decompress it)" if found else "no such file"
@@ -730,11 +734,12 @@ def _read_one(
     for kind in KINDS:
         if not rec.path(kind).is_file():
             reason = not_a_file(rec.path(kind))
+            what = f"{'tracks' if kind == 'tracks' else 'companion'} file of highD recording {rec.prefix!r}"
             raise InputError(
                 rec.path(kind),
-                f"missing companion file of highD recording {rec.prefix!r}{reason.removeprefix('no such file')}"
+                f"missing {what}{reason.removeprefix('no such file')}"
                 if reason.startswith("no such file")
-                else f"companion file of highD recording {rec.prefix!r}: {reason}",
+                else f"{what}: {reason}",
                 expected=f"a file {rec.path(kind).name}"
                 + (f" beside {rec.path('tracks').name}" if kind != "tracks" else ""),
             )

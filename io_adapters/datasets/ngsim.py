@@ -75,7 +75,7 @@ from lanecast.io_adapters.datasets.csv_errors import (
     shown,
 )
 from lanecast.io_adapters.errors import InputError
-from lanecast.io_adapters.files import progress
+from lanecast.io_adapters.files import not_regular, progress
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -229,12 +229,21 @@ def compressed_in(folder: Path) -> list[Path]:
 
 def _folder_files(folder: Path) -> list[Path]:
     """:func:`files_in`, refusing a damaged NGSIM file there instead of leaving it out: an empty or
-    non-text ``.txt``/``.csv``, or one named ``trajectories*`` that is not NGSIM. Other text files
-    (notes, other tables) are left out with a line on stderr."""
+    non-text ``.txt``/``.csv``, one named ``trajectories*`` that is not NGSIM, or a ``.txt``/``.csv``
+    that is no regular file (a FIFO, a device, a link to nothing). Other text files (notes, other
+    tables) are left out with a line on stderr."""
     found = files_in(folder)
     packed = compressed_in(folder)
     compressed = []
     for p in sorted(Path(folder).rglob("*")):
+        if p.suffix.lower() in COMPRESSED:
+            named = p.with_suffix("").suffix.lower() in (".txt", ".csv")
+        else:
+            named = p.suffix.lower() in (".txt", ".csv")
+        if named and not any(part.startswith(".") for part in p.relative_to(folder).parts):
+            reason = not_regular(p)  # a FIFO would block the run, and left out its rows would be lost
+            if reason is not None:
+                raise InputError(p, reason, expected="NGSIM .txt or .csv files")
         if p in packed:
             compressed.append(p)
             continue

@@ -11,6 +11,7 @@ import pyarrow as pa
 
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.errors import InputError
+from lanecast.io_adapters.files import not_regular
 
 FORMAT = "parquet"
 _MAGIC = b"PAR1"
@@ -28,6 +29,15 @@ def dataset_files(directory: Path) -> list[Path]:
     return sorted(p for p in directory.glob("*.parquet") if not p.name.startswith((".", "_")) and p.is_file())
 
 
+def check_parts(directory: Path) -> None:
+    """InputError naming a part of the dataset ``directory`` that is no file to read (a FIFO, a
+    device, a link to nothing): left out, its rows would be missing without a word."""
+    for p in sorted(directory.glob("*.parquet")):
+        reason = None if p.name.startswith((".", "_")) else not_regular(p)
+        if reason is not None:
+            raise InputError(p, f"part of the dataset {directory.name!r}: {reason}", expected="Parquet files")
+
+
 def sniff(path: Path) -> bool:
     """A Parquet file, or a dataset directory: one whose ``*.parquet`` files are Parquet, but for
     damaged ones (a part cut short, or another file under a part's name) that the reader names."""
@@ -41,6 +51,7 @@ def files(paths: Sequence[Path]) -> list[Path]:
     out: list[Path] = []
     for p in map(Path, paths):
         if p.is_dir():
+            check_parts(p)
             found = dataset_files(p)
             if not found:
                 raise InputError(
