@@ -1215,3 +1215,33 @@ def test_an_entry_of_an_input_folder_that_is_no_file_is_named(tmp_path: Path, fo
     assert err.value.path == str(planted)
     words = "a symbolic link to a missing file" if entry == "dangling link" else "not a regular file"
     assert words in str(err.value)
+
+
+@pytest.mark.parametrize("form", ["highd", "highd-streamed", "ngsim-txt", "ngsim-csv", "ngsim-csv-streamed"])
+def test_a_header_repeated_mid_file_is_named_as_such(tmp_path: Path, form: str) -> None:
+    """Two files joined into one (``cat a.csv b.csv``) put the header line amid the rows: it was
+    refused as "cell 'frame' is not an integer" ('Vehicle_ID' is not a finite number), which sends
+    a user looking for a bad value; now it says the header is there again, at its line."""
+    from lanecast.io_adapters import streaming
+    from lanecast.io_adapters.datasets import highd, highd_stream
+    from lanecast.io_adapters.datasets.ngsim import TXT_COLUMNS
+
+    if form.startswith("highd"):
+        source = HIGHD / "01_tracks.csv"
+        for kind in ("tracksMeta", "recordingMeta"):
+            (tmp_path / f"01_{kind}.csv").write_bytes((HIGHD / f"01_{kind}.csv").read_bytes())
+    else:
+        source = US101 if form == "ngsim-txt" else PEACHTREE
+    lines = source.read_text().splitlines()[:50]
+    header = "  ".join(TXT_COLUMNS) if form == "ngsim-txt" else lines[0]
+    path = tmp_path / source.name
+    path.write_text("\n".join([*lines[:4], header, *lines[4:]]) + "\n")
+    with pytest.raises(InputError) as err:
+        if form == "highd-streamed":
+            highd_stream.split_tracks(highd.recordings([path])[0], tmp_path, block_bytes=1 << 10)
+        elif form == "ngsim-csv-streamed":
+            streaming.plan([path], spill_dir=tmp_path / "spill", stream_bytes=0)
+        else:
+            registry.read_any([path])
+    assert err.value.path == str(path) and err.value.line == 5, str(err.value)
+    assert ("column names" if form == "ngsim-txt" else "header line again") in str(err.value)

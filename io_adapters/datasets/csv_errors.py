@@ -75,6 +75,20 @@ def read_first_line(path: Path, limit: int = FIRST_LINE_BYTES) -> bytes:
         return first_line(fh.read(limit))
 
 
+REPEATED_HEADER = "the header line again (two files joined into one?)"
+
+
+def is_header(cells: Sequence[str | None], names: Sequence[str]) -> bool:
+    """Whether the cells of a data line are the column names ``names`` (in any case, quoted or not):
+    the header repeated, as where two files were joined into one."""
+    if len(cells) != len(names):
+        return False
+    return all(
+        c is not None and c.strip().strip('"').strip().lower() == n.strip().strip('"').strip().lower()
+        for c, n in zip(cells, names, strict=True)
+    )
+
+
 def line_spans(data: bytes) -> tuple[np.ndarray, np.ndarray]:
     """Start and end (exclusive, without the newline and any CR) byte offsets of every line [L]."""
     arr = np.frombuffer(data, dtype=np.uint8)

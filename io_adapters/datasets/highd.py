@@ -36,10 +36,12 @@ import pyarrow.csv as pacsv
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.contracts.track_runs import run_bounds
 from lanecast.io_adapters.datasets.csv_errors import (
+    REPEATED_HEADER,
     check_field_counts,
     check_one_line_per_row,
     check_parseable,
     check_text,
+    is_header,
     read_first_line,
     record_lines,
     shown,
@@ -341,6 +343,10 @@ def _diagnose(path: Path, names: list[str], columns: Mapping[str, str]) -> None:
         row, name = first_bad
         kind = columns[name]
         value = table.column(name)[row].as_py()
+        if is_header([table.column(n)[row].as_py() for n in columns], list(columns)):
+            raise InputError(
+                path, REPEATED_HEADER, line=int(lines[row]), expected="one header line, at line 1"
+            )
         raise InputError(
             path,
             f"cell {shown(value)} is not {_EXPECTED[kind]}",

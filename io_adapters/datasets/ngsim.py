@@ -64,11 +64,13 @@ import pyarrow.csv as pacsv
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.contracts.track_runs import along_track_derivative, row_extent, run_starts
 from lanecast.io_adapters.datasets.csv_errors import (
+    REPEATED_HEADER,
     check_field_counts,
     check_one_line_per_row,
     check_parseable,
     check_text,
     first_line,
+    is_header,
     line_spans,
     not_text,
     record_lines,
@@ -591,6 +593,15 @@ def _check_values(path: Path, columns: dict[str, np.ndarray], names: Sequence[st
     starts, ends = line_spans(data)
     text = data[starts[line - 1] : ends[line - 1]].decode("utf-8", errors="replace")
     cells = next(csv.reader([text])) if header else text.split()  # "40,5" is one cell
+    if is_header(cells, names):  # the CSV's header line, or the .txt columns' names, again
+        raise InputError(
+            path,
+            REPEATED_HEADER
+            if header
+            else "column names in the data (a header line; two files joined into one?)",
+            line=line,
+            expected="one header line, at line 1" if header else "18 numbers a line, no header",
+        )
     index = lower.index(first_col)
     cell = cells[index].strip() if index < len(cells) else ""
     integer = first_col in INTEGER_COLUMNS
