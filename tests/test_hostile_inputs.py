@@ -1245,3 +1245,19 @@ def test_a_header_repeated_mid_file_is_named_as_such(tmp_path: Path, form: str) 
             registry.read_any([path])
     assert err.value.path == str(path) and err.value.line == 5, str(err.value)
     assert ("column names" if form == "ngsim-txt" else "header line again") in str(err.value)
+
+
+@pytest.mark.parametrize("name", ["inputs.npy", "manifest.json"])
+@pytest.mark.parametrize("entry", ["fifo", "device"])
+def test_a_windows_file_that_is_no_regular_file_says_so(tmp_path: Path, name: str, entry: str) -> None:
+    """inputs.npy or manifest.json of a windows dataset as a FIFO or a link to /dev/zero was
+    "missing file of a windows dataset" (the file is there); now 'not a regular file', unopened."""
+    directory = save_windows(synthetic_windows(n=20), tmp_path / "windows")
+    (directory / name).unlink()
+    if entry == "fifo":
+        os.mkfifo(directory / name)
+    else:
+        (directory / name).symlink_to("/dev/zero")
+    with pytest.raises(InputError) as err:
+        load_windows(directory)
+    assert err.value.path == str(directory / name) and "not a regular file" in str(err.value)

@@ -35,7 +35,7 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from lanecast.io_adapters.errors import InputError
-from lanecast.io_adapters.files import atomic_path
+from lanecast.io_adapters.files import atomic_path, not_regular
 from lanecast.io_adapters.npy_append import SHARD_HEADER_BYTES, NpyAppender, save_npy
 
 #: Vehicle rows of the window tensor, in their fixed, spatially coherent order.
@@ -326,11 +326,19 @@ def load_windows(directory: str | Path, mmap: bool = True, check_values: bool = 
     directory = Path(directory)
     if not directory.is_dir():
         raise InputError(
-            directory, "no such windows directory", expected="a directory from `lanecast windows`"
+            directory,
+            "not a directory" if directory.exists() else "no such windows directory",
+            expected="a directory from `lanecast windows`",
         )
-    for name in (*(f"{a}.npy" for a in _ARRAYS), "windows.parquet", "manifest.json"):
-        if not (directory / name).is_file():
-            raise InputError(directory / name, "missing file of a windows dataset")
+    for name in DATASET_FILES:
+        path = directory / name
+        if path.is_file():
+            continue
+        # a FIFO would block the load and /dev/zero fill memory: looked at with stat, never opened
+        reason = not_regular(path) or ("a directory, not a file" if path.is_dir() else None)
+        if reason is None:
+            raise InputError(path, "missing file of a windows dataset")
+        raise InputError(path, f"file of a windows dataset: {reason}", expected=f"the file {name}")
     arrays = {}
     for name in _ARRAYS:
         path = directory / f"{name}.npy"
