@@ -39,7 +39,8 @@ def is_ros2_bag(path: Path) -> bool:
 
 def discover(paths: Sequence[Path], exclude: Path | None = None) -> list[Path]:
     """The logs named by ``paths``: files as given; directories searched recursively for ``*.mcap``,
-    ``*.bag`` and ROS 2 bag directories (not descended into), skipping ``exclude`` (OUT_DIR)."""
+    ``*.bag`` and ROS 2 bag directories (not descended into), skipping ``exclude`` (OUT_DIR); each
+    log once (the first name it was found under), as named (links not resolved)."""
     found: list[Path] = []
     excluded = os.path.realpath(exclude) if exclude is not None else None
 
@@ -62,10 +63,12 @@ def discover(paths: Sequence[Path], exclude: Path | None = None) -> list[Path]:
             found.extend(walk(p))
         else:
             found.append(p)
-    unique: dict[Path, Path] = {}
+    unique: dict[Path, Path] = {}  # one log named twice (or through a link) is one log
     for p in found:
         unique.setdefault(Path(os.path.realpath(p)), p)
-    return list(unique)
+    # the paths as named, not where links lead: outputs mirror the tree the user named (a linked
+    # folder, a log linked in from elsewhere)
+    return list(unique.values())
 
 
 def argument_root(path: Path) -> Path:
