@@ -4,13 +4,20 @@ or one clear error naming the file; never a traceback or a hang."""
 
 from __future__ import annotations
 
+import os
+import stat
+import threading
+import time
 from pathlib import Path
 
 import pyarrow.parquet as pq
+import pytest
 from conftest import forecasts_for, make_mcap
 
+from lanecast.io_adapters.errors import InputError
 from lanecast.workflows.annotate_log import AnnotateOptions
 from lanecast.workflows.bulk import run_bulk
+from lanecast.workflows.manifest import MANIFEST, Manifest
 
 
 def _log(folder: Path, name: str, fc: Path) -> Path:
@@ -35,3 +42,41 @@ def test_logs_in_a_linked_folder_or_linked_in_from_elsewhere_are_annotated(tmp_p
     assert len(result.done) == 2 and sorted(p.name for p in out.glob("*.mcap")) == ["a.mcap", "b.mcap"]
     again = run_bulk([tmp_path / "disk" / "logs"], out, AnnotateOptions(forecasts=fc))  # the same logs
     assert len(again.skipped) == 2 and not again.entries
+
+
+def _unblock(fifo: Path, stop: threading.Event) -> None:
+    """Open both ends of the FIFO now and then (and close them), so that code blocked opening it
+    goes on: a test of code that would block fails (too slow) instead of hanging."""
+    while not stop.wait(0.5):
+        reader = os.open(fifo, os.O_RDONLY | os.O_NONBLOCK)
+        try:
+            os.close(os.open(fifo, os.O_WRONLY | os.O_NONBLOCK))
+        finally:
+            os.close(reader)
+
+
+@pytest.mark.parametrize("kind", ["fifo", "device"])
+def test_a_manifest_that_is_a_fifo_or_a_device_is_refused_unopened(tmp_path: Path, kind: str) -> None:
+    """OUT_DIR/manifest.jsonl as a FIFO blocked `lanecast annotate` for ever (opened to be read
+    before its type was looked at); now refused at once as no regular file, for reading and for
+    appending."""
+    manifest = Manifest(tmp_path)
+    if kind == "fifo":
+        os.mkfifo(manifest.path)
+    else:
+        if os.geteuid() != 0:
+            pytest.skip("making a device node needs root")
+        os.mknod(manifest.path, 0o600 | stat.S_IFCHR, os.makedev(1, 3))  # /dev/null
+    stop = threading.Event()
+    helper = threading.Thread(target=_unblock, args=(manifest.path, stop), daemon=True)
+    helper.start()
+    try:
+        for action in (manifest.entries, lambda: manifest.append({"input": "/a", "status": "started"})):
+            start = time.monotonic()
+            with pytest.raises(InputError) as err:
+                action()
+            assert time.monotonic() - start < 0.25  # not waiting for the other end
+            assert err.value.path == str(tmp_path / MANIFEST) and "not a regular file" in str(err.value)
+    finally:
+        stop.set()
+        helper.join()

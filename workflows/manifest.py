@@ -85,6 +85,34 @@ def not_ours(path: Path, exc: OSError) -> InputError:
     return InputError(path, f"cannot open: {exc.strerror or exc}")
 
 
+def open_regular(path: Path, flags: int) -> int:
+    """A descriptor of ``path`` (a manifest or lock in OUT_DIR) opened with ``flags``, never through
+    a symlink and never blocking on a FIFO; InputError unless it is a regular file (a directory
+    opens read-only, then fails as 'fd 4'; a FIFO would block the run for ever)."""
+    try:
+        fd = os.open(path, flags | os.O_NOFOLLOW | os.O_NONBLOCK, 0o644)
+    except FileNotFoundError:
+        raise
+    except OSError as exc:
+        with contextlib.suppress(OSError):  # a FIFO opened for writing with no reader: ENXIO
+            if not stat.S_ISREG(os.lstat(path).st_mode) and not path.is_symlink():
+                raise _not_regular(path) from exc
+        raise not_ours(path, exc) from exc
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        raise _not_regular(path)
+    os.set_blocking(fd, True)
+    return fd
+
+
+def _not_regular(path: Path) -> InputError:
+    return InputError(
+        path,
+        "not a regular file (a directory, FIFO, socket or device)",
+        expected=f"the {path.name} lanecast annotate writes, or nothing",
+    )
+
+
 class Manifest:
     """``OUT_DIR/manifest.jsonl``: append-only, one JSON object per line, fsync'ed per entry."""
 
@@ -97,16 +125,9 @@ class Manifest:
         a kill, or one that is not an entry, is ignored). The manifest itself is never followed
         through a symlink."""
         try:
-            fd = os.open(self.path, os.O_RDONLY | os.O_NOFOLLOW)
+            fd = open_regular(self.path, os.O_RDONLY)
         except FileNotFoundError:
             return []
-        except OSError as exc:
-            raise not_ours(self.path, exc) from exc
-        if not stat.S_ISREG(os.fstat(fd).st_mode):  # a directory opens read-only, then fails as fd 4
-            os.close(fd)
-            raise InputError(
-                self.path, "not a regular file", expected="the manifest lanecast annotate writes, or nothing"
-            )
         out = []
         with open(fd, encoding="utf-8", errors="replace") as f:
             for line in f:
@@ -137,10 +158,7 @@ class Manifest:
     def append(self, entry: dict[str, Any]) -> None:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         data = (json.dumps({"v": FORMAT_VERSION, **entry}, sort_keys=True) + "\n").encode()
-        try:
-            fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_NOFOLLOW, 0o644)
-        except OSError as exc:
-            raise not_ours(self.path, exc) from exc
+        fd = open_regular(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT)
         try:
             # a line cut short by an earlier kill would swallow this entry: start on a fresh line
             size = os.fstat(fd).st_size
