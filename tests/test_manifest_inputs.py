@@ -80,3 +80,22 @@ def test_a_manifest_that_is_a_fifo_or_a_device_is_refused_unopened(tmp_path: Pat
     finally:
         stop.set()
         helper.join()
+
+
+def test_a_manifest_saved_by_an_editor_is_read_as_written(tmp_path: Path) -> None:
+    """A manifest re-saved by an editor (a byte order mark, CRLF, blank and comment lines), with an
+    integer of 5,000 digits on one line, or an output recorded absolute inside OUT_DIR: the BOM
+    hid the first entry (its log redone, or its output refused as not lanecast's), the long integer
+    was a ValueError traceback, and the absolute output was not the relative name the rest of
+    the manifest uses (the output refused as written by someone else)."""
+    out = tmp_path / "out"
+    out.mkdir()
+    lines = [
+        '{"input": "/logs/a.mcap", "output": "a.mcap", "status": "done"}',
+        "",
+        "# re-saved by hand",
+        '{"input": "/logs/x.mcap", "output": "x.mcap", "status": "done", "n": ' + "9" * 5000 + "}",
+        f'{{"input": "/logs/b.mcap", "output": "{out / "day 2" / "b.mcap"}", "status": "done"}}',
+    ]
+    (out / MANIFEST).write_bytes(b"\xef\xbb\xbf" + "\r\n".join(lines).encode() + b"\r\n")
+    assert Manifest(out).claims() == {"a.mcap": "/logs/a.mcap", "day 2/b.mcap": "/logs/b.mcap"}

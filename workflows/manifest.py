@@ -122,8 +122,10 @@ class Manifest:
 
     def entries(self) -> list[dict[str, Any]]:
         """Every complete entry that is a JSON object with a string ``input`` (a line cut short by
-        a kill, or one that is not an entry, is ignored). The manifest itself is never followed
-        through a symlink."""
+        a kill, or one that is not an entry, is ignored; an editor's byte order mark and CRLF line
+        ends are read through). An ``output`` recorded absolute but inside OUT_DIR is given as
+        relative to it, as lanecast records it. The manifest itself is never followed through a
+        symlink."""
         try:
             fd = open_regular(self.path, os.O_RDONLY)
         except FileNotFoundError:
@@ -133,11 +135,18 @@ class Manifest:
             for line in f:
                 if not line.endswith("\n"):
                     continue
-                with contextlib.suppress(json.JSONDecodeError, RecursionError):
-                    entry = json.loads(line)
+                # ValueError: also an integer of more digits than Python converts
+                with contextlib.suppress(ValueError, RecursionError):
+                    entry = json.loads(line.lstrip("\ufeff"))
                     if isinstance(entry, dict) and isinstance(entry.get("input"), str):
-                        out.append(entry)
+                        out.append(self._relative_output(entry))
         return out
+
+    def _relative_output(self, entry: dict[str, Any]) -> dict[str, Any]:
+        recorded = entry.get("output")
+        if isinstance(recorded, str) and "\0" not in recorded and os.path.isabs(recorded):
+            entry["output"] = relative_to_manifest(Path(recorded), self.out_dir)
+        return entry
 
     def latest(self) -> dict[str, dict[str, Any]]:
         """The latest entry per input path."""
