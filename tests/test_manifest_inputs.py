@@ -4,6 +4,7 @@ or one clear error naming the file; never a traceback or a hang."""
 
 from __future__ import annotations
 
+import json
 import os
 import stat
 import threading
@@ -99,3 +100,21 @@ def test_a_manifest_saved_by_an_editor_is_read_as_written(tmp_path: Path) -> Non
     ]
     (out / MANIFEST).write_bytes(b"\xef\xbb\xbf" + "\r\n".join(lines).encode() + b"\r\n")
     assert Manifest(out).claims() == {"a.mcap": "/logs/a.mcap", "day 2/b.mcap": "/logs/b.mcap"}
+
+
+@pytest.mark.parametrize("output", [5, ["a.mcap"], "."])
+def test_report_on_a_manifest_entry_naming_no_output_file_names_the_manifest(
+    tmp_path: Path, output: object
+) -> None:
+    """`lanecast report OUT_DIR` whose manifest has a done entry with a number or a list as its
+    output was a TypeError traceback; '.' read OUT_DIR itself as a log. Now refused naming the
+    manifest and the entry's input."""
+    from lanecast.workflows.log_report import annotated_logs
+
+    out = tmp_path / "out"
+    out.mkdir()
+    entry = {"input": "/logs/a.mcap", "output": output, "status": "done"}
+    (out / MANIFEST).write_text(json.dumps(entry) + "\n")
+    with pytest.raises(InputError) as err:
+        annotated_logs([out])
+    assert err.value.path == str(out / MANIFEST) and "'/logs/a.mcap' names no output file" in str(err.value)

@@ -161,8 +161,19 @@ class Manifest:
         return {e["output"]: e["input"] for e in self.entries() if isinstance(e.get("output"), str)}
 
     def output_path(self, entry: dict[str, Any]) -> Path:
-        """The output an entry names, as a path (its recorded form is relative to the manifest)."""
-        return self.out_dir / entry["output"]
+        """The output an entry names, as a path (its recorded form is relative to the manifest);
+        InputError naming the manifest for an entry whose output is no file name."""
+        recorded = entry.get("output")
+        named = isinstance(recorded, str) and recorded.strip() != "" and "\0" not in recorded
+        path = self.out_dir / str(recorded) if named else self.out_dir
+        if absolute(path) == absolute(self.out_dir):  # no name, or one naming OUT_DIR itself ('.')
+            raise InputError(
+                self.path,
+                f"the entry of {str(entry.get('input'))!r} names no output file: output {recorded!r}",
+                column="output",
+                expected="a path relative to the manifest's folder, as lanecast annotate writes it",
+            )
+        return path
 
     def append(self, entry: dict[str, Any]) -> None:
         self.path.parent.mkdir(parents=True, exist_ok=True)
