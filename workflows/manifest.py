@@ -119,17 +119,23 @@ class Manifest:
     def __init__(self, out_dir: Path) -> None:
         self.out_dir = Path(out_dir)
         self.path = self.out_dir / MANIFEST
+        self._parsed: tuple[tuple[int, ...], list[dict[str, Any]]] | None = None
 
     def entries(self) -> list[dict[str, Any]]:
         """Every complete entry that is a JSON object with a string ``input`` (a line cut short by
         a kill, or one that is not an entry, is ignored; an editor's byte order mark and CRLF line
         ends are read through). An ``output`` recorded absolute but inside OUT_DIR is given as
         relative to it, as lanecast records it. The manifest itself is never followed through a
-        symlink."""
+        symlink; a manifest unchanged since the last call is not parsed again."""
         try:
             fd = open_regular(self.path, os.O_RDONLY)
         except FileNotFoundError:
             return []
+        info = os.fstat(fd)
+        signature = (info.st_dev, info.st_ino, info.st_size, info.st_mtime_ns, info.st_ctime_ns)
+        if self._parsed is not None and self._parsed[0] == signature:
+            os.close(fd)
+            return list(self._parsed[1])
         out = []
         with open(fd, encoding="utf-8", errors="replace") as f:
             for line in f:
@@ -140,7 +146,8 @@ class Manifest:
                     entry = json.loads(line.lstrip("\ufeff"))
                     if isinstance(entry, dict) and isinstance(entry.get("input"), str):
                         out.append(self._relative_output(entry))
-        return out
+        self._parsed = (signature, out)
+        return list(out)
 
     def _relative_output(self, entry: dict[str, Any]) -> dict[str, Any]:
         recorded = entry.get("output")
