@@ -134,3 +134,17 @@ def test_a_long_manifest_is_parsed_once_per_change(tmp_path: Path, monkeypatch: 
     assert len(parsed) == 50
     manifest.append({"input": "/logs/new.mcap", "output": "new.mcap", "status": "started"})
     assert len(manifest.claims()) == 51 and len(parsed) == 50 + 51
+
+
+def test_an_output_name_with_a_nul_byte_is_no_claim(tmp_path: Path) -> None:
+    """A done entry whose output holds a NUL byte (a damaged manifest) was taken as the log's output
+    name: the log failed with a bare 'ValueError: embedded null byte' naming no file. Such a name
+    is no claim: the log is annotated under its own name."""
+    fc = tmp_path / "fc"
+    log = _log(tmp_path / "logs", "a", fc)
+    out = tmp_path / "out"
+    out.mkdir()
+    entry = {"input": str(log.resolve()), "output": "a\0.mcap", "status": "done", "output_sha256": "0"}
+    (out / MANIFEST).write_text(json.dumps(entry) + "\n")
+    result = run_bulk([tmp_path / "logs"], out, AnnotateOptions(forecasts=fc))
+    assert len(result.done) == 1 and (out / "a.mcap").is_file()

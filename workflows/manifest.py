@@ -165,7 +165,11 @@ class Manifest:
 
     def claims(self) -> dict[str, str]:
         """Output (as recorded) → the input that last claimed it, over every entry of any status."""
-        return {e["output"]: e["input"] for e in self.entries() if isinstance(e.get("output"), str)}
+        return {
+            e["output"]: e["input"]
+            for e in self.entries()
+            if isinstance(e.get("output"), str) and "\0" not in e["output"]  # no path has a NUL
+        }
 
     def output_path(self, entry: dict[str, Any]) -> Path:
         """The output an entry names, as a path (its recorded form is relative to the manifest);
