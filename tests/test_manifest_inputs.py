@@ -8,7 +8,7 @@ import json
 import os
 import stat
 import threading
-import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pyarrow.parquet as pq
@@ -17,7 +17,7 @@ from conftest import forecasts_for, make_mcap
 
 from lanecast.io_adapters.errors import InputError
 from lanecast.workflows.annotate_log import AnnotateOptions
-from lanecast.workflows.bulk import run_bulk
+from lanecast.workflows.bulk import LOCK, run_bulk
 from lanecast.workflows.manifest import MANIFEST, Manifest
 
 
@@ -45,15 +45,23 @@ def test_logs_in_a_linked_folder_or_linked_in_from_elsewhere_are_annotated(tmp_p
     assert len(again.skipped) == 2 and not again.entries
 
 
-def _unblock(fifo: Path, stop: threading.Event) -> None:
-    """Open both ends of the FIFO now and then (and close them), so that code blocked opening it
-    goes on: a test of code that would block fails (too slow) instead of hanging."""
-    while not stop.wait(0.5):
-        reader = os.open(fifo, os.O_RDONLY | os.O_NONBLOCK)
+def _returns(action: Callable[[], object]) -> BaseException | None:
+    """What ``action`` raised (None if nothing), run in a daemon thread: a test of code that blocks
+    on a FIFO fails after a minute instead of hanging the suite."""
+    raised: list[BaseException | None] = []
+
+    def run() -> None:
         try:
-            os.close(os.open(fifo, os.O_WRONLY | os.O_NONBLOCK))
-        finally:
-            os.close(reader)
+            action()
+            raised.append(None)
+        except BaseException as exc:
+            raised.append(exc)
+
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+    thread.join(60.0)
+    assert raised, "blocked opening a FIFO"
+    return raised[0]
 
 
 @pytest.mark.parametrize("kind", ["fifo", "device"])
@@ -68,19 +76,24 @@ def test_a_manifest_that_is_a_fifo_or_a_device_is_refused_unopened(tmp_path: Pat
         if os.geteuid() != 0:
             pytest.skip("making a device node needs root")
         os.mknod(manifest.path, 0o600 | stat.S_IFCHR, os.makedev(1, 3))  # /dev/null
-    stop = threading.Event()
-    helper = threading.Thread(target=_unblock, args=(manifest.path, stop), daemon=True)
-    helper.start()
-    try:
-        for action in (manifest.entries, lambda: manifest.append({"input": "/a", "status": "started"})):
-            start = time.monotonic()
-            with pytest.raises(InputError) as err:
-                action()
-            assert time.monotonic() - start < 0.25  # not waiting for the other end
-            assert err.value.path == str(tmp_path / MANIFEST) and "not a regular file" in str(err.value)
-    finally:
-        stop.set()
-        helper.join()
+    for action in (manifest.entries, lambda: manifest.append({"input": "/a", "status": "started"})):
+        err = _returns(action)
+        assert isinstance(err, InputError), err
+        assert err.path == str(tmp_path / MANIFEST) and "not a regular file" in str(err)
+
+
+def test_a_lock_file_that_is_a_fifo_is_refused_unopened(tmp_path: Path) -> None:
+    """OUT_DIR/.lanecast-annotate.lock as a FIFO blocked `lanecast annotate` for ever (opened for
+    writing, which waits for a reader); now refused at once, naming it."""
+    fc = tmp_path / "fc"
+    log = _log(tmp_path / "logs", "a", fc)
+    out = tmp_path / "out"
+    out.mkdir()
+    os.mkfifo(out / LOCK)
+    err = _returns(lambda: run_bulk([log], out, AnnotateOptions(forecasts=fc)))
+    assert isinstance(err, InputError), err
+    assert err.path == str(out / LOCK) and "not a regular file" in str(err)
+    assert sorted(p.name for p in out.iterdir()) == [LOCK]  # nothing written
 
 
 def test_a_manifest_saved_by_an_editor_is_read_as_written(tmp_path: Path) -> None:

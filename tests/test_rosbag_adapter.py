@@ -362,7 +362,6 @@ def test_files_beside_a_ros2_bag_that_metadata_yaml_does_not_list_are_not_read(t
 def test_a_yaml_alias_bomb_in_metadata_yaml_is_refused_before_it_expands(tmp_path: Path) -> None:
     """Nine nested aliases in custom_data (9**9 values): annotate spent 85 s and 2 GB before a
     MemoryError ('cannot read the ROS 2 bag: MemoryError:'); now metadata.yaml is refused at once."""
-    import time
 
     from lanecast.io_adapters.annotations.bag_copy import ros2_custom_data
 
@@ -374,9 +373,7 @@ def test_a_yaml_alias_bomb_in_metadata_yaml_is_refused_before_it_expands(tmp_pat
     meta.write_text(
         "\n".join(levels) + "\n" + text.replace("  custom_data:\n", "  custom_data:\n    bomb: *a8\n", 1)
     )
-    started = time.perf_counter()
-    for read in (rosbag_reader.read, ros2_custom_data):
+    for read in (rosbag_reader.read, ros2_custom_data):  # refused by the count, not by a MemoryError
         with pytest.raises(LogError, match=r"expands to more than 200,000 values") as err:
             read(bag)
         assert err.value.path == str(meta)
-    assert time.perf_counter() - started < 2

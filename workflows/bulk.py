@@ -50,6 +50,7 @@ from lanecast.workflows.manifest import (
     Manifest,
     absolute,
     not_ours,
+    open_regular,
     options_key,
     relative_to_manifest,
     stat_signature,
@@ -125,9 +126,9 @@ def locked(out_dir: Path) -> Iterator[None]:
     out_dir.mkdir(parents=True, exist_ok=True)
     lock = out_dir / LOCK
     while True:
-        try:
-            fd = os.open(lock, os.O_WRONLY | os.O_CREAT | os.O_NOFOLLOW, 0o644)
-        except OSError as exc:
+        try:  # never through a symlink, never blocking on a FIFO
+            fd = open_regular(lock, os.O_WRONLY | os.O_CREAT)
+        except FileNotFoundError as exc:
             raise not_ours(lock, exc) from exc
         with open(fd, "w") as f:
             try:
