@@ -30,7 +30,7 @@ from lanecast.io_adapters.annotations.mcap_copy import (
     zstd_writer,
 )
 from lanecast.io_adapters.errors import LogError
-from lanecast.io_adapters.logs.bag_damage import ros1_damage, sqlite_damage
+from lanecast.io_adapters.logs.bag_damage import located
 from lanecast.io_adapters.logs.bag_metadata import check_metadata
 
 
@@ -116,11 +116,10 @@ def unreadable(src: Path, exc: Exception, kind: str) -> Exception:
     the system (a full disk: an OSError with an errno) as it is."""
     if isinstance(exc, OSError) and exc.errno is not None:
         return exc
-    files = [src] if kind == "ROS 1" else [f for f in check_metadata(src) if f.suffix == ".db3"]
-    for file in files:
-        found = ros1_damage(file) if kind == "ROS 1" else sqlite_damage(file)
-        if found is not None:
-            return LogError(file, found[1], offset=found[0], expected="an intact ROS bag")
+    ros1 = kind == "ROS 1"
+    damage = located([src] if ros1 else check_metadata(src), ros1)
+    if damage is not None:
+        return damage
     return LogError(
         src, f"cannot read the {kind} bag: {type(exc).__name__}: {exc}", expected="an intact ROS bag"
     )

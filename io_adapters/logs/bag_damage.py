@@ -22,7 +22,10 @@ import bz2
 import mmap
 import re
 import struct
+from collections.abc import Sequence
 from pathlib import Path
+
+from lanecast.io_adapters.errors import LogError
 
 ROS1_MAGIC = b"#ROSBAG V2.0\n"
 _U32 = struct.Struct("<I")
@@ -33,6 +36,22 @@ _OP_CHUNK = 0x05
 _OP_CHUNK_INFO = 0x06
 _OP_CONNECTION = 0x07
 SQLITE_MAGIC = b"SQLite format 3\x00"
+
+
+def located(files: Sequence[Path], ros1: bool) -> LogError | None:
+    """The error naming the file, byte offset and what is wrong of the first of a bag's storage
+    ``files`` whose structure shows damage (a ROS 1 bag's records, a sqlite3 file's header and
+    pages; MCAP storage is left to its CRCs), else None: rosbags' own errors give no offset."""
+    for file in files:
+        if not ros1 and file.suffix != ".db3":
+            continue
+        try:
+            found = ros1_damage(file) if ros1 else sqlite_damage(file)
+        except OSError:
+            continue
+        if found is not None:
+            return LogError(file, found[1], offset=found[0], expected="an intact ROS bag")
+    return None
 
 
 def ros1_damage(path: Path) -> tuple[int, str] | None:

@@ -71,6 +71,7 @@ def check_metadata(bag: Path) -> list[Path]:
     if not isinstance(files, list) or not files or not all(isinstance(f, str) for f in files):
         raise fail(info, "relative_file_paths", "no list of storage files", "the bag's storage files")
     names = [PurePath(f).name for f in files]
+    mode, compression = (info.get("compression_mode") or "").lower(), info.get("compression_format") or ""
     for i, name in enumerate(names):
         if name in names[:i]:
             raise fail(info, "relative_file_paths", f"lists {name!r} twice", "each storage file once")
@@ -82,7 +83,7 @@ def check_metadata(bag: Path) -> list[Path]:
                 f"lists {files[i]!r}, which is not in {bag}",
                 "the bag's storage files",
             )
-        if (info.get("compression_mode") or "").lower() != "file":
+        if mode != "file":
             with open(file, "rb") as f:
                 head = f.read(16)
             wrong = [s for s, magic in STORAGE_MAGIC.items() if s != storage and head.startswith(magic)]
@@ -93,7 +94,6 @@ def check_metadata(bag: Path) -> list[Path]:
                     f"storage plugin {storage!r}, but {name} is a {wrong[0]} file",
                     f"storage_identifier: {wrong[0]}",
                 )
-    mode, compression = (info.get("compression_mode") or "").lower(), info.get("compression_format") or ""
     if mode in ("file", "message") and compression != "zstd":
         raise fail(info, "compression_format", f"compression {compression!r}", "zstd (what rosbag2 writes)")
     if mode == "file":

@@ -95,7 +95,7 @@ def read_log(
     try:
         with AnyReader([target], default_typestore=ros_types.typestore(1 if ros1 else 2)) as reader:
             if ros1 and _chunk_listed_twice(reader):  # rosbags would read one chunk twice, another never
-                raise _located_damage_error(target, ros1) or LogError(
+                raise _located_damage(target, ros1) or LogError(
                     path, "two chunk info records list the same chunk", expected="an intact ROS bag"
                 )
             listing = ", ".join(sorted(f"{c.topic} [{c.msgtype}]" for c in reader.connections)) or "none"
@@ -138,8 +138,7 @@ def read_log(
     except Exception as exc:  # rosbags reader/serde errors: damaged or unreadable bag
         damage = _located_damage(target, ros1)
         if damage is not None:
-            file, offset, problem = damage
-            raise LogError(file, problem, offset=offset, expected="an intact ROS bag") from exc
+            raise damage from exc
         where = f" at message {at[0]} (topic {at[1]!r}, log time {at[2]} ns) or the next" if at[0] else ""
         raise LogError(
             path,
@@ -165,26 +164,8 @@ def _chunk_listed_twice(reader: Any) -> bool:
     return len(set(positions)) != len(positions)
 
 
-def _located_damage_error(target: Path, ros1: bool) -> LogError | None:
-    damage = _located_damage(target, ros1)
-    if damage is None:
-        return None
-    return LogError(damage[0], damage[2], offset=damage[1], expected="an intact ROS bag")
-
-
-def _located_damage(target: Path, ros1: bool) -> tuple[Path, int, str] | None:
-    """(file, byte offset, what is wrong) of a bag rosbags failed to read, where its structure
-    shows it (a file cut short, a corrupt chunk), else None: rosbags' errors give no offset."""
-    for file in _storage_files(target, ros1):
-        if not ros1 and file.suffix == ".mcap":
-            continue  # checked before reading (verify_crcs)
-        try:
-            found = bag_damage.ros1_damage(file) if ros1 else bag_damage.sqlite_damage(file)
-        except OSError:
-            continue
-        if found is not None:
-            return (file, *found)
-    return None
+def _located_damage(target: Path, ros1: bool) -> LogError | None:
+    return bag_damage.located(_storage_files(target, ros1), ros1)
 
 
 def _storage_files(target: Path, ros1: bool) -> list[Path]:
@@ -209,7 +190,7 @@ def _undecodable(
     the bag."""
     damage = _located_damage(target, ros1)
     if damage is not None:
-        return LogError(damage[0], damage[2], offset=damage[1], expected="an intact ROS bag")
+        return damage
     what = f"cannot read the bag at message {at[0]} (topic {at[1]!r}, log time {at[2]} ns)"
     reason = f"{type(exc).__name__}: {exc}"
     expected = f"a valid {msgtype} message"
@@ -230,7 +211,7 @@ def _digest_mismatch(target: Path, ros1: bool, exc: LogError) -> LogError:
     walk) locates, else the checksum's error naming the one storage file whose bytes changed."""
     damage = _located_damage(target, ros1)
     if damage is not None:
-        return LogError(damage[0], damage[2], offset=damage[1], expected="an intact ROS bag")
+        return damage
     files = _storage_files(target, ros1)
     if len(files) != 1 or files[0] == target:
         return exc
