@@ -47,6 +47,9 @@ def _umask() -> int:
 
 
 NOT_REGULAR = "not a regular file (a FIFO, socket or device)"
+#: suffixes of compressed copies of a data file (trajectories-0400-0415.txt.gz): read by no reader,
+#: named in the error where the file itself is looked for
+COMPRESSED_SUFFIXES = (".gz", ".bz2", ".xz", ".zst", ".zip")
 
 
 def not_regular(path: Path) -> str | None:

@@ -47,7 +47,7 @@ from lanecast.io_adapters.datasets.csv_errors import (
     shown,
 )
 from lanecast.io_adapters.errors import InputError
-from lanecast.io_adapters.files import NOT_REGULAR, progress
+from lanecast.io_adapters.files import COMPRESSED_SUFFIXES, NOT_REGULAR, progress
 
 FORMAT = "highd"
 
@@ -219,9 +219,6 @@ def recordings(paths: Sequence[str | Path]) -> list[Recording]:
         for rec in candidates:
             found.setdefault((rec.directory.resolve(), rec.prefix), rec)
     return list(found.values())
-
-
-COMPRESSED_SUFFIXES = (".gz", ".bz2", ".xz", ".zst", ".zip")
 
 
 def not_a_file(path: Path) -> str:

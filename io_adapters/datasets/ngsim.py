@@ -77,7 +77,7 @@ from lanecast.io_adapters.datasets.csv_errors import (
     shown,
 )
 from lanecast.io_adapters.errors import InputError
-from lanecast.io_adapters.files import not_regular, progress
+from lanecast.io_adapters.files import COMPRESSED_SUFFIXES, not_regular, progress
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -214,15 +214,12 @@ def files_in(folder: Path) -> list[Path]:
     ]
 
 
-COMPRESSED = (".gz", ".bz2", ".xz", ".zst", ".zip")  # trajectories-0400-0415.txt.gz is left out, not read
-
-
 def compressed_in(folder: Path) -> list[Path]:
     """The compressed .txt and .csv files below ``folder`` (``*.txt.gz``, …; hidden ones left out)."""
     return [
         p
         for p in sorted(Path(folder).rglob("*"))
-        if p.suffix.lower() in COMPRESSED
+        if p.suffix.lower() in COMPRESSED_SUFFIXES
         and p.with_suffix("").suffix.lower() in (".txt", ".csv")
         and not any(part.startswith(".") for part in p.relative_to(folder).parts)
         and p.is_file()
@@ -238,7 +235,7 @@ def _folder_files(folder: Path) -> list[Path]:
     packed = compressed_in(folder)
     compressed = []
     for p in sorted(Path(folder).rglob("*")):
-        if p.suffix.lower() in COMPRESSED:
+        if p.suffix.lower() in COMPRESSED_SUFFIXES:
             named = p.with_suffix("").suffix.lower() in (".txt", ".csv")
         else:
             named = p.suffix.lower() in (".txt", ".csv")
