@@ -28,7 +28,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from interleave import interleaved_times, machine_line, ratio
 
 from lanecast.io_adapters import registry
-from lanecast.io_adapters.sim import sumo_highway
+from lanecast.io_adapters.sim import to_highd
+from lanecast.io_adapters.sim.recording import simulate
 from lanecast.workflows import cli
 
 WORK = Path(__file__).resolve().parent / "_work"
@@ -37,10 +38,10 @@ WORK = Path(__file__).resolve().parent / "_work"
 def recording(minutes: float, seed: int) -> tuple[Path, float | None]:
     """The simulated recording's directory and the wall time of simulating it (None if reused)."""
     out = WORK / f"sim-{minutes:g}min-medium-seed{seed}"
-    if all((out / name).is_file() for name in sumo_highway.file_names(1).values()):
+    if all((out / name).is_file() for name in to_highd.file_names(1).values()):
         return out, None
     started = time.perf_counter()
-    sumo_highway.simulate(out, minutes=minutes, seed=seed, density="medium")
+    simulate(out, minutes=minutes, seed=seed, density="medium")
     return out, time.perf_counter() - started
 
 
@@ -54,8 +55,8 @@ def main() -> None:
     args = parser.parse_args()
 
     directory, sim_seconds = recording(args.minutes, args.seed)
-    files = [directory / name for name in sumo_highway.file_names(1).values()]
-    summary = sumo_highway.summary(files[1])
+    files = [directory / name for name in to_highd.file_names(1).values()]
+    summary = to_highd.summary(files[1])
     size_mb = sum(f.stat().st_size for f in files) / 1e6
     rows = pacsv.read_csv(files[0]).num_rows
     print(f"recording: {directory} ({size_mb:.1f} MB, {rows:,} rows)")

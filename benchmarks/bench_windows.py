@@ -32,7 +32,7 @@ import reference_windows
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.contracts.windows import save_windows
 from lanecast.io_adapters.datasets import highd
-from lanecast.io_adapters.sim import sumo_highway
+from lanecast.io_adapters.sim import recording
 from lanecast.pipeline import labels as labels_mod
 from lanecast.pipeline import neighbours as nb_mod
 from lanecast.pipeline import window_tensors
@@ -63,7 +63,7 @@ def main() -> int:
     print(f"cores: {os.cpu_count()}, load average: {os.getloadavg()}")
     if not (args.sim_dir / "01_tracks.csv").is_file():
         _, wall, _ = timed(
-            sumo_highway.simulate, args.sim_dir, minutes=args.minutes, seed=args.seed, show_progress=False
+            recording.simulate, args.sim_dir, minutes=args.minutes, seed=args.seed, show_progress=False
         )
         print(f"simulated {args.minutes:g} min (seed {args.seed}) in {wall:.1f} s -> {args.sim_dir}")
     else:

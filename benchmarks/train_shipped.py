@@ -74,12 +74,12 @@ def recordings() -> tuple[list[tuple[str, int, int, float]], list[tuple[str, int
 
 
 def simulate_one(work: Path, scenario: str, rec_id: int, seed: int, minutes: float) -> Path:
-    from lanecast.io_adapters.sim import scenarios, sumo_highway
+    from lanecast.io_adapters.sim import recording, scenarios
 
     out = work / "sim" / f"{rec_id:02d}-{scenario}-seed{seed}-{minutes:g}min"
     if not (out / f"{rec_id:02d}_tracks.csv").is_file():
         cfg = scenarios.scenario_config(scenario, minutes=minutes, seed=seed)
-        sumo_highway.simulate(
+        recording.simulate(
             out, minutes=minutes, seed=seed, recording_id=rec_id, config=cfg, show_progress=False
         )
     return out

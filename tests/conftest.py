@@ -50,10 +50,10 @@ def sim_recording_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     cars and trucks, lane changes with continuous lateral motion, neighbour ids from SUMO.
     Read it with ``lanecast.io_adapters.datasets.highd.read([sim_recording_dir])``; treat it as read-only.
     """
-    from lanecast.io_adapters.sim import sumo_highway
+    from lanecast.io_adapters.sim import recording
 
     out = tmp_path_factory.mktemp("sim") / "highd-sim"
-    return sumo_highway.simulate(out, show_progress=False, **SIM_RECORDING)  # type: ignore[arg-type]
+    return recording.simulate(out, show_progress=False, **SIM_RECORDING)  # type: ignore[arg-type]
 
 
 # ------------------------------------------------------------------------------------ track tables

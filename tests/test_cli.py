@@ -66,9 +66,9 @@ def test_a_closed_stdout_ends_quietly(tmp_path: Path) -> None:
     """`lanecast info … | head`: the reader is gone before lanecast writes; no traceback."""
     from lanecast.io_adapters.contracts import track_table
     from lanecast.io_adapters.datasets import highd
-    from lanecast.io_adapters.sim import sumo_highway
+    from lanecast.io_adapters.sim import recording
 
-    rec = sumo_highway.simulate(
+    rec = recording.simulate(
         tmp_path / "sim", minutes=0.05, seed=1, section_length_m=100.0, approach_length_m=150.0,
         show_progress=False,
     )  # fmt: skip

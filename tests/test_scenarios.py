@@ -11,7 +11,7 @@ import pytest
 from lanecast.io_adapters.contracts.track_table import RecordingMeta, TableMeta, build_table
 from lanecast.io_adapters.datasets import highd
 from lanecast.io_adapters.errors import InputError
-from lanecast.io_adapters.sim import scenarios, sumo_highway
+from lanecast.io_adapters.sim import recording, scenarios, to_highd
 from lanecast.pipeline.traffic import speed_dips, traffic_statistics
 from lanecast.workflows import cli
 
@@ -27,7 +27,7 @@ def test_smoothing_turns_a_lateral_ramp_into_an_s_curve() -> None:
     y = np.concatenate([ramp, flat])
     new_track = np.zeros(400, dtype=bool)
     new_track[[0, 200]] = True
-    smooth = sumo_highway.smooth_lateral(y, new_track, 3.0, rate)
+    smooth = to_highd.smooth_lateral(y, new_track, 3.0, rate)
     np.testing.assert_allclose(smooth[200:], -2.0)
     s = smooth[:200]
     assert s[0] == pytest.approx(0.0) and s[-1] == pytest.approx(3.75)
@@ -65,7 +65,7 @@ def test_scenario_traffic_in_its_stated_range(
     acceleration| p99 below 1.5 m/s², SUMO's raw lane changes reach 15 m/s²), some lane changes
     but fewer than ``max_changes`` per vehicle, the right number of lanes."""
     cfg = scenarios.scenario_config(name, minutes=2.0, seed=3)
-    out = sumo_highway.simulate(tmp_path / name, minutes=2.0, seed=3, config=cfg, show_progress=False)
+    out = recording.simulate(tmp_path / name, minutes=2.0, seed=3, config=cfg, show_progress=False)
     stats = traffic_statistics(highd.read([out]))
     assert set(stats) == {"highd-01-upper", "highd-01-lower"}
     for st in stats.values():
@@ -145,7 +145,7 @@ def test_waves_scenario_has_stop_and_go_where_drivers_deciding_every_step_only_c
     dips = {}
     for reaction in (1.0, 0.0):
         cfg = scenarios.scenario_config("waves", minutes=3.0, seed=5, reaction_time_s=reaction)
-        out = sumo_highway.simulate(
+        out = recording.simulate(
             tmp_path / f"r{reaction:g}", minutes=3.0, seed=5, config=cfg, show_progress=False
         )
         stats = traffic_statistics(highd.read([out]))

@@ -17,7 +17,7 @@ import pytest
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.datasets import highd
 from lanecast.io_adapters.errors import InputError
-from lanecast.io_adapters.sim import sumo_highway
+from lanecast.io_adapters.sim import recording, sumo_highway, to_highd
 from lanecast.workflows import cli
 
 FILES = ("01_tracks.csv", "01_tracksMeta.csv", "01_recordingMeta.csv")
@@ -34,9 +34,9 @@ def table(sim_recording_dir: Path) -> pa.Table:
 
 def test_files_have_every_highd_column_in_order(sim_recording_dir: Path) -> None:
     headers = {name: (sim_recording_dir / name).open().readline().strip().split(",") for name in FILES}
-    assert headers["01_tracks.csv"] == sumo_highway.TRACKS_COLUMNS
-    assert headers["01_tracksMeta.csv"] == sumo_highway.TRACKS_META_COLUMNS
-    assert headers["01_recordingMeta.csv"] == sumo_highway.RECORDING_META_COLUMNS
+    assert headers["01_tracks.csv"] == to_highd.TRACKS_COLUMNS
+    assert headers["01_tracksMeta.csv"] == to_highd.TRACKS_META_COLUMNS
+    assert headers["01_recordingMeta.csv"] == to_highd.RECORDING_META_COLUMNS
     assert "frontSightDistance" in headers["01_tracks.csv"] and "minTTC" in headers["01_tracksMeta.csv"]
 
 
@@ -129,9 +129,9 @@ def test_lane_ids_match_positions_and_markings(sim_recording_dir: Path) -> None:
 def test_highd_lane_numbering_by_hand() -> None:
     idx = np.array([0, 1, 2, 0, 1, 2])
     direction = np.array([1, 1, 1, 2, 2, 2])
-    assert sumo_highway.highd_lane_id(idx, direction, 3).tolist() == [2, 3, 4, 8, 7, 6]
-    assert sumo_highway.highd_lane_id(idx[:2], direction[:2], 2).tolist() == [2, 3]
-    assert sumo_highway.highd_lane_id(np.array([0, 1]), np.array([2, 2]), 2).tolist() == [6, 5]
+    assert to_highd.highd_lane_id(idx, direction, 3).tolist() == [2, 3, 4, 8, 7, 6]
+    assert to_highd.highd_lane_id(idx[:2], direction[:2], 2).tolist() == [2, 3]
+    assert to_highd.highd_lane_id(np.array([0, 1]), np.array([2, 2]), 2).tolist() == [6, 5]
 
 
 def test_velocity_matches_motion_and_travel_direction(sim_recording_dir: Path) -> None:
@@ -205,8 +205,8 @@ def test_same_seed_same_bytes_through_the_command(tmp_path: Path) -> None:
         "section_length_m": 200.0,
         "approach_length_m": 200.0,
     }
-    a = sumo_highway.simulate(tmp_path / "a", seed=3, show_progress=False, **args)  # type: ignore[arg-type]
-    c = sumo_highway.simulate(tmp_path / "c", seed=4, show_progress=False, **args)  # type: ignore[arg-type]
+    a = recording.simulate(tmp_path / "a", seed=3, show_progress=False, **args)  # type: ignore[arg-type]
+    c = recording.simulate(tmp_path / "c", seed=4, show_progress=False, **args)  # type: ignore[arg-type]
     b = tmp_path / "b"
     status = cli.main(
         ["simulate", "--out", str(b), "--minutes", "0.2", "--seed", "3", "--lanes-per-direction", "2",
@@ -247,13 +247,13 @@ def test_existing_directory_keeps_other_files_and_a_recording_is_never_overwritt
     out.mkdir()
     (out / "notes.txt").write_text("mine")
     args = {"minutes": 0.05, "seed": 1, "section_length_m": 100.0, "approach_length_m": 150.0}
-    sumo_highway.simulate(out, show_progress=False, **args)  # type: ignore[arg-type]
+    recording.simulate(out, show_progress=False, **args)  # type: ignore[arg-type]
     assert (out / "notes.txt").read_text() == "mine"
     assert all((out / name).is_file() for name in FILES)
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
     before = {name: (out / name).read_bytes() for name in FILES}
     with pytest.raises(InputError, match=r"01_tracks\.csv: already exists"):
-        sumo_highway.simulate(out, show_progress=False, **{**args, "seed": 2})  # type: ignore[arg-type]
+        recording.simulate(out, show_progress=False, **{**args, "seed": 2})  # type: ignore[arg-type]
     assert {name: (out / name).read_bytes() for name in FILES} == before
     assert cli.main(["simulate", "--out", str(out), "--minutes", "0.05", "--seed", "2"]) == 2
 
@@ -261,7 +261,7 @@ def test_existing_directory_keeps_other_files_and_a_recording_is_never_overwritt
 def test_a_new_output_directory_gets_ordinary_permissions(tmp_path: Path) -> None:
     old = os.umask(0o022)
     try:
-        out = sumo_highway.simulate(
+        out = recording.simulate(
             tmp_path / "new" / "rec", minutes=0.05, seed=1, section_length_m=100.0,
             approach_length_m=150.0, show_progress=False,
         )  # fmt: skip
@@ -285,7 +285,7 @@ def test_a_new_output_directory_gets_ordinary_permissions(tmp_path: Path) -> Non
 def test_bad_parameters_raise_input_error(tmp_path: Path, kwargs: dict[str, object], column: str) -> None:
     args: dict[str, object] = {"minutes": 1.0, "seed": 1, **kwargs}
     with pytest.raises(InputError, match=column):
-        sumo_highway.simulate(tmp_path / "x", show_progress=False, **args)  # type: ignore[arg-type]
+        recording.simulate(tmp_path / "x", show_progress=False, **args)  # type: ignore[arg-type]
     assert not (tmp_path / "x").exists()
 
 
@@ -298,8 +298,8 @@ def test_libsumo_imported_before_pyarrow_works(tmp_path: Path) -> None:
         "import pyarrow.parquet as pq\n"
         "from pathlib import Path\n"
         "from lanecast.io_adapters.datasets import highd\n"
-        "from lanecast.io_adapters.sim import sumo_highway\n"
-        "out = sumo_highway.simulate(Path(sys.argv[1]), minutes=0.05, seed=1, section_length_m=100.0,\n"
+        "from lanecast.io_adapters.sim import recording\n"
+        "out = recording.simulate(Path(sys.argv[1]), minutes=0.05, seed=1, section_length_m=100.0,\n"
         "                            approach_length_m=150.0, show_progress=False)\n"
         "table = highd.read([out])\n"
         "pq.write_table(table, Path(sys.argv[1]) / 'x.parquet')\n"
@@ -314,7 +314,7 @@ def test_output_path_that_is_a_file_is_refused(tmp_path: Path) -> None:
     target = tmp_path / "file"
     target.write_text("keep me")
     with pytest.raises(InputError, match="not a directory"):
-        sumo_highway.simulate(target, minutes=0.1, seed=1, show_progress=False)
+        recording.simulate(target, minutes=0.1, seed=1, show_progress=False)
     assert target.read_text() == "keep me"
 
 

@@ -10,7 +10,7 @@ import pyarrow as pa
 import pytest
 
 from lanecast.io_adapters.datasets import highd
-from lanecast.io_adapters.sim import sumo_highway
+from lanecast.io_adapters.sim import recording, sumo_highway, to_highd
 from lanecast.io_adapters.sim.tracking_errors import (
     NGSIM_MAX_ACC,
     add_tracking_errors,
@@ -29,7 +29,7 @@ def test_in_lane_weave_has_its_std_is_smooth_and_deterministic() -> None:
     rate = 10.0
     vehicle = np.repeat(np.arange(20), 6000)
     t = np.tile(np.arange(6000) / rate, 20)
-    w = sumo_highway.lateral_wander(vehicle, t, 0.15, seed=3)
+    w = to_highd.lateral_wander(vehicle, t, 0.15, seed=3)
     assert w.std() == pytest.approx(0.15, rel=0.15)
     acc = np.diff(w.reshape(20, -1), 2, axis=1) * rate**2
     bound = 3 * 0.15 * np.sqrt(2 / 3) * (2 * np.pi / 6.0) ** 2
@@ -37,9 +37,9 @@ def test_in_lane_weave_has_its_std_is_smooth_and_deterministic() -> None:
     assert np.percentile(np.abs(acc), 50) < 0.1
     shuffled = np.random.default_rng(0).permutation(vehicle.size)
     np.testing.assert_array_equal(
-        sumo_highway.lateral_wander(vehicle[shuffled], t[shuffled], 0.15, 3), w[shuffled]
+        to_highd.lateral_wander(vehicle[shuffled], t[shuffled], 0.15, 3), w[shuffled]
     )
-    assert not np.allclose(sumo_highway.lateral_wander(vehicle, t, 0.15, seed=4), w)
+    assert not np.allclose(to_highd.lateral_wander(vehicle, t, 0.15, seed=4), w)
     assert (
         sumo_highway.HighwayConfig(minutes=1, seed=1).lateral_wander_m == 0.0
     )  # plain simulate: exact centre
@@ -109,7 +109,7 @@ def test_measured_copy_errors_have_the_level_and_derivatives_follow_positions() 
 def test_measured_copy_of_a_simulated_recording_reads_back(tmp_path: Path) -> None:
     """SUMO → highD files → measured copy as another recording id: the highD reader reads both, same
     vehicles and rows, positions moved by about the level, speeds still near the true ones."""
-    sim = sumo_highway.simulate(tmp_path / "sim", minutes=0.5, seed=3, show_progress=False)
+    sim = recording.simulate(tmp_path / "sim", minutes=0.5, seed=3, show_progress=False)
     out = write_measured_copy(sim, 1, tmp_path / "measured", 21, 0.2, seed=5)
     assert sorted(p.name for p in out.iterdir()) == [
         "21_recordingMeta.csv",
@@ -189,7 +189,7 @@ def test_a_standing_vehicle_does_not_weave(tmp_path: Path) -> None:
 
     cfg = scenario_config("signal", minutes=2, seed=4)
     assert cfg.lateral_wander_m > 0
-    sim = sumo_highway.simulate(tmp_path / "sim", minutes=2, seed=4, config=cfg, show_progress=False)
+    sim = recording.simulate(tmp_path / "sim", minutes=2, seed=4, config=cfg, show_progress=False)
     t = highd.read([sim])
     standing = np.abs(t.column("vx").to_numpy()) < 0.01  # standing still along the road
     assert standing.mean() > 0.05  # the red phase makes queues

@@ -17,8 +17,9 @@ from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.datasets import highd
 from lanecast.io_adapters.errors import InputError, OutputError
 from lanecast.io_adapters.files import check_output
+from lanecast.io_adapters.sim.recording import simulate
 from lanecast.io_adapters.sim.scenarios import DRIVING
-from lanecast.io_adapters.sim.sumo_highway import HighwayConfig, simulate
+from lanecast.io_adapters.sim.sumo_highway import HighwayConfig
 from lanecast.workflows.annotate_log import AnnotateOptions
 from lanecast.workflows.bulk import run_bulk
 from lanecast.workflows.log_report import report_logs

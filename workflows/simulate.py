@@ -6,7 +6,7 @@ import argparse
 import time
 from pathlib import Path
 
-from lanecast.io_adapters.sim import scenarios, sumo_highway
+from lanecast.io_adapters.sim import recording, scenarios, sumo_highway, to_highd
 from lanecast.io_adapters.sim.scenarios import DRIVING, SCENARIOS
 from lanecast.workflows.vocabulary import HelpFormatter
 
@@ -115,11 +115,11 @@ def run(args: argparse.Namespace) -> int:
             lateral_wander_m=args.weave,
             drivers=args.drivers,
         )
-    out = sumo_highway.simulate(
+    out = recording.simulate(
         args.out, minutes=args.minutes, seed=args.seed, recording_id=args.recording_id, config=config
     )
-    names = sumo_highway.file_names(args.recording_id)
-    summary = sumo_highway.summary(out / names["tracksMeta"])
+    names = to_highd.file_names(args.recording_id)
+    summary = to_highd.summary(out / names["tracksMeta"])
     print(
         f"wrote {out}: {', '.join(names.values())}; {summary['vehicles']:,} vehicles "
         f"({summary['cars']:,} cars, {summary['trucks']:,} trucks), {summary['lane_changes']:,} lane changes, "

@@ -35,7 +35,7 @@ import pyarrow.csv as pacsv
 
 from lanecast.io_adapters.contracts.track_runs import row_extent, run_starts
 from lanecast.io_adapters.sim.slow_signals import sinusoid_sum
-from lanecast.io_adapters.sim.sumo_highway import file_names, write_highd
+from lanecast.io_adapters.sim.to_highd import file_names, write_highd
 
 SLOW_PERIODS_S = (2.0, 10.0)
 DIFF_SPAN_S = 0.2  # half-width of the difference that gives velocities and accelerations
