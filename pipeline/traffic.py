@@ -4,7 +4,9 @@ What says whether two recordings show the same kind of traffic: speeds (percenti
 density (vehicles per km and per km and lane, from the mean number of vehicles present per frame
 over the observed length of road), lane changes per vehicle and per vehicle-km (per vehicle alone
 depends on how long a stretch is filmed), the lateral acceleration's percentiles (|a| across
-the direction of travel: how smooth the lane changes are), and stop-and-go: speed dips per
+the direction of travel: how smooth the lane changes are; None for a recording whose source
+records no acceleration across the direction of travel, e.g. NGSIM's scalar ``v_Acc``, where every
+row's is 0 and percentiles of 0.00 would claim perfectly smooth lane changes), and stop-and-go: speed dips per
 vehicle-minute (a dip: the speed at least 3 m/s below the highest of the 20 s before it and of the
 20 s after it, on the same vehicle; a wave passing a vehicle is a dip, braking into a queue that
 only crawls is not). Column-wise over the whole table.
@@ -23,6 +25,7 @@ from lanecast.pipeline.neighbours import columns, road_coordinates
 
 SPEED_PERCENTILES = (5, 25, 50, 75, 95)
 LATERAL_PERCENTILES = (50, 95, 99)
+LATERAL_RECORDED_MPS2 = 1e-6  # a recording whose every |lateral acceleration| is below records none
 DIP_MPS = 3.0  # how far below the speeds around it a speed dip is
 DIP_SPAN_S = 20.0  # … before and after it
 
@@ -55,7 +58,8 @@ def traffic_statistics(table: pa.Table) -> dict[str, dict[str, Any]]:
 
     Keys: vehicles, duration_s, speed_mps {p5 … p95, mean}, density_veh_per_km,
     density_veh_per_km_lane (None without lane ids), lanes, lane_changes, lane_changes_per_vehicle,
-    lane_changes_per_vehicle_km, lateral_acc_abs_mps2 {p50, p95, p99}, speed_dips_per_vehicle_min.
+    lane_changes_per_vehicle_km, lateral_acc_abs_mps2 {p50, p95, p99} (None where the source records
+    none), speed_dips_per_vehicle_min.
     """
     meta = track_table.read_meta(table)
     cols = columns(table)
@@ -83,6 +87,7 @@ def traffic_statistics(table: pa.Table) -> dict[str, dict[str, Any]]:
         vehicle_km = float(speed[rows].sum() / rate / 1000.0)
         changes = int(change[rows].sum())
         sp = np.percentile(speed[rows], SPEED_PERCENTILES)
+        recorded = bool(np.any(lat_acc[rows] > LATERAL_RECORDED_MPS2))
         la = np.percentile(lat_acc[rows], LATERAL_PERCENTILES)
         vehicle_min = rows.sum() / rate / 60.0
         dips = speed_dips(cols.track[rows], speed[rows], rate)
@@ -101,7 +106,9 @@ def traffic_statistics(table: pa.Table) -> dict[str, dict[str, Any]]:
             "lane_changes_per_vehicle_km": round(changes / max(vehicle_km, 1e-9), 3),
             "lateral_acc_abs_mps2": {
                 f"p{p}": round(float(v), 2) for p, v in zip(LATERAL_PERCENTILES, la, strict=True)
-            },
+            }
+            if recorded
+            else None,
             "speed_dips_per_vehicle_min": round(dips / max(vehicle_min, 1e-9), 3),
         }
     return out

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from lanecast.io_adapters import registry
 from lanecast.io_adapters.contracts.track_table import RecordingMeta, TableMeta, build_table
 from lanecast.io_adapters.datasets import highd
 from lanecast.io_adapters.errors import InputError
@@ -121,6 +122,23 @@ def test_traffic_statistics_by_hand() -> None:
     assert st["lanes"] == 2
     assert st["lateral_acc_abs_mps2"]["p50"] == pytest.approx(0.0)
     assert st["lateral_acc_abs_mps2"]["p99"] == pytest.approx(0.5)
+
+
+def test_lateral_acceleration_a_source_does_not_record_is_none(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """NGSIM records a scalar acceleration: every row's lateral component is 0. Its percentiles
+    (0.00/0.00/0.00) would claim perfectly smooth lane changes; the statistics say None and
+    ``lanecast info`` says the source has none, while a recording with lateral motion keeps them."""
+    sample = Path(__file__).parent / "data" / "ngsim" / "peachtree_sample.csv"
+    table = registry.read_any([sample])
+    stats = traffic_statistics(table)
+    assert stats and all(st["lateral_acc_abs_mps2"] is None for st in stats.values())
+    assert all(st["speed_mps"]["p95"] > 5.0 for st in stats.values())  # the rest is still there
+    assert cli.main(["info", str(sample)]) == 0
+    out = capsys.readouterr().out
+    assert out.count("lat. acc. not in the source") == len(stats)
+    assert "0.00/0.00/0.00 m/s²" not in out
 
 
 def test_speed_dips_by_hand() -> None:

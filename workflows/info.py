@@ -61,6 +61,7 @@ def run(args: argparse.Namespace) -> int:
     for name, st in stats.items():
         sp, la = st["speed_mps"], st["lateral_acc_abs_mps2"]
         per_lane = st["density_veh_per_km_lane"]
+        lateral = f"{la['p50']:.2f}/{la['p95']:.2f}/{la['p99']:.2f} m/s²" if la else "not in the source"
         density = f"{st['density_veh_per_km']:.1f} veh/km" + (
             f" ({per_lane:.1f} per lane, {st['lanes']} lanes)" if per_lane is not None else ""
         )
@@ -68,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
             f"  {name:<{width}}speed {sp['p5']:.1f}/{sp['p50']:.1f}/{sp['p95']:.1f} m/s; {density}; "
             f"{st['lane_changes_per_vehicle']:.3f} lane changes per vehicle "
             f"({st['lane_changes_per_vehicle_km']:.2f} per vehicle-km); "
-            f"lat. acc. {la['p50']:.2f}/{la['p95']:.2f}/{la['p99']:.2f} m/s²; "
+            f"lat. acc. {lateral}; "
             f"{st['speed_dips_per_vehicle_min']:.2f} speed dips per vehicle-minute"
         )
     total_tracks = sum(int(r["tracks"]) for r in rows)  # type: ignore[call-overload]
