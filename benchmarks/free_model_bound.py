@@ -42,9 +42,10 @@ def rmse_per_horizon(offsets: Any, future: Any) -> Any:
     return np.sqrt(((np.asarray(offsets, dtype=np.float64) - future) ** 2).sum(-1).mean(0))
 
 
-def fit_mlp(train: Any, val: Any, epochs: int, seed: int) -> Any:
+def fit_mlp(train: Any, val: Any, epochs: int, seed: int, residual: bool = True) -> Any:
     """The MLP trained on ``train`` windows, the epoch with the lowest validation RMSE at 5 s kept;
-    returns predict(windows) -> offsets [N, 5, 2]."""
+    returns predict(windows) -> offsets [N, 5, 2]. ``residual``: it predicts the offsets' residual
+    to constant velocity (else the offsets themselves); either target is standardised."""
     import numpy as np
     import torch
 
@@ -60,8 +61,13 @@ def fit_mlp(train: Any, val: Any, epochs: int, seed: int) -> Any:
 
     x_train = features(train)
     mean, std = x_train.mean(0), x_train.std(0) + 1e-3
-    residual = np.asarray(train.future) - reference_offsets(np.asarray(train.inputs), "cv")
-    scale = residual.reshape(len(train), -1).std(0) + 1e-3
+
+    def reference(w: Any) -> Any:
+        cv = reference_offsets(np.asarray(w.inputs), "cv")
+        return cv if residual else np.zeros_like(cv)
+
+    target = (np.asarray(train.future) - reference(train)).reshape(len(train), -1)
+    centre, scale = target.mean(0), target.std(0) + 1e-3
     layers: list[torch.nn.Module] = []
     width = x_train.shape[1]
     for hidden in HIDDEN:
@@ -73,11 +79,11 @@ def fit_mlp(train: Any, val: Any, epochs: int, seed: int) -> Any:
     def predict(w: Any) -> Any:
         x = torch.tensor((features(w) - mean) / std, dtype=torch.float32)
         with torch.no_grad():
-            out = net(x).numpy() * scale
-        return out.reshape(-1, 5, 2) + reference_offsets(np.asarray(w.inputs), "cv")
+            out = net(x).numpy() * scale + centre
+        return out.reshape(-1, 5, 2) + reference(w)
 
     x = torch.tensor((x_train - mean) / std, dtype=torch.float32)
-    y = torch.tensor(residual.reshape(len(train), -1) / scale, dtype=torch.float32)
+    y = torch.tensor((target - centre) / scale, dtype=torch.float32)
     best, best_state = np.inf, None
     for _ in range(epochs):
         order = torch.randperm(len(x))
@@ -103,6 +109,12 @@ def main() -> int:
     ap.add_argument("--epochs", type=int, default=20)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument(
+        "--target",
+        choices=("residual", "offsets"),
+        default="residual",
+        help="what the MLP predicts: the residual to constant velocity, or the offsets themselves",
+    )
     args = ap.parse_args()
 
     import numpy as np
@@ -129,7 +141,11 @@ def main() -> int:
         val_tracks = rng.choice(keys, size=max(1, round(VALIDATION_SHARE * keys.size)), replace=False)
         is_val = np.isin(tracks, val_tracks)
         predict = fit_mlp(
-            subset(windows, own & ~is_val), subset(windows, own & is_val), args.epochs, args.seed
+            subset(windows, own & ~is_val),
+            subset(windows, own & is_val),
+            args.epochs,
+            args.seed,
+            args.target == "residual",
         )
         part = subset(held_out, test_scen == name)
         future = np.asarray(part.future)
