@@ -469,3 +469,17 @@ def test_compressed_files_in_a_folder_are_not_left_out_without_a_word(
     table = registry.read_any([folder])
     assert table.num_rows == registry.read_any([TXT]).num_rows
     assert f"{packed}: gzip-compressed, left out" in capsys.readouterr().err
+
+
+def test_bad_txt_byte_that_is_not_utf8_gives_its_line_and_offset(
+    tmp_path: Path, txt_lines: list[str]
+) -> None:
+    # A byte overwritten inside a cell (the fuzzer's seed 100088): the parser's own message said
+    # "can't decode byte 0x9b in position 4" of some block, naming no line.
+    data = bytearray("\n".join(txt_lines).encode() + b"\n")
+    at = data.index(b"104.000") + 1  # Local_Y of line 2
+    data[at] = 0x9B
+    path = tmp_path / "a.txt"
+    path.write_bytes(bytes(data))
+    err = _error(path)
+    assert (err.line, err.offset) == (2, at) and "not UTF-8" in err.reason

@@ -360,6 +360,8 @@ def _parse_txt(path: Path, location: str | None) -> _Parsed:
         try:
             frame = pd.read_csv(path, sep=r"\s+", header=None, dtype=str, engine="c", keep_default_na=False)
         except (ValueError, pd.errors.ParserError) as exc:
+            # the parser's message names no line (a byte that is not UTF-8 "in position 4" of a block)
+            check_parseable(path, path.read_bytes())
             raise InputError(path, f"cannot parse: {exc}", expected="18 numbers a line") from exc
         columns = {
             name.lower(): _coerce(frame[i], allow_missing=name.lower() not in USED_COLUMNS)
