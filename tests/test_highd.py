@@ -315,6 +315,17 @@ def test_truncated_file_without_final_newline(tmp_path: Path) -> None:
     assert (info.value.line, info.value.column) == (15, "yVelocity")
 
 
+@pytest.mark.parametrize("name", FILES)
+def test_header_only_without_line_end_is_no_data_rows(tmp_path: Path, name: str) -> None:
+    # The fuzzer's seed 100180 (recordingMeta's data line deleted, the header's line end with it):
+    # pyarrow's "Could not skip initial 1 rows from CSV file, … header is larger than block size".
+    _variant(tmp_path, name, lambda ls: ls)
+    (tmp_path / name).write_text((DATA / name).read_text().splitlines()[0])
+    with pytest.raises(InputError, match="no data rows") as info:
+        highd.read([tmp_path])
+    assert (Path(info.value.path or "").name, info.value.line) == (name, 2)
+
+
 def test_windows_line_endings(tmp_path: Path, table: pa.Table) -> None:
     for name in FILES:
         (tmp_path / name).write_bytes((DATA / name).read_bytes().replace(b"\n", b"\r\n"))

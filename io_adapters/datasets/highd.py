@@ -292,6 +292,8 @@ def _read_csv(
         table = pacsv.read_csv(path, read_options=read_options, convert_options=convert)
     except pa.ArrowInvalid as exc:
         _diagnose(path, names, columns)
+        if _data_lines(path)[0].size == 0:  # a header with no line end: "Could not skip initial 1 rows"
+            raise InputError(path, "no data rows", line=2, expected=f"at least one {what} row") from exc
         raise InputError(path, f"cannot parse as CSV: {exc}", expected=f"a highD {what} file") from exc
     except OSError as exc:
         raise InputError(path, f"cannot read: {exc}") from exc
