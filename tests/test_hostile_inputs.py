@@ -1120,6 +1120,20 @@ def test_a_windows_index_with_nulls_is_refused_at_its_row(
     assert err.value.path == str(directory / "windows.parquet") and err.value.column == column
 
 
+def test_a_windows_index_row_written_twice_is_named(tmp_path: Path) -> None:
+    """A row of windows.parquet repeated (the fuzzer's seed 100071) gave only "windows index has
+    21 rows, the arrays 20 windows", naming no row."""
+    directory = save_windows(synthetic_windows(n=20), tmp_path / "windows")
+    index = pq.read_table(directory / "windows.parquet")
+    pq.write_table(
+        pa.concat_tables([index.slice(0, 12), index.slice(5, 1), index.slice(12)]),
+        directory / "windows.parquet",
+    )
+    with pytest.raises(InputError, match="21 rows, the arrays 20 windows; row 12 repeats row 5") as err:
+        load_windows(directory)
+    assert err.value.path == str(directory / "windows.parquet")
+
+
 @pytest.mark.parametrize("command", ["convert", "info"])
 def test_a_dataset_part_that_is_no_parquet_is_named(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], command: str

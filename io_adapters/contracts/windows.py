@@ -109,9 +109,11 @@ class Windows:
         lengths = [getattr(self, name).shape[0] if getattr(self, name).ndim else -1 for name in _ARRAYS]
         n = max(set(lengths), key=lengths.count)  # what most arrays say
         if all(length != self.index.num_rows for length in lengths) and len(set(lengths)) == 1:
+            repeated = _repeated_row(self.index) if self.index.num_rows > n else None
             raise InputError(
                 None if directory is None else directory / "windows.parquet",
-                f"windows index has {self.index.num_rows} rows, the arrays {n} windows",
+                f"windows index has {self.index.num_rows} rows, the arrays {n} windows"
+                + ("" if repeated is None else f"; row {repeated[1]} repeats row {repeated[0]}"),
                 expected=f"{n} rows",
             )
         n = self.index.num_rows if self.index.num_rows in lengths else n
@@ -372,6 +374,24 @@ def load_windows(directory: str | Path, mmap: bool = True, check_values: bool = 
     if check_values:
         windows.check_values(directory)
     return windows
+
+
+def _repeated_row(index: pa.Table) -> tuple[int, int] | None:
+    """(first, later) 0-based rows of the index for the same window (recording, track_id, t0_ns),
+    the earliest such later row; None if every window is there once."""
+    if index.num_rows < 2:
+        return None
+    recording = pc.dictionary_encode(index.column("recording")).combine_chunks().indices.to_numpy()
+    track, t0 = index.column("track_id").to_numpy(), index.column("t0_ns").to_numpy()
+    order = np.lexsort((np.arange(index.num_rows), t0, track, recording))  # stable: first copy first
+    same = (np.diff(recording[order]) == 0) & (np.diff(track[order]) == 0) & (np.diff(t0[order]) == 0)
+    new_window = np.r_[True, ~same]  # per sorted position: the first copy of its window
+    repeats = np.flatnonzero(~new_window)
+    if not repeats.size:
+        return None
+    first_copy = np.maximum.accumulate(np.where(new_window, np.arange(index.num_rows), 0))
+    at = repeats[np.argmin(order[repeats])]  # the repeat that comes first in the file
+    return int(order[first_copy[at]]), int(order[at])
 
 
 def _check_index(path: Path, index: pa.Table) -> None:
