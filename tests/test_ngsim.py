@@ -483,3 +483,13 @@ def test_bad_txt_byte_that_is_not_utf8_gives_its_line_and_offset(
     path.write_bytes(bytes(data))
     err = _error(path)
     assert (err.line, err.offset) == (2, at) and "not UTF-8" in err.reason
+
+
+def test_txt_beginning_with_blank_lines_is_read_as_without_them(tmp_path: Path) -> None:
+    # The fuzzer's seed 200140: whitespace lines inserted before the first row made the file
+    # "format not recognised" (no line, no reason), though the reader skips blank lines elsewhere.
+    path = tmp_path / "us-101" / TXT.name  # the location and recording names come from the path
+    path.parent.mkdir()
+    path.write_bytes(b"   \n\n\t\n" + TXT.read_bytes())
+    assert registry.detect(path) == "ngsim"
+    assert registry.read_any([path]).equals(registry.read_any([TXT]), check_metadata=False)

@@ -180,6 +180,10 @@ def sniff(path: Path) -> bool:
     except OSError:
         return False
     first = first_line(head).decode("utf-8", errors="replace").lstrip("\ufeff").strip()
+    if not first:  # blank lines before the first row of a .txt (which the reader skips)
+        first = first_line(head.lstrip(b" \t\r\n")).decode("utf-8", errors="replace")
+        if "," in first:
+            return False
     if "," in first:
         names = {name.strip().lower() for name in header_names(first)}
         # the key columns, or most of the used ones (the reader then names what is missing)
