@@ -543,6 +543,22 @@ def test_training_on_a_bad_label_is_refused(tmp_path: Path, capsys: pytest.Captu
     no_output(out)
 
 
+def test_training_on_a_huge_finite_input_is_refused_at_its_window(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """An input of 1e30 (finite; the fuzzer's seed 300135) overflowed the normalisation statistics
+    to inf: train ran an epoch, then said "bad normalisation statistics {...}", naming no file."""
+    directory = windows_copy(tmp_path, _edit_npy("inputs", _set_first(1e30)))
+    out = tmp_path / "model"
+    refused(
+        ["train", str(directory), "--out", str(out), "--epochs", "1"],
+        capsys,
+        "inputs.npy",
+        "window 0 holds 1.0000000150474662e+30 (expected finite inputs within ±1e+09",
+    )
+    no_output(out)
+
+
 # ------------------------------------------------------------------------------------------- logs
 
 

@@ -77,6 +77,10 @@ INDEX_SCHEMA = pa.schema(
     ]
 )
 _ARRAYS = ("inputs", "present", "future", "maneuver")
+#: the largest magnitude of an input or a target (m, m/s, m/s²): the track table's positions are
+#: within ±1e9 m, and an input of 1e30 (finite) overflowed the float32 sums of the normalisation
+#: statistics to inf, which train refused after an epoch as "bad normalisation statistics"
+MAX_VALUE = 1e9
 #: the files of a dataset directory (a new dataset replaces a directory holding only these)
 DATASET_FILES: tuple[str, ...] = (*(f"{a}.npy" for a in _ARRAYS), "windows.parquet", "manifest.json")
 #: dtype and shape of one window in each array file
@@ -131,11 +135,13 @@ class Windows:
 
     def check_values(self, directory: Path | None = None) -> None:
         """Raise InputError at the first window whose values cannot be: inputs that are not
-        finite, a future that is infinite (unknown is NaN), a maneuver label outside -1…2. Reads
+        finite or beyond ±MAX_VALUE, a future that is infinite or beyond it (unknown is NaN), a
+        maneuver label outside -1…2. Reads
         the arrays chunk by chunk (memory-mapped datasets stay so); train and evaluate call it."""
+        limit = f"within ±{MAX_VALUE:g}"
         checks: tuple[tuple[str, Callable[[np.ndarray], np.ndarray], str], ...] = (
-            ("inputs", lambda a: ~np.isfinite(a), "finite inputs (absent entries are 0)"),
-            ("future", np.isinf, "finite offsets, NaN where unknown"),
+            ("inputs", lambda a: ~(np.abs(a) <= MAX_VALUE), f"finite inputs {limit} (absent entries are 0)"),
+            ("future", lambda a: np.abs(a) > MAX_VALUE, f"finite offsets {limit}, NaN where unknown"),
             ("maneuver", lambda a: (a < -1) | (a >= len(MANEUVERS)), "labels -1 (unknown), 0, 1, 2"),
         )
         for start in range(0, len(self), _CHUNK):  # windows exist where their target is present
