@@ -271,6 +271,7 @@ BAD_INPUTS: dict[str, tuple[str, Callable[[list[str]], list[str]], str, int | No
     "finalFrame disagrees": (M, lambda ls: _set(ls, 4, "finalFrame", "4"), M, 4, "finalFrame", "disagrees"),
     "numFrames disagrees": (M, lambda ls: _set(ls, 2, "numFrames", "6"), M, 2, "numFrames", "5 rows"),
     "drivingDirection not 1 or 2": (M, lambda ls: _set(ls, 5, "drivingDirection", "3"), M, 5, "drivingDirection", "drivingDirection is 3"),
+    "speed beyond the table's bound": (T, lambda ls: _set(ls, 7, "yVelocity", "1e12"), T, 7, "yVelocity", "a speed (m/s) within ±1e+09"),
     "bad frame rate": (R, lambda ls: _set(ls, 2, "frameRate", "fast"), R, 2, "frameRate", "not a number"),
     "bad lane markings": (R, lambda ls: _set(ls, 2, "lowerLaneMarkings", "14.00;x"), R, 2, "lowerLaneMarkings", "not numbers"),
 }  # fmt: skip

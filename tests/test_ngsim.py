@@ -493,3 +493,15 @@ def test_txt_beginning_with_blank_lines_is_read_as_without_them(tmp_path: Path) 
     path.write_bytes(b"   \n\n\t\n" + TXT.read_bytes())
     assert registry.detect(path) == "ngsim"
     assert registry.read_any([path]).equals(registry.read_any([TXT]), check_metadata=False)
+
+
+@pytest.mark.parametrize(
+    ("field", "column", "words"), [(11, "v_Vel", "a speed within"), (12, "v_Acc", "an acceleration")]
+)
+def test_bad_txt_speed_beyond_the_tables_bound(
+    tmp_path: Path, txt_lines: list[str], field: int, column: str, words: str
+) -> None:
+    # 1e12 ft/s was read (finite in float32), and the track table or train refused it later with no line of the file
+    txt_lines[3] = _set_field(txt_lines[3], field, "1e12", None)
+    err = _error(_write(tmp_path, "a.txt", txt_lines))
+    assert (err.line, err.column) == (4, column) and words in str(err)

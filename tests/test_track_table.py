@@ -79,11 +79,14 @@ def test_build_table_sorts_rows() -> None:
         ("vy", 5, np.inf, "row 5: column 'vy' is inf"),
         ("frame", 2, 1, "duplicate (recording, track_id, frame) = (rec-a, 1, 1)"),
         ("time_ns", 2, 40_000_000, "time_ns does not increase along track 1"),
+        # finite in float32, but window inputs of such speeds overflowed train's statistics (fuzzer)
+        ("vx", 6, 3e38, "row 6: column 'vx' is 3.0[0-9]*e.38, expected a speed within ±1e.09 m/s"),
+        ("ay", 1, -2e9, "row 1: column 'ay' is -2000000000.0, expected an acceleration within ±1e.09 m/s"),
     ],
 )
 def test_validate_names_the_row_and_column(column: str, row: int, value: float, message: str) -> None:
     cols = _columns()
-    cols[column] = cols[column].astype(float if column in {"x", "vy"} else np.int64)
+    cols[column] = cols[column].astype(float if column in {"x", "vy", "vx", "ay"} else np.int64)
     cols[column][row] = value
     table = track_table.build_table(cols, _meta("rec-a"))
     with pytest.raises(TrackTableError, match=message.replace("(", r"\(").replace(")", r"\)")):

@@ -75,13 +75,16 @@ FINITE_COLUMNS: tuple[str, ...] = ("x", "y", "heading", "vx", "vy", "ax", "ay", 
 _FIELDS_BY_NAME = {f.name: f for f in REQUIRED_FIELDS + OPTIONAL_FIELDS}
 # Finite values that still cannot be: positions so far out that differences of them overflow the
 # float32 windows (inf in inputs.npy; checked with the finite columns), negative sizes, times before
-# 0 (which no log or dataset has, and no log can be written with). (column, limit, expected):
-# |value| <= a positive limit, value >= a limit of 0.
+# 0 (which no log or dataset has, and no log can be written with), speeds and accelerations as far
+# out (a vx of 3e38 m/s, finite in float32, made window inputs that overflowed the normalisation
+# statistics of train). (column, limit, expected): |value| <= a positive limit, value >= a limit of 0.
 MAX_POSITION_M = 1e9
 RANGES: tuple[tuple[str, float, str], ...] = (
     ("length", 0.0, "a size >= 0 m"),
     ("width", 0.0, "a size >= 0 m"),
     ("time_ns", 0, "a time >= 0 ns (a log time, or frame / rate)"),
+    *((name, MAX_POSITION_M, f"a speed within ±{MAX_POSITION_M:g} m/s") for name in ("vx", "vy")),
+    *((name, MAX_POSITION_M, f"an acceleration within ±{MAX_POSITION_M:g} m/s^2") for name in ("ax", "ay")),
 )
 
 

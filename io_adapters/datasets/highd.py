@@ -525,6 +525,19 @@ def _check_ranges(path: Path, cols: dict[str, np.ndarray], source_row: np.ndarra
             (name, np.abs(cols[name]) > FLOAT32_MAX, "a value within float32")
             for name in ("width", "height", "xVelocity", "yVelocity", "xAcceleration", "yAcceleration")
         ),
+        *(  # the track table's bounds (track_table.RANGES), here at the line of the CSV
+            (
+                name,
+                np.abs(cols[name]) > track_table.MAX_POSITION_M,
+                f"{what} within ±{track_table.MAX_POSITION_M:g}",
+            )
+            for name, what in (
+                ("xVelocity", "a speed (m/s)"),
+                ("yVelocity", "a speed (m/s)"),
+                ("xAcceleration", "an acceleration (m/s^2)"),
+                ("yAcceleration", "an acceleration (m/s^2)"),
+            )
+        ),
     )
     first: tuple[int, str, str] | None = None
     for name, bad, expected in checks:

@@ -675,6 +675,9 @@ def _checked_ranges(
         flag("v_vel", ~(out["v_vel"] >= 0), "a speed >= 0 ft/s")
         for name in ("v_length", "v_width", "v_vel", "v_acc"):  # float32 in the table
             flag(name, np.abs(out[name]) > FLOAT32_MAX / FEET, "a value within float32")
+        limit = track_table.MAX_POSITION_M / FEET  # the track table's bounds (track_table.RANGES), in feet
+        flag("v_vel", np.abs(out["v_vel"]) > limit, f"a speed within ±{limit:.4g} ft/s")
+        flag("v_acc", np.abs(out["v_acc"]) > limit, f"an acceleration within ±{limit:.4g} ft/s^2")
         for name in ("local_x", "local_y"):  # differences over 0.1 s must stay float32 speeds
             flag(name, np.abs(out[name]) > MAX_POSITION_FT, f"a position within ±{MAX_POSITION_FT:g} ft")
     if not bad_rows:
