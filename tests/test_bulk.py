@@ -428,3 +428,41 @@ def test_each_log_of_one_name_gets_its_own_report_folder(tmp_path: Path) -> None
     logs = [make_mcap(tmp_path / d / "drive.mcap", n=5) for d in ("a", "b") if (tmp_path / d).mkdir() is None]
     assert per_log_names(logs) == {logs[0]: "a/drive", logs[1]: "b/drive"}
     assert per_log_names(logs[:1]) == {logs[0]: "drive"}
+
+
+def test_a_failed_log_reached_through_a_symlink_is_named_as_given(tmp_path: Path) -> None:
+    """The FAILED line names the path the user gave (the link), not the file it points at; the
+    manifest keeps the real path (its key for resuming)."""
+    real = tmp_path / "real"
+    real.mkdir()
+    make_mcap(real / "cut.mcap", n=50)
+    data = (real / "cut.mcap").read_bytes()
+    (real / "cut.mcap").write_bytes(data[: len(data) // 2])
+    (tmp_path / "alias.mcap").symlink_to(real / "cut.mcap")  # a linked log
+    (tmp_path / "linked").symlink_to(real, target_is_directory=True)  # a log in a linked folder
+    for given, out in ((tmp_path / "alias.mcap", tmp_path / "o1"), (tmp_path / "linked", tmp_path / "o2")):
+        result = subprocess.run(
+            _cli(str(given), "--out", str(out)),
+            cwd=REPO,
+            env={**os.environ, "PYTHONPATH": str(REPO)},
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+        assert result.returncode == 2, result.stderr
+        shown = str(given if given.suffix else given / "cut.mcap")
+        said = result.stdout + result.stderr
+        failed = [line for line in said.splitlines() if "FAILED" in line]
+        assert failed and all(f"FAILED {shown}:" in line for line in failed), said
+        assert f"FAILED {real / 'cut.mcap'}" not in said
+        assert "Traceback" not in result.stderr
+    # the summary of a run that keeps its manifest (one good log beside the bad one)
+    make_mcap(real / "good.mcap", n=50)
+    fc = tmp_path / "fc"
+    fc.mkdir()
+    pq.write_table(forecasts_for("good", [1, 2, 3], [1, 2]), fc / "good.parquet")
+    pq.write_table(forecasts_for("cut", [1, 2, 3], [1, 2]), fc / "cut.parquet")
+    result3 = run_bulk([tmp_path / "linked"], tmp_path / "o3", AnnotateOptions(forecasts=fc))
+    assert f"FAILED {tmp_path / 'linked' / 'cut.mcap'}:" in result3.summary()
+    manifest = [json.loads(line) for line in (tmp_path / "o3" / "manifest.jsonl").read_text().splitlines()]
+    assert {e["input"] for e in manifest} == {str(real / "cut.mcap"), str(real / "good.mcap")}

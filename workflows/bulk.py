@@ -67,6 +67,9 @@ class BulkResult:
     skipped: list[Path] = field(default_factory=list)
     out_dir: Path = Path()
     redone: dict[str, int] = field(default_factory=dict)  # reason → count, for the logs not new
+    # entry index → the log's path as the user named it (a symbolic link keeps its own name; the
+    # manifest's "input" is the real path, its key for resuming)
+    given: dict[int, str] = field(default_factory=dict)
 
     @property
     def done(self) -> list[dict[str, Any]]:
@@ -87,7 +90,11 @@ class BulkResult:
                 else f"; nothing written to {self.out_dir}"
             )
         ]
-        lines += [f"  FAILED {e['input']}: {e['error']}" for e in self.failed]
+        lines += [
+            f"  FAILED {self.given.get(i, e['input'])}: {e['error']}"
+            for i, e in enumerate(self.entries)
+            if e["status"] == "failed"
+        ]
         counted = [
             e["counts"] for e in self.done if (e.get("counts") or {}).get("out_of_distribution") is not None
         ]
@@ -378,10 +385,11 @@ def _run_bulk(
                 lanecast=__version__,
             )
             manifest.append(entry)
+            result.given[len(result.entries)] = str(task.input)  # as named, links not followed
             result.entries.append(entry)
             progress.update(1)
             if entry["status"] == "failed":
-                progress.write(f"lanecast annotate: FAILED {entry['input']}: {entry['error']}")
+                progress.write(f"lanecast annotate: FAILED {task.input}: {entry['error']}")
 
         try:
             if not tasks:
