@@ -584,3 +584,37 @@ def test_a_bad_prediction_document_names_its_message_and_field(
         prediction_documents(log)
     assert err.value.path == str(log) and err.value.column == column
     assert (err.value.expected or "").startswith(expected)
+
+
+def test_a_class_name_that_is_not_utf8_is_refused_with_its_offset(tmp_path: Path, table: pa.Table) -> None:
+    """A damaged byte in a protobuf string (here the class 'car' of one message) used to become
+    U+FFFD and a new class 'c\ufffdr' in the table; protobuf strings are UTF-8, so it is a LogError
+    naming the record."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    clean = mcap_writer.write(table, tmp_path / "clean.mcap", "mcap")
+    bad = tmp_path / "bad.mcap"
+    with clean.open("rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        assert summary is not None
+        messages = [(ch.id, m.log_time, m.publish_time, m.data) for _s, ch, m in reader.iter_messages()]
+    damaged = 0
+    with bad.open("wb") as f:
+        w = Writer(f)
+        w.start()
+        sids = {i: w.register_schema(s.name, s.encoding, s.data) for i, s in summary.schemas.items()}
+        cids = {
+            i: w.register_channel(c.topic, c.message_encoding, sids[c.schema_id], c.metadata)
+            for i, c in summary.channels.items()
+        }
+        for k, (cid, log_time, publish_time, data) in enumerate(messages):
+            if k == len(messages) // 2 and b"car" in data:
+                data, damaged = data.replace(b"car", b"c\xffr", 1), 1
+            w.add_message(cids[cid], log_time, data, publish_time)
+        w.finish()
+    assert damaged
+    with pytest.raises(LogError, match=r"class name .* is not UTF-8") as err:
+        mcap_reader.read(bad)
+    assert err.value.path == str(bad) and err.value.offset is not None

@@ -34,7 +34,7 @@ from lanecast.io_adapters.logs.tracked_objects import (
     track_id_of,
     yaw_of,
 )
-from lanecast.io_adapters.logs.wire_text import categories, parse_floats, short_codes, strings
+from lanecast.io_adapters.logs.wire_text import categories, parse_floats, short_codes, strings, text
 
 
 def _cube_parts(
@@ -109,9 +109,8 @@ def _track_ids(buf: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> np.ndar
     if not plain.all():
         bad = np.flatnonzero(~plain)
         uniq, inv = np.unique(strings(buf, starts[bad], ends[bad]), return_inverse=True)
-        track[bad] = np.array(
-            [track_id_of(u.decode(errors="replace")) for u in uniq.tolist()], dtype=np.int64
-        )[inv]
+        ids = [track_id_of(text(u, "an entity id")) for u in uniq.tolist()]
+        track[bad] = np.array(ids, dtype=np.int64)[inv]
     return track
 
 
@@ -289,7 +288,7 @@ def _entity_columns(
         m = f.pick(field_no, 2)
         st[f.owner[m]], en[f.owner[m]] = f.start[m], f.end[m]
         spans[field_no] = (st[has_cube], en[has_cube])
-    cls_codes, cls_names = categories(buf, cls_s[has_cube], cls_e[has_cube])
+    cls_codes, cls_names = categories(buf, cls_s[has_cube], cls_e[has_cube], "a class name")
     every = has_cube.size == n
     block: dict[str, Any] = {k: v if every else v[has_cube] for k, v in vals.items()}
     block.update(
@@ -297,7 +296,7 @@ def _entity_columns(
         msg_time=msg_time[has_cube],
         track_id=_track_ids(buf, *spans[3]),
         classes=Categorical(cls_codes, [c or "unknown" for c in cls_names]),
-        frame_ids=Categorical(*categories(buf, *spans[2])),
+        frame_ids=Categorical(*categories(buf, *spans[2], "a frame id")),
     )
     return block
 

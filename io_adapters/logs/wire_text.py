@@ -106,8 +106,25 @@ def _factorize(codes: np.ndarray, limit: int = 16) -> tuple[np.ndarray, np.ndarr
     return inverse.astype(np.int32).ravel(), cats
 
 
-def categories(buf: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> tuple[np.ndarray, list[str]]:
-    """Strings buf[starts[i]:ends[i]] [n] → (int32 codes [n], category strings)."""
+def text(raw: bytes, what: str) -> str:
+    """``raw`` (a protobuf string field, at most _MAX_STRING bytes kept) as text; ValueError naming
+    ``what`` if it is not UTF-8 (protobuf strings must be: a damaged byte would otherwise become
+    U+FFFD and a new class, frame or track). A character cut by the _MAX_STRING limit is dropped."""
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        if len(raw) == _MAX_STRING and exc.reason == "unexpected end of data":
+            return raw[: exc.start].decode("utf-8")
+        raise ValueError(
+            f"{what} {raw[:40]!r} is not UTF-8 (byte {exc.start} of the string; protobuf strings are UTF-8)"
+        ) from None
+
+
+def categories(
+    buf: np.ndarray, starts: np.ndarray, ends: np.ndarray, what: str = "a string field"
+) -> tuple[np.ndarray, list[str]]:
+    """Strings buf[starts[i]:ends[i]] [n] → (int32 codes [n], category strings); ValueError if one
+    is not UTF-8."""
     if not starts.size:
         return np.zeros(0, np.int32), []
     if int((ends - starts).max()) <= 7:  # class names, frame ids: one integer each
@@ -116,4 +133,4 @@ def categories(buf: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> tuple[n
     else:
         uniq, inverse = np.unique(strings(buf, starts, ends), return_inverse=True)
         codes, names = inverse.astype(np.int32).ravel(), uniq.tolist()
-    return codes, [c.decode(errors="replace") for c in names]
+    return codes, [text(c, what) for c in names]
