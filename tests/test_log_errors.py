@@ -618,3 +618,30 @@ def test_a_class_name_that_is_not_utf8_is_refused_with_its_offset(tmp_path: Path
     with pytest.raises(LogError, match=r"class name .* is not UTF-8") as err:
         mcap_reader.read(bad)
     assert err.value.path == str(bad) and err.value.offset is not None
+
+
+@pytest.mark.parametrize(
+    "kind",
+    [
+        "index_pos not at a record",
+        "connection without message definition",
+        "chunk info listing a listed chunk",
+    ],
+)
+def test_annotate_names_the_damaged_record_of_a_ros1_bag_as_convert_does(
+    tmp_path: Path, table: pa.Table, kind: str
+) -> None:
+    """annotate opens a bag to list its topics before reading it; a bag rosbags could not open
+    there was 'cannot open the bag: Header could not be read from file.' (fuzz seed 1101), no
+    offset, where convert names the record. Now annotate gives convert's error."""
+    from lanecast.workflows.annotate_log import AnnotateOptions, annotate_log
+
+    bag = _small_chunks_ros1_bag(table, tmp_path / "b.bag")
+    data = bytearray(bag.read_bytes())
+    offset, text = _ros1_damage(kind, data)
+    bag.write_bytes(bytes(data))
+    with pytest.raises(LogError) as err:
+        annotate_log(bag, tmp_path / "out.mcap", AnnotateOptions())
+    assert err.value.path == str(bag) and err.value.offset == offset, str(err.value)
+    assert text in str(err.value)
+    assert not (tmp_path / "out.mcap").exists()

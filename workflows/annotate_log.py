@@ -35,6 +35,7 @@ from lanecast.io_adapters.annotations import forecast_messages as fm
 from lanecast.io_adapters.contracts.track_table import read_meta
 from lanecast.io_adapters.errors import InputError, LogError
 from lanecast.io_adapters.files import atomic_path, check_input, checksum
+from lanecast.io_adapters.logs import rosbag_reader
 from lanecast.io_adapters.logs.log_conventions import BAG_FILES
 from lanecast.models.serving import load_forecaster
 from lanecast.workflows.forecast import forecast_table, forecast_windows, what_if_table, windows_to_forecast
@@ -125,7 +126,10 @@ def log_topics(src: Path, kind: str, *, info: mcap_copy.McapSummaryInfo | None =
         with Reader1(src) as r1:
             return frozenset(c.topic for c in r1.connections)
     except Exception as exc:  # rosbags raises its own types for every kind of damage
-        raise LogError(src, f"cannot open the bag: {exc}") from exc
+        # where the bag's structure shows the damage, the same error convert gives (offset)
+        raise rosbag_reader.damage_of(src) or LogError(
+            src, f"cannot open the bag: {exc}", expected="an intact ROS bag"
+        ) from exc
 
 
 def refuse_annotated(src: Path, kind: str, *, info: mcap_copy.McapSummaryInfo | None = None) -> None:

@@ -164,6 +164,15 @@ def _chunk_listed_twice(reader: Any) -> bool:
     return len(set(positions)) != len(positions)
 
 
+def damage_of(target: Path) -> LogError | None:
+    """The error naming the file and byte offset of the damage in a bag (a ROS 1 file or a ROS 2
+    directory) that rosbags cannot open, where its structure shows it, else None."""
+    try:
+        return _located_damage(target, target.is_file())
+    except LogError as exc:  # a ROS 2 bag's metadata.yaml itself
+        return exc
+
+
 def _located_damage(target: Path, ros1: bool) -> LogError | None:
     return bag_damage.located(_storage_files(target, ros1), ros1)
 
