@@ -409,6 +409,19 @@ def _ros1_damage(kind: str, data: bytearray) -> tuple[int, str]:
         at = data.index(b"message_definition=", conn[2])
         data[at : at + 1] = b"x"
         return conn[0], "has no message_definition field"
+    if kind in ("connection definition that does not parse", "connection md5sum not its definition's"):
+        conn = next(
+            r
+            for r in ops
+            if r[1]["op"] == b"\x07" and r[0] > chunks[-1][0] and b"[]" in data[r[2] : r[2] + r[3]]
+        )
+        if kind.endswith("parse"):
+            at = data.index(b"[]", data.index(b"message_definition=", conn[2]))
+            data[at : at + 2] = b"[["
+            return conn[0], "cannot be parsed"
+        at = data.index(b"md5sum=", conn[2]) + len(b"md5sum=")
+        data[at : at + 1] = b"0" if data[at : at + 1] != b"0" else b"1"
+        return conn[0], "is not that of its message definition"
     if kind == "chunk compressed with an unknown method":
         at = data.index(b"compression=none", chunks[1][0]) + len(b"compression=")
         data[at : at + 4] = b"zzzz"
@@ -436,6 +449,8 @@ def _ros1_damage(kind: str, data: bytearray) -> tuple[int, str]:
         "index_pos not at a record",
         "chunk compressed with an unknown method",
         "message on an undefined connection",
+        "connection definition that does not parse",
+        "connection md5sum not its definition's",
     ],
 )
 def test_ros1_index_damage_names_its_record(tmp_path: Path, table: pa.Table, kind: str) -> None:
@@ -444,7 +459,9 @@ def test_ros1_index_damage_names_its_record(tmp_path: Path, table: pa.Table, kin
     the bag: … Bag index looks damaged' or 'hash mismatch' or, for the chunk listed twice, a
     checksum mismatch (lanecast's bags) or one chunk read twice and another never (others); a chunk
     compressed with 'zzzz' or a message on a connection never defined was 'Compression 'zzzz' is
-    not supported' or 'KeyError: 77': no offset. Now the record's offset and what it says."""
+    not supported' or 'KeyError: 77': no offset; a connection whose definition does not parse or
+    whose md5sum is another's was 'Could not parse: <the whole definition>' or 'hash mismatch' (fuzz
+    seeds 1014, 1050). Now the record's offset and what it says."""
     bag = _small_chunks_ros1_bag(table, tmp_path / "b.bag")
     data = bytearray(bag.read_bytes())
     assert sum(1 for r in _ros1_records(bytes(data)) if r[1]["op"] == b"\x05") >= 3

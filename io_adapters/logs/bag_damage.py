@@ -173,7 +173,41 @@ def _connection_problem(fields: dict[str, bytes], data: bytes) -> str | None:
     text = definition.decode("latin-1")
     if not any(line.split("#", 1)[0].strip() for line in text.splitlines()):
         return f"connection {conn} (topic {topic!r}) has an empty message definition"
+    return _definition_problem(
+        f"connection {conn} (topic {topic!r})",
+        text,
+        found.get("type", b"").decode("latin-1"),
+        found.get("md5sum", b"").decode("latin-1"),
+    )
+
+
+def _definition_problem(who: str, text: str, msgtype: str, md5: str) -> str | None:
+    """A message definition rosbags cannot parse, or whose md5sum is not the one it states (rosbags
+    says only 'Could not parse: <the whole text>' or 'hash mismatch', naming no record)."""
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+    from rosbags.typesys.msg import normalize_msgtype
+
+    try:
+        msgtype = normalize_msgtype(msgtype)  # std_msgs/String → std_msgs/msg/String, as rosbags names it
+        types = get_types_from_msg(text, msgtype)
+    except Exception as exc:  # rosbags' parser raises its own and generic errors
+        return f"{who}: its message definition of {msgtype!r} cannot be parsed ({_short(exc)})"
+    if not md5 or md5 == "*":
+        return None
+    try:
+        store = get_typestore(Stores.EMPTY)
+        store.register(types)
+        have = store.generate_msgdef(msgtype)[1]
+    except Exception as exc:  # a type it uses is not defined in the text
+        return f"{who}: its message definition of {msgtype!r} is incomplete ({_short(exc)})"
+    if have != md5:
+        return f"{who}: md5sum {md5} is not that of its message definition of {msgtype!r} ({have})"
     return None
+
+
+def _short(exc: Exception) -> str:
+    text = " ".join(f"{type(exc).__name__}: {exc}".split())
+    return text if len(text) <= 160 else text[:157] + "..."
 
 
 def _fields_of(data: bytes) -> dict[str, bytes] | None:
