@@ -662,3 +662,71 @@ def test_annotate_names_the_damaged_record_of_a_ros1_bag_as_convert_does(
     assert err.value.path == str(bag) and err.value.offset == offset, str(err.value)
     assert text in str(err.value)
     assert not (tmp_path / "out.mcap").exists()
+
+
+@pytest.mark.parametrize(
+    ("sql", "text"),
+    [
+        (
+            "UPDATE message_definitions SET encoded_message_definition = encoded_message_definition || "
+            "char(10) || 'float64 extra' WHERE topic_type LIKE '%TrackedObjects'",
+            "type_description_hash",
+        ),
+        ("UPDATE message_definitions SET encoded_message_definition = ''", "the definition is empty"),
+        ("UPDATE message_definitions SET encoding = 'flatbuffer'", "encoding 'flatbuffer'"),
+    ],
+)
+def test_a_sqlite3_type_definition_rosbags_refuses_names_its_table_and_row(
+    tmp_path: Path, table: pa.Table, sql: str, text: str
+) -> None:
+    """A message_definitions row that is not the type its topic's hash states (or is empty, or of an
+    unknown encoding) was 'cannot read the bag: AnyReaderError: Message type X hash mismatch A != B'
+    or 'KeyError: ...' naming the bag directory only (fuzz seeds 1031, 1085). Now the storage file,
+    table and row."""
+    import sqlite3
+
+    from lanecast.io_adapters.logs import rosbag_writer
+
+    bag = rosbag_writer.write(table, tmp_path / "b", "ros2", storage="sqlite3")
+    with sqlite3.connect(bag / "b.db3") as con:
+        con.execute(sql)
+    with pytest.raises(LogError) as err:
+        rosbag_reader.read(bag)
+    assert err.value.path == str(bag / "b.db3"), str(err.value)
+    assert "row " in str(err.value) and text in str(err.value)
+
+
+def test_ros2_mcap_channel_with_garbage_qos_metadata_names_its_record(
+    tmp_path: Path, table: pa.Table
+) -> None:
+    """A channel whose offered_qos_profiles metadata is not a list of QoS profiles was 'cannot read
+    the bag: TypeError: string indices must be integers, not 'str'' (fuzz seed 1044): rosbags' own
+    crash, no file, record or topic. Now the channel record's offset and topic."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    from lanecast.io_adapters.logs import rosbag_writer
+
+    bag = rosbag_writer.write(table, tmp_path / "b", "ros2", storage="mcap")
+    storage = next(bag.glob("*.mcap"))
+    with storage.open("rb") as f:
+        reader = make_reader(f)
+        header, summary = reader.get_header(), reader.get_summary()
+        assert summary is not None
+        messages = [(ch.id, m.log_time, m.publish_time, m.data) for _s, ch, m in reader.iter_messages()]
+    victim = max(summary.channels)
+    with storage.open("wb") as f:
+        w = Writer(f)
+        w.start(profile=header.profile, library=header.library)
+        sids = {i: w.register_schema(s.name, s.encoding, s.data) for i, s in summary.schemas.items()}
+        cids = {}
+        for i, c in summary.channels.items():
+            meta = {**c.metadata, "offered_qos_profiles": "just a string"} if i == victim else c.metadata
+            cids[i] = w.register_channel(c.topic, c.message_encoding, sids[c.schema_id], meta)
+        for cid, log_time, publish_time, data in messages:
+            w.add_message(cids[cid], log_time, data, publish_time)
+        w.finish()
+    with pytest.raises(LogError, match="offered_qos_profiles metadata is not QoS profiles") as err:
+        rosbag_reader.read(bag)
+    assert err.value.path == str(storage) and err.value.offset is not None
+    assert repr(summary.channels[victim].topic) in str(err.value)

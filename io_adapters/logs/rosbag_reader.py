@@ -17,7 +17,14 @@ import pyarrow as pa
 
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.errors import LogError
-from lanecast.io_adapters.logs import bag_damage, bag_metadata, frame_transforms, log_assembly, ros_types
+from lanecast.io_adapters.logs import (
+    bag_damage,
+    bag_metadata,
+    frame_transforms,
+    log_assembly,
+    ros2_open_damage,
+    ros_types,
+)
 from lanecast.io_adapters.logs import log_conventions as conv
 from lanecast.io_adapters.logs import tracked_objects as to
 from lanecast.io_adapters.logs.mcap_crc import verify_crcs
@@ -174,7 +181,8 @@ def damage_of(target: Path) -> LogError | None:
 
 
 def _located_damage(target: Path, ros1: bool) -> LogError | None:
-    return bag_damage.located(_storage_files(target, ros1), ros1)
+    files = _storage_files(target, ros1)
+    return bag_damage.located(files, ros1) or (None if ros1 else ros2_open_damage.located(files))
 
 
 def _storage_files(target: Path, ros1: bool) -> list[Path]:
