@@ -572,6 +572,24 @@ def _prediction_doc() -> dict[str, object]:
             "targets[0].alternatives[0]",
             "an object with",
         ),
+        # fuzz seeds 1131 and 1134: 1e308 was taken in, and the report was a traceback
+        (lambda d: d["targets"][0]["y"].__setitem__(1, 1e308), "targets[0].y", "5 finite numbers within"),
+        (
+            lambda d: d["targets"][0]["maneuver_probs"][2].__setitem__(0, 1e308),
+            "targets[0].maneuver_probs",
+            "null or 5 lists of 3 numbers from 0 to 1",
+        ),
+        (
+            lambda d: d["targets"][0]["maneuver_probs"][0].__setitem__(1, -0.5),
+            "targets[0].maneuver_probs",
+            "null or 5",
+        ),
+        (
+            lambda d: d["targets"][0]["alternatives"][0].update(prob=7),
+            "targets[0].alternatives[0].prob",
+            "a number",
+        ),
+        (lambda d: d["targets"][0].update(origin=[1e300, 0.0]), "targets[0].origin", "null or 2 finite"),
     ],
 )
 def test_a_bad_prediction_document_names_its_message_and_field(

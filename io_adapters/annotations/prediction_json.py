@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from lanecast.io_adapters.annotations.forecast_batch import N_STEPS, ForecastBatch, ForecastFrame
+from lanecast.io_adapters.contracts.track_table import MAX_POSITION_M
 from lanecast.io_adapters.contracts.windows import MANEUVERS
 
 PREDICTION_SCHEMA: dict[str, Any] = {
@@ -198,7 +199,10 @@ def document_problem(doc: Any) -> tuple[str, str] | None:
             return f"{where}.track_id", "an integer"
         for key in ("x", "y"):
             if not _points(t.get(key)):
-                return f"{where}.{key}", f"{N_STEPS} finite numbers"
+                return f"{where}.{key}", f"{N_STEPS} finite numbers within ±{MAX_POSITION_M:g} m"
+        origin = t.get("origin")
+        if origin is not None and not _points(origin, 2):
+            return f"{where}.origin", f"null or 2 finite numbers within ±{MAX_POSITION_M:g} m"
         m = t.get("maneuver")
         if not (isinstance(m, list) and len(m) == N_STEPS and all(_is_int(v) and -1 <= v <= 2 for v in m)):
             return f"{where}.maneuver", f"{N_STEPS} integers from -1 to 2"
@@ -207,18 +211,25 @@ def document_problem(doc: Any) -> tuple[str, str] | None:
             isinstance(p, list)
             and len(p) == N_STEPS
             and all(
-                isinstance(s, list) and len(s) == len(MANEUVERS) and all(_number(v) for v in s) for s in p
+                isinstance(s, list) and len(s) == len(MANEUVERS) and all(_probability(v) for v in s)
+                for s in p
             )
         ):
-            return f"{where}.maneuver_probs", f"null or {N_STEPS} lists of {len(MANEUVERS)} numbers or nulls"
+            return (
+                f"{where}.maneuver_probs",
+                f"null or {N_STEPS} lists of {len(MANEUVERS)} numbers from 0 to 1 or nulls",
+            )
         alts = t.get("alternatives", [])
         if not isinstance(alts, list):
             return f"{where}.alternatives", "a list"
         for k, a in enumerate(alts):
             if not isinstance(a, dict) or not _points(a.get("x")) or not _points(a.get("y")):
-                return f"{where}.alternatives[{k}]", f"an object with x and y of {N_STEPS} finite numbers"
-            if not _number(a.get("prob")):
-                return f"{where}.alternatives[{k}].prob", "a number or null"
+                return (
+                    f"{where}.alternatives[{k}]",
+                    f"an object with x and y of {N_STEPS} finite numbers within ±{MAX_POSITION_M:g} m",
+                )
+            if not _probability(a.get("prob")):
+                return f"{where}.alternatives[{k}].prob", "a number from 0 to 1 or null"
     return None
 
 
@@ -226,14 +237,17 @@ def _is_int(v: Any) -> bool:
     return isinstance(v, int) and not isinstance(v, bool) and -(2**63) <= v < 2**63
 
 
-def _number(v: Any) -> bool:
-    return v is None or (isinstance(v, (int, float)) and not isinstance(v, bool))
+def _probability(v: Any) -> bool:
+    """null, or a number from 0 to 1 (1e308 or NaN made the report's reliability bins a traceback)."""
+    return v is None or (isinstance(v, (int, float)) and not isinstance(v, bool) and 0.0 <= v <= 1.0)
 
 
-def _points(v: Any) -> bool:
-    if not isinstance(v, list) or len(v) != N_STEPS:
+def _points(v: Any, n: int = N_STEPS) -> bool:
+    """``n`` finite coordinates within the track table's ±MAX_POSITION_M (1e308 overflowed the
+    report's RMSE to inf, and its table to a traceback)."""
+    if not isinstance(v, list) or len(v) != n:
         return False
     try:
-        return all(type(c) is not bool and math.isfinite(c) for c in v)
+        return all(type(c) is not bool and math.isfinite(c) and abs(c) <= MAX_POSITION_M for c in v)
     except TypeError:  # not a number (a string, null, a list)
         return False
