@@ -621,10 +621,17 @@ def test_a_bad_prediction_document_names_its_message_and_field(
     assert (err.value.expected or "").startswith(expected)
 
 
-def test_a_class_name_that_is_not_utf8_is_refused_with_its_offset(tmp_path: Path, table: pa.Table) -> None:
-    """A damaged byte in a protobuf string (here the class 'car' of one message) used to become
-    U+FFFD and a new class 'c\ufffdr' in the table; protobuf strings are UTF-8, so it is a LogError
-    naming the record."""
+@pytest.mark.parametrize(
+    ("old", "new", "what"),
+    [(b"car", b"c\xffr", "class name"), (b"class", b"cl\xedss", "metadata key")],
+)
+def test_a_class_name_that_is_not_utf8_is_refused_with_its_offset(
+    tmp_path: Path, table: pa.Table, old: bytes, new: bytes, what: str
+) -> None:
+    """A damaged byte in a protobuf string used to become U+FFFD: the class 'car' of one message a
+    new class 'c\ufffdr' in the table (fuzz seed 1071), the metadata key 'class' no key, so the
+    vehicle's class silently 'unknown' (seed 1221). Protobuf strings are UTF-8, so either is a
+    LogError naming the record."""
     from mcap.reader import make_reader
     from mcap.writer import Writer
 
@@ -645,12 +652,12 @@ def test_a_class_name_that_is_not_utf8_is_refused_with_its_offset(tmp_path: Path
             for i, c in summary.channels.items()
         }
         for k, (cid, log_time, publish_time, data) in enumerate(messages):
-            if k == len(messages) // 2 and b"car" in data:
-                data, damaged = data.replace(b"car", b"c\xffr", 1), 1
+            if k == len(messages) // 2 and old in data:
+                data, damaged = data.replace(old, new, 1), 1
             w.add_message(cids[cid], log_time, data, publish_time)
         w.finish()
     assert damaged
-    with pytest.raises(LogError, match=r"class name .* is not UTF-8") as err:
+    with pytest.raises(LogError, match=f"{what} .* is not UTF-8") as err:
         mcap_reader.read(bad)
     assert err.value.path == str(bad) and err.value.offset is not None
 

@@ -34,7 +34,14 @@ from lanecast.io_adapters.logs.tracked_objects import (
     track_id_of,
     yaw_of,
 )
-from lanecast.io_adapters.logs.wire_text import categories, parse_floats, short_codes, strings, text
+from lanecast.io_adapters.logs.wire_text import (
+    categories,
+    check_text,
+    parse_floats,
+    short_codes,
+    strings,
+    text,
+)
 
 
 def _cube_parts(
@@ -273,6 +280,7 @@ def _entity_columns(
     }
     # Metadata: class, lane_id and the kinematics lanecast writes.
     kv_entity, ks, ke, vs, ve = _key_value_spans(buf, f)
+    check_text(buf, ks, ke, "a metadata key")  # a damaged 'class' would silently be no class
     slot = _key_slots(buf, ks, ke, [*_NUMERIC_KEYS.values(), b"class"])
     numeric = np.full((len(_NUMERIC_KEYS), n), NAN)
     sel = np.flatnonzero((slot >= 0) & (slot < len(_NUMERIC_KEYS)))

@@ -120,6 +120,17 @@ def text(raw: bytes, what: str) -> str:
         ) from None
 
 
+def check_text(buf: np.ndarray, starts: np.ndarray, ends: np.ndarray, what: str) -> None:
+    """ValueError (see :func:`text`) if a string buf[starts[i]:ends[i]] is not UTF-8; the common
+    all-ASCII case costs one pass over the bytes, without a Python string per value."""
+    if not starts.size:
+        return
+    raw = strings(buf, starts, ends)
+    high = (raw.view(np.uint8).reshape(raw.size, -1) >= 0x80).any(axis=1)
+    for value in np.unique(raw[high]).tolist():
+        text(value, what)
+
+
 def categories(
     buf: np.ndarray, starts: np.ndarray, ends: np.ndarray, what: str = "a string field"
 ) -> tuple[np.ndarray, list[str]]:
