@@ -755,3 +755,55 @@ def test_ros2_mcap_channel_with_garbage_qos_metadata_names_its_record(
         rosbag_reader.read(bag)
     assert err.value.path == str(storage) and err.value.offset is not None
     assert repr(summary.channels[victim].topic) in str(err.value)
+
+
+@pytest.mark.parametrize("opcode", [0x0F, 0x00, 0x06])
+def test_a_record_of_another_kind_inside_a_chunk_is_refused(
+    tmp_path: Path, table: pa.Table, opcode: int
+) -> None:
+    """A Message record inside an uncompressed chunk whose opcode became DataEnd (0x0f), 0x00 or
+    Chunk, CRCs recomputed (a writer bug, or damage before the CRCs were written): the record was
+    skipped and its vehicles' rows silently lost (fuzz seed 1151). A chunk holds only Schema,
+    Channel and Message records; now the chunk's offset and the record's place in it."""
+    import zlib
+
+    from mcap.reader import make_reader
+    from mcap.writer import CompressionType, Writer
+
+    clean = mcap_writer.write(table, tmp_path / "clean.mcap", "mcap")
+    log = tmp_path / "log.mcap"
+    with clean.open("rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        assert summary is not None
+        messages = [(ch.id, m.log_time, m.publish_time, m.data) for _s, ch, m in reader.iter_messages()]
+    with log.open("wb") as f:
+        w = Writer(f, compression=CompressionType.NONE, chunk_size=4000)
+        w.start()
+        sids = {i: w.register_schema(s.name, s.encoding, s.data) for i, s in summary.schemas.items()}
+        cids = {
+            i: w.register_channel(c.topic, c.message_encoding, sids[c.schema_id], c.metadata)
+            for i, c in summary.channels.items()
+        }
+        for cid, log_time, publish_time, data in messages:
+            w.add_message(cids[cid], log_time, data, publish_time)
+        w.finish()
+    data = bytearray(log.read_bytes())
+    chunk = [o for o, op, _n in _mcap_records(bytes(data)) if op == 0x06][1]
+    body = chunk + 9
+    (clen,) = struct.unpack_from("<I", data, body + 28)
+    records_at = body + 32 + clen + 8
+    (records_len,) = struct.unpack_from("<Q", data, records_at - 8)
+    pos = records_at
+    while data[pos] != 0x05:  # the chunk's first Message record
+        pos += 9 + struct.unpack_from("<Q", data, pos + 1)[0]
+    data[pos] = opcode
+    struct.pack_into("<I", data, body + 24, zlib.crc32(bytes(data[records_at : records_at + records_len])))
+    end = next(o for o, op, _ in _mcap_records(bytes(data)) if op == 0x0F)
+    struct.pack_into("<I", data, end + 9, zlib.crc32(bytes(data[:end])))
+    log.write_bytes(bytes(data))
+    with pytest.raises(
+        LogError, match=f"a record of opcode {opcode:#04x} at byte {pos - records_at} "
+    ) as err:
+        mcap_reader.read_log(log)
+    assert err.value.path == str(log) and err.value.offset == chunk
