@@ -422,6 +422,10 @@ def _ros1_damage(kind: str, data: bytearray) -> tuple[int, str]:
         at = data.index(b"md5sum=", conn[2]) + len(b"md5sum=")
         data[at : at + 1] = b"0" if data[at : at + 1] != b"0" else b"1"
         return conn[0], "is not that of its message definition"
+    if kind == "a chunk info record deleted":
+        info = [r for r in ops if r[1]["op"] == b"\x06"][1]
+        del data[info[0] : info[2] + info[3]]
+        return ops[0][0], "the bag header states"
     if kind == "chunk compressed with an unknown method":
         at = data.index(b"compression=none", chunks[1][0]) + len(b"compression=")
         data[at : at + 4] = b"zzzz"
@@ -451,6 +455,7 @@ def _ros1_damage(kind: str, data: bytearray) -> tuple[int, str]:
         "message on an undefined connection",
         "connection definition that does not parse",
         "connection md5sum not its definition's",
+        "a chunk info record deleted",
     ],
 )
 def test_ros1_index_damage_names_its_record(tmp_path: Path, table: pa.Table, kind: str) -> None:

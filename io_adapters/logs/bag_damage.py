@@ -73,6 +73,8 @@ def _ros1_walk(mm: mmap.mmap, size: int) -> tuple[int, str] | None:
     chunk_size: int | None = None  # of the chunk the IndexData records that follow it index
     listed: set[int] = set()  # chunks a ChunkInfo record points at
     conns: set[int] = set()  # connections defined so far
+    stated: tuple[int | None, int | None] = (None, None)  # the bag header's conn_count, chunk_count
+    indexed_conns = 0  # connection records in the index (at or after index_pos)
     while pos < size:
         if pos + 4 > size:
             return pos, f"the file is truncated inside a record header ({size - pos} bytes left)"
@@ -99,6 +101,7 @@ def _ros1_walk(mm: mmap.mmap, size: int) -> tuple[int, str] | None:
         if opcode == _OP_BAG_HEADER and len(fields.get("index_pos", b"")) == 8:
             (index_pos,) = struct.unpack("<Q", fields["index_pos"])
             header_at = pos
+            stated = (_u32(fields.get("conn_count")), _u32(fields.get("chunk_count")))
             if index_pos == 0:
                 return pos, "the bag was never indexed (index_pos 0: its recorder did not close it)"
             if index_pos > size:
@@ -131,12 +134,33 @@ def _ros1_walk(mm: mmap.mmap, size: int) -> tuple[int, str] | None:
         elif opcode == _OP_CONNECTION:
             conns.add(_u32(fields.get("conn")) or 0)
             if pos >= (index_pos or size):  # the index's copy, which rosbags reads
+                indexed_conns += 1
                 problem = _connection_problem(fields, mm[data:end])
                 if problem is not None:
                     return pos, problem
         pos = end
     if index_pos is not None and index_pos not in starts:
         return header_at, f"the bag header puts the index at offset {index_pos}, where no record starts"
+    return _index_count_problem(header_at, stated, indexed_conns, chunks, listed)
+
+
+def _index_count_problem(
+    header_at: int,
+    stated: tuple[int | None, int | None],
+    indexed_conns: int,
+    chunks: dict[int, int | None],
+    listed: set[int],
+) -> tuple[int, str] | None:
+    """The bag header's conn_count and chunk_count against the index (rosbags reads that many
+    records and, a record deleted or added, says only 'Header could not be read from file')."""
+    conn_count, chunk_count = stated
+    if conn_count is not None and conn_count != indexed_conns:
+        return header_at, f"the bag header states {conn_count} connections, the index holds {indexed_conns}"
+    if chunk_count is not None and chunk_count != len(listed):
+        return header_at, f"the bag header states {chunk_count} chunks, the index lists {len(listed)}"
+    unlisted = sorted(set(chunks) - listed)
+    if unlisted:
+        return unlisted[0], f"a chunk no chunk info record lists ({len(unlisted)} such chunk(s))"
     return None
 
 
