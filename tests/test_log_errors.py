@@ -812,3 +812,27 @@ def test_a_record_of_another_kind_inside_a_chunk_is_refused(
     ) as err:
         mcap_reader.read_log(log)
     assert err.value.path == str(log) and err.value.offset == chunk
+
+
+def test_a_sqlite3_message_on_no_topic_is_refused_not_dropped(tmp_path: Path, table: pa.Table) -> None:
+    """A messages row whose topic_id is no topic (a damaged or hand-edited bag, without lanecast's
+    checksum) was skipped by rosbags, its vehicles' rows silently lost (fuzz seed 1207). Now the
+    table, row and column."""
+    import sqlite3
+
+    from lanecast.io_adapters.logs import rosbag_writer
+
+    bag = rosbag_writer.write(table, tmp_path / "b", "ros2", storage="sqlite3")
+    with sqlite3.connect(bag / "b.db3") as con:  # another tool's bag: no lanecast checksum
+        con.execute(
+            "DELETE FROM messages WHERE topic_id=(SELECT id FROM topics WHERE name='/lanecast/metadata')"
+        )
+        con.execute("DELETE FROM topics WHERE name='/lanecast/metadata'")
+        (victim,) = con.execute(
+            "SELECT MIN(id) FROM messages WHERE topic_id=(SELECT id FROM topics WHERE name LIKE '/tracked%' "
+            "AND type LIKE '%TrackedObjects')"
+        ).fetchone()
+        con.execute(f"UPDATE messages SET topic_id=99 WHERE id={victim}")
+    with pytest.raises(LogError, match=f"table messages, row {victim}: topic_id 99 is no topic") as err:
+        rosbag_reader.read(bag)
+    assert err.value.path == str(bag / "b.db3") and err.value.column == "topic_id"

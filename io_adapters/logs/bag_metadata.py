@@ -141,10 +141,21 @@ def check_sqlite_tables(db: Path) -> None:
                     db, f"table topics: {exc}", expected="the columns name and serialization_format"
                 ) from exc
             bad_text = _not_utf8(con, tables)
+            # rosbags reads messages by topic: one whose topic_id is no topic would silently vanish
+            orphan = con.execute(
+                "SELECT id, topic_id FROM messages WHERE topic_id NOT IN (SELECT id FROM topics) LIMIT 1"
+            ).fetchone()
         finally:
             con.close()
     except sqlite3.Error:
         return  # a damaged file: the reader's own path locates the damage
+    if orphan is not None:
+        raise LogError(
+            db,
+            f"table messages, row {orphan[0]}: topic_id {orphan[1]!r} is no topic of table topics",
+            column="topic_id",
+            expected="the id of a row of table topics",
+        )
     if bad_text is not None:
         table, rowid, column, raw, reason = bad_text
         raise LogError(
