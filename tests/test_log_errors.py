@@ -836,3 +836,38 @@ def test_a_sqlite3_message_on_no_topic_is_refused_not_dropped(tmp_path: Path, ta
     with pytest.raises(LogError, match=f"table messages, row {victim}: topic_id 99 is no topic") as err:
         rosbag_reader.read(bag)
     assert err.value.path == str(bag / "b.db3") and err.value.column == "topic_id"
+
+
+@pytest.mark.parametrize("z", [1e300, float("nan"), 3.0])
+def test_an_orientation_that_is_no_unit_quaternion_is_refused(
+    tmp_path: Path, table: pa.Table, z: float
+) -> None:
+    """A TrackedObjects pose whose orientation is no unit quaternion ((0, 0, 1e300, 1): a damaged
+    double) turned the vehicle by 90 degrees and rotated its velocity with it, silently (fuzz seed
+    1317, a bag without lanecast's checksum). Now the message, its topic and log time."""
+    import dataclasses
+    import sqlite3
+
+    from lanecast.io_adapters.logs import ros_types, rosbag_writer
+
+    bag = rosbag_writer.write(table, tmp_path / "b", "ros2", storage="sqlite3")
+    store = ros_types.typestore(2)
+    with sqlite3.connect(bag / "b.db3") as con:
+        con.execute(
+            "DELETE FROM messages WHERE topic_id=(SELECT id FROM topics WHERE name='/lanecast/metadata')"
+        )
+        con.execute("DELETE FROM topics WHERE name='/lanecast/metadata'")
+        rid, msgtype, raw = con.execute(
+            "SELECT m.id, t.type, m.data FROM messages m JOIN topics t ON t.id = m.topic_id "
+            "WHERE t.type LIKE '%TrackedObjects' ORDER BY m.id LIMIT 1 OFFSET 10"
+        ).fetchone()
+        msg = store.deserialize_cdr(raw, msgtype)
+        pose = msg.objects[0].kinematics.pose_with_covariance.pose
+        pose = dataclasses.replace(pose, orientation=dataclasses.replace(pose.orientation, z=z))
+        msg.objects[0].kinematics.pose_with_covariance.pose = pose
+        con.execute("UPDATE messages SET data=? WHERE id=?", (bytes(store.serialize_cdr(msg, msgtype)), rid))
+    with pytest.raises(
+        LogError, match=r"cannot read the bag at message \d+ \(topic '/tracked_objects"
+    ) as err:
+        rosbag_reader.read(bag)
+    assert "is not a unit quaternion" in str(err.value)

@@ -31,6 +31,7 @@ from lanecast.io_adapters.logs.tracked_objects import (
     NAN,
     Categorical,
     ObjectColumns,
+    check_quaternions,
     track_id_of,
     yaw_of,
 )
@@ -271,6 +272,7 @@ def _entity_columns(
     position, quaternion, size = double_messages(
         buf, _cube_parts(buf, f.start[cube_sel], f.end[cube_sel], f.owner[cube_sel]), n
     )
+    check_quaternions(*quaternion)
     vals = {
         "x": position[0],
         "y": position[1],

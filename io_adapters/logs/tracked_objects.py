@@ -59,6 +59,32 @@ def yaw_of(qx: np.ndarray, qy: np.ndarray, qz: np.ndarray, qw: np.ndarray) -> np
     return np.where((qx == 0) & (qy == 0) & (qz == 0) & (qw == 0), np.nan, yaw)
 
 
+#: Squared norm an orientation quaternion may have (float32 rounding, sloppy normalisation); the
+#: zero quaternion means "no orientation". Anything else is damage: (0, 0, 1e300, 1) turned a car by
+#: 90 degrees and rotated its velocity with it, silently.
+UNIT_NORM2 = (0.9, 1.1)
+
+
+def check_quaternion(qx: float, qy: float, qz: float, qw: float) -> None:
+    """ValueError unless (qx, qy, qz, qw) is a unit quaternion (within UNIT_NORM2) or all zero."""
+    n2 = qx * qx + qy * qy + qz * qz + qw * qw
+    if n2 != 0.0 and not UNIT_NORM2[0] <= n2 <= UNIT_NORM2[1]:  # NaN and inf fail too
+        raise ValueError(
+            f"orientation quaternion (x, y, z, w) = ({qx:g}, {qy:g}, {qz:g}, {qw:g}) is not a unit "
+            f"quaternion (norm {math.sqrt(n2) if math.isfinite(n2) else n2:g}; expected norm 1, or all zero for none)"
+        )
+
+
+def check_quaternions(qx: np.ndarray, qy: np.ndarray, qz: np.ndarray, qw: np.ndarray) -> None:
+    """:func:`check_quaternion` over arrays [n] (one pass; the first bad one is named)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        n2 = qx * qx + qy * qy + qz * qz + qw * qw
+    bad = (n2 != 0.0) & ~((n2 >= UNIT_NORM2[0]) & (n2 <= UNIT_NORM2[1]))
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        check_quaternion(float(qx[i]), float(qy[i]), float(qz[i]), float(qw[i]))
+
+
 def quat_of_yaw(yaw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(qz, qw) of a rotation by ``yaw`` about z (qx = qy = 0); arrays of shape [n]."""
     half = 0.5 * np.asarray(yaw, dtype=np.float64)
@@ -197,6 +223,9 @@ def add_scene_update_json(cols: ObjectColumns, doc: Mapping[str, Any], log_time:
         t = sec * 1_000_000_000 + nsec or log_time
         meta = {kv.get("key"): kv.get("value") for kv in e.get("metadata", ())}
         ints += (t, log_time, track_id_of(str(e.get("id", ""))))
+        check_quaternion(
+            float(q.get("x", 0.0)), float(q.get("y", 0.0)), float(q.get("z", 0.0)), float(q.get("w", 1.0))
+        )
         floats += (
             float(p.get("x", 0.0)),
             float(p.get("y", 0.0)),
@@ -234,6 +263,7 @@ def add_tracked_objects(cols: ObjectColumns, msg: Any, log_time: int) -> None:
         ints += (t, t, uuid_to_track_id(o.object_id.uuid))
         # The pose's orientation is used whatever orientation_availability says: Autoware expresses
         # the twist in that orientation's frame.
+        check_quaternion(q.x, q.y, q.z, q.w)
         floats += (p.x, p.y, q.x, q.y, q.z, q.w, d.x, d.y, v.x, v.y, a.x, a.y, NAN)
         classes.append(AUTOWARE_LABELS.get(int(label), "unknown"))
         frames.append(frame_id)
@@ -258,6 +288,7 @@ def add_marker_array(cols: ObjectColumns, msg: Any, log_time: int) -> None:
         if m.type != 1 or m.action != 0:
             continue
         p, q = m.pose.position, m.pose.orientation
+        check_quaternion(q.x, q.y, q.z, q.w)
         t = stamp_ns(m.header) or log_time
         ints += (t, t, int(m.id))
         floats += (p.x, p.y, q.x, q.y, q.z, q.w, m.scale.x, m.scale.y, NAN, NAN, NAN, NAN)
