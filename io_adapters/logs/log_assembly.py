@@ -13,6 +13,7 @@ several), or the names stored in lanecast's metadata.
 
 from __future__ import annotations
 
+import re
 import sys
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
@@ -28,7 +29,7 @@ from lanecast.io_adapters.contracts.track_runs import (
     row_extent,
     run_starts,
 )
-from lanecast.io_adapters.errors import FrameError, LogError
+from lanecast.io_adapters.errors import FrameError, LanecastError, LogError, TrackTableError
 from lanecast.io_adapters.logs.frame_transforms import Transforms
 from lanecast.io_adapters.logs.log_conventions import FIXED_FRAMES, KNOWN_CLASSES, MARKER_SUFFIX
 from lanecast.io_adapters.logs.tracked_objects import Categorical, ObjectColumns, rotate
@@ -209,8 +210,32 @@ def assemble(
         source_files=[str(path)],
     )
     table = track_table.build_table(columns, meta)
-    track_table.validate(table, source=path)
+    try:
+        track_table.validate(table, source=path)
+    except TrackTableError as exc:
+        raise _in_the_log(path, table, exc) from exc
     return table
+
+
+_ROW = re.compile(r"row (\d+): (.*)$")
+
+
+def _in_the_log(path: Path, table: pa.Table, exc: TrackTableError) -> LanecastError:
+    """A track-table error about row N, said of the log: the topic, track and stamp of the object
+    that row came from (the row of a table the user never sees locates nothing in the log)."""
+    found = _ROW.search(str(exc))
+    if found is None or int(found.group(1)) >= table.num_rows:
+        return exc
+    row, what = int(found.group(1)), found.group(2)
+    recording = table.column("recording")[row].as_py()
+    track = table.column("track_id")[row].as_py()
+    stamp = table.column("time_ns")[row].as_py()
+    spec = track_table.read_meta(table).recordings.get(recording)
+    topic = spec.extra.get("topic") if spec is not None else None
+    where = f"topic {topic!r}, " if topic else ""
+    return LogError(
+        path, f"{where}the object of track {track} stamped {stamp} ns (the message holding it): {what}"
+    )
 
 
 def _fallback_name(path: Path, topic: str, taken: set[str]) -> str:
