@@ -908,3 +908,32 @@ def test_a_non_finite_position_is_named_by_topic_track_and_stamp(tmp_path: Path,
     with pytest.raises(LogError, match=r"topic '[^']+', the object of track \d+ stamped \d+ ns") as err:
         mcap_reader.read(bad)
     assert "column 'x' is inf" in str(err.value) and err.value.path == str(bad)
+
+
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
+def test_annotate_names_a_damaged_ros2_bag_as_convert_does(
+    tmp_path: Path, table: pa.Table, storage: str
+) -> None:
+    """annotate lists a ROS 2 bag's topics with rosbags before reading it; a bad metadata.yaml
+    version or an MCAP storage file with a record deleted was 'cannot open the bag: Invalid bag
+    metadata: '>' not supported between instances of 'str' and 'int'' or 'cannot open the bag:'
+    with nothing after it (fuzz seeds 1382, 1386). Now convert's error: the file and line/offset."""
+    from lanecast.io_adapters.logs import rosbag_writer
+    from lanecast.workflows.annotate_log import AnnotateOptions, annotate_log
+
+    bag = rosbag_writer.write(table, tmp_path / "b", "ros2", storage=storage)
+    meta = bag / "metadata.yaml"
+    meta.write_text(meta.read_text().replace("version: 9", "version: x"))
+    with pytest.raises(LogError, match="version") as err:
+        annotate_log(bag, tmp_path / "out", AnnotateOptions())
+    assert err.value.path == str(meta) and err.value.line is not None
+    if storage == "mcap":
+        meta.write_text(meta.read_text().replace("version: x", "version: 9"))
+        storage_file = next(bag.glob("*.mcap"))
+        data = storage_file.read_bytes()
+        end = next(o for o, op, _ in _mcap_records(data) if op == 0x0F)
+        storage_file.write_bytes(data[:end] + data[end + 13 :])  # the DataEnd record deleted
+        with pytest.raises(LogError) as err:
+            annotate_log(bag, tmp_path / "out", AnnotateOptions())
+        assert err.value.path == str(storage_file) and err.value.offset is not None, str(err.value)
+    assert not (tmp_path / "out").exists()

@@ -86,15 +86,8 @@ def read_log(
                 offset=0,
                 expected="'#ROSBAG V2.0' (the only ROS 1 bag version lanecast reads)",
             )
-    if target.is_dir():  # rosbags does not check MCAP CRCs: check them first (sqlite3 has none)
-        listed = bag_metadata.check_metadata(target)  # other files in the directory are not the bag's
-        for storage_file in (f for f in listed if f.suffix == ".mcap"):
-            verify_crcs(storage_file)
-        for storage_file in (f for f in listed if f.suffix == ".db3"):  # a file cut short may still open
-            cut = bag_damage.sqlite_truncation(storage_file)
-            if cut is not None:
-                raise LogError(storage_file, cut[1], offset=cut[0], expected="an intact ROS bag")
-            bag_metadata.check_sqlite_tables(storage_file)
+    if target.is_dir():
+        check_storage(target)
     topics: dict[str, log_assembly.TopicData] = {}
     transforms = frame_transforms.Transforms()
     log_meta: dict[str, Any] | None = None
@@ -171,12 +164,28 @@ def _chunk_listed_twice(reader: Any) -> bool:
     return len(set(positions)) != len(positions)
 
 
+def check_storage(target: Path) -> None:
+    """A ROS 2 bag directory's metadata.yaml and storage files, before rosbags reads them: MCAP
+    CRCs (rosbags checks none), a sqlite3 file cut short (it may still open) and its tables."""
+    listed = bag_metadata.check_metadata(target)  # other files in the directory are not the bag's
+    for storage_file in (f for f in listed if f.suffix == ".mcap"):
+        verify_crcs(storage_file)
+    for storage_file in (f for f in listed if f.suffix == ".db3"):
+        cut = bag_damage.sqlite_truncation(storage_file)
+        if cut is not None:
+            raise LogError(storage_file, cut[1], offset=cut[0], expected="an intact ROS bag")
+        bag_metadata.check_sqlite_tables(storage_file)
+
+
 def damage_of(target: Path) -> LogError | None:
     """The error naming the file and byte offset of the damage in a bag (a ROS 1 file or a ROS 2
-    directory) that rosbags cannot open, where its structure shows it, else None."""
+    directory) that rosbags cannot open, where its structure shows it, else None: the checks
+    :func:`read_log` makes before and after rosbags fails."""
     try:
+        if target.is_dir():
+            check_storage(target)
         return _located_damage(target, target.is_file())
-    except LogError as exc:  # a ROS 2 bag's metadata.yaml itself
+    except LogError as exc:  # found by the checks of the metadata and the storage files
         return exc
 
 
