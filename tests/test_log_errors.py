@@ -422,6 +422,11 @@ def _ros1_damage(kind: str, data: bytearray) -> tuple[int, str]:
         at = data.index(b"md5sum=", conn[2]) + len(b"md5sum=")
         data[at : at + 1] = b"0" if data[at : at + 1] != b"0" else b"1"
         return conn[0], "is not that of its message definition"
+    if kind == "a record of another kind in the index":
+        conn = next(r for r in ops if r[1]["op"] == b"\x07" and r[0] > chunks[-1][0])
+        at = data.index(b"op=\x07", conn[0]) + 3
+        data[at : at + 1] = b"\x02"
+        return conn[0], "a record of op 0x02 in the index"
     if kind == "a chunk info record deleted":
         info = [r for r in ops if r[1]["op"] == b"\x06"][1]
         del data[info[0] : info[2] + info[3]]
@@ -456,6 +461,7 @@ def _ros1_damage(kind: str, data: bytearray) -> tuple[int, str]:
         "connection definition that does not parse",
         "connection md5sum not its definition's",
         "a chunk info record deleted",
+        "a record of another kind in the index",
     ],
 )
 def test_ros1_index_damage_names_its_record(tmp_path: Path, table: pa.Table, kind: str) -> None:

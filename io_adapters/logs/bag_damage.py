@@ -98,6 +98,12 @@ def _ros1_walk(mm: mmap.mmap, size: int) -> tuple[int, str] | None:
                 f"but the file ends {size - data} bytes later"
             )
         starts.add(pos)
+        in_index = index_pos is not None and pos >= index_pos and index_pos in starts  # (else: named below)
+        if in_index and opcode not in (_OP_CONNECTION, _OP_CHUNK_INFO):
+            return pos, (
+                f"a record of op {opcode:#04x} in the index (from offset {index_pos}), which holds only "
+                "connection (0x07) and chunk info (0x06) records"
+            )
         if opcode == _OP_BAG_HEADER and len(fields.get("index_pos", b"")) == 8:
             (index_pos,) = struct.unpack("<Q", fields["index_pos"])
             header_at = pos
