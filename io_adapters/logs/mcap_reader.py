@@ -50,8 +50,8 @@ from lanecast.io_adapters.logs.mcap_walk import (
 )
 
 FORMAT = "mcap"
+_ONLY = "of the chunk's records (a chunk holds only Schema, Channel and Message records)"
 MAX_LOG_TIME = 2**63 - 1  # ns: time_ns is int64 (MCAP's log times are uint64)
-_LAST_SPEC_OPCODE = 0x0F  # DataEnd: the MCAP spec's opcodes are 0x01-0x0F
 SCENE_UPDATE = "foxglove.SceneUpdate"
 FRAME_TRANSFORMS = ("foxglove.FrameTransform", "foxglove.FrameTransforms")
 OBJECT_TYPES = (SCENE_UPDATE, ros_types.TRACKED_OBJECTS, ros_types.MARKER_ARRAY)
@@ -330,12 +330,8 @@ class _LogDecoder:
                 self.schema(buf, body, nxt)
             elif op == OP_CHANNEL:
                 self.channel(buf, body, nxt)
-            elif in_chunk and op <= _LAST_SPEC_OPCODE:  # 0x00, or a record the spec keeps out of chunks
-                # (opcodes past the spec's are skipped: the spec's rule for records a reader does not know)
-                raise ValueError(
-                    f"a record of opcode {op:#04x} at byte {pos - start} of the chunk's records "
-                    "(a chunk holds only Schema, Channel and Message records)"
-                )
+            elif in_chunk and op <= 0x0F:  # 0x00 or one the spec keeps out of chunks (later ones: skipped)
+                raise ValueError(f"a record of opcode {op:#04x} at byte {pos - start} {_ONLY}")
             pos = nxt
         if spans:
             data = buf.obj if in_chunk and start == 0 else bytes(buf[start:end])
