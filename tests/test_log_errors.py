@@ -427,6 +427,10 @@ def _ros1_damage(kind: str, data: bytearray) -> tuple[int, str]:
         at = data.index(b"op=\x07", conn[0]) + 3
         data[at : at + 1] = b"\x02"
         return conn[0], "a record of op 0x02 in the index"
+    if kind == "index data listing no message record":
+        index = next(r for r in ops if r[1]["op"] == b"\x04" and r[0] > chunks[1][0])
+        struct.pack_into("<I", data, index[2] + 8, 3)  # the first message's offset: inside a record
+        return index[0], "lists a message at offset 3 of its chunk, where no message record starts"
     if kind == "a chunk info record deleted":
         info = [r for r in ops if r[1]["op"] == b"\x06"][1]
         del data[info[0] : info[2] + info[3]]
@@ -462,6 +466,7 @@ def _ros1_damage(kind: str, data: bytearray) -> tuple[int, str]:
         "connection md5sum not its definition's",
         "a chunk info record deleted",
         "a record of another kind in the index",
+        "index data listing no message record",
     ],
 )
 def test_ros1_index_damage_names_its_record(tmp_path: Path, table: pa.Table, kind: str) -> None:

@@ -73,6 +73,7 @@ def _ros1_walk(mm: mmap.mmap, size: int) -> tuple[int, str] | None:
     chunk_size: int | None = None  # of the chunk the IndexData records that follow it index
     listed: set[int] = set()  # chunks a ChunkInfo record points at
     conns: set[int] = set()  # connections defined so far
+    message_starts: set[int] = set()  # where message records start in the last chunk's records
     stated: tuple[int | None, int | None] = (None, None)  # the bag header's conn_count, chunk_count
     indexed_conns = 0  # connection records in the index (at or after index_pos)
     while pos < size:
@@ -117,13 +118,14 @@ def _ros1_walk(mm: mmap.mmap, size: int) -> tuple[int, str] | None:
                     f"ends at {size}",
                 )
         elif opcode == _OP_CHUNK:
-            problem = _chunk_problem(fields, mm[data:end], conns)
+            message_starts = set()
+            problem = _chunk_problem(fields, mm[data:end], conns, message_starts)
             if problem is not None:
                 return pos, problem
             chunk_size = _u32(fields.get("size"))
             chunks[pos] = chunk_size
         elif opcode == _OP_INDEX_DATA:
-            problem = _index_data_problem(fields, mm[data:end], chunk_size)
+            problem = _index_data_problem(fields, mm[data:end], chunk_size, message_starts)
             if problem is not None:
                 return pos, problem
         elif opcode == _OP_CHUNK_INFO:
@@ -174,8 +176,11 @@ def _u32(raw: bytes | None) -> int | None:
     return struct.unpack("<I", raw)[0] if raw is not None and len(raw) == 4 else None
 
 
-def _index_data_problem(fields: dict[str, bytes], data: bytes, chunk_size: int | None) -> str | None:
-    """An IndexData record (version 1: count × (time, offset)) listing a message past its chunk."""
+def _index_data_problem(
+    fields: dict[str, bytes], data: bytes, chunk_size: int | None, message_starts: set[int]
+) -> str | None:
+    """An IndexData record (version 1: count × (time, offset)) listing a message past its chunk or
+    where none of the chunk's message records starts (``message_starts``: empty if unknown)."""
     conn, count = _u32(fields.get("conn")), _u32(fields.get("count"))
     if count is None or len(data) < 12 * count:
         return f"an index data record of connection {conn} lists {count} messages in {len(data)} bytes"
@@ -187,6 +192,11 @@ def _index_data_problem(fields: dict[str, bytes], data: bytes, chunk_size: int |
             return (
                 f"an index data record of connection {conn} lists a message at offset {offset} of a chunk "
                 f"of {chunk_size} bytes"
+            )
+        if message_starts and offset not in message_starts:
+            return (
+                f"an index data record of connection {conn} lists a message at offset {offset} of its "
+                "chunk, where no message record starts"
             )
     return None
 
@@ -269,7 +279,9 @@ def _fields(mm: mmap.mmap, pos: int, end: int) -> dict[str, bytes] | None:
     return out
 
 
-def _chunk_problem(fields: dict[str, bytes], data: bytes, conns: set[int]) -> str | None:
+def _chunk_problem(
+    fields: dict[str, bytes], data: bytes, conns: set[int], message_starts: set[int]
+) -> str | None:
     """What is wrong with a chunk: its compression, its size, or a record inside it (a message on a
     connection no connection record defined before it; ``conns`` grows with those the chunk defines)."""
     compression = fields.get("compression", b"none").decode("latin-1")
@@ -289,10 +301,11 @@ def _chunk_problem(fields: dict[str, bytes], data: bytes, conns: set[int]) -> st
         return f"a corrupt {compression} chunk: {exc}"
     if stated is not None and len(raw) != stated:
         return f"a {compression} chunk of {len(raw)} bytes, its header states {stated}"
-    return _chunk_records_problem(raw, conns)
+    return _chunk_records_problem(raw, conns, message_starts)
 
 
-def _chunk_records_problem(raw: bytes, conns: set[int]) -> str | None:
+def _chunk_records_problem(raw: bytes, conns: set[int], message_starts: set[int]) -> str | None:
+    """What is wrong with a chunk's records (``message_starts`` collects where its messages start)."""
     pos = 0
     while pos < len(raw):
         if pos + 4 > len(raw):
@@ -308,11 +321,13 @@ def _chunk_records_problem(raw: bytes, conns: set[int]) -> str | None:
         op, conn = header.get("op", b"")[:1], _u32(header.get("conn"))
         if op == bytes([_OP_CONNECTION]) and conn is not None:
             conns.add(conn)
-        elif op == bytes([_OP_MESSAGE_DATA]) and conn not in conns:
-            return (
-                f"a message at byte {pos} of the chunk's records is on connection {conn}, which no "
-                "connection record defines before it"
-            )
+        elif op == bytes([_OP_MESSAGE_DATA]):
+            if conn not in conns:
+                return (
+                    f"a message at byte {pos} of the chunk's records is on connection {conn}, which no "
+                    "connection record defines before it"
+                )
+            message_starts.add(pos)
         pos = end
     return None
 
