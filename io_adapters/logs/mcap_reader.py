@@ -54,13 +54,11 @@ _ONLY = "of the chunk's records (a chunk holds only Schema, Channel and Message 
 MAX_LOG_TIME = 2**63 - 1  # ns: time_ns is int64 (MCAP's log times are uint64)
 SCENE_UPDATE = "foxglove.SceneUpdate"
 FRAME_TRANSFORMS = ("foxglove.FrameTransform", "foxglove.FrameTransforms")
-OBJECT_TYPES = (SCENE_UPDATE, ros_types.TRACKED_OBJECTS, ros_types.MARKER_ARRAY)
-SUPPORTED = (
-    "foxglove.SceneUpdate (protobuf or jsonschema), autoware_perception_msgs/msg/TrackedObjects or "
-    "visualization_msgs/msg/MarkerArray (ros2msg/cdr)"
-)
+OBJECT_TYPES = (SCENE_UPDATE, *ros_types.TRACKED_OBJECT_TYPES, ros_types.MARKER_ARRAY)
+SUPPORTED = f"foxglove.SceneUpdate (protobuf or jsonschema), {ros_types.OBJECT_MESSAGES} (ros2msg/cdr)"
 _ROS_NAMES = {
     "autoware_perception_msgs/TrackedObjects": ros_types.TRACKED_OBJECTS,
+    "autoware_auto_perception_msgs/TrackedObjects": ros_types.TRACKED_OBJECTS_AUTO,
     "visualization_msgs/MarkerArray": ros_types.MARKER_ARRAY,
     "tf2_msgs/TFMessage": ros_types.TF_MESSAGE,
     "nav_msgs/Odometry": ros_types.ODOMETRY,
@@ -199,16 +197,17 @@ class _LogDecoder:
         ):
             return None
         # ROS 2 messages are CDR; ROS 1 messages in MCAP (an annotated ROS 1 bag) keep ROS 1's encoding
-        store = ros_types.typestore(1 if ch.encoding == "ros1" else 2)
+        ros = 1 if ch.encoding == "ros1" else 2
+        store = ros_types.store_for(name, schema.data.decode("utf-8", "replace"), ros)
         deserialize = store.deserialize_ros1 if ch.encoding == "ros1" else store.deserialize_cdr
-        if name in (ros_types.TRACKED_OBJECTS, ros_types.MARKER_ARRAY):
+        if name in (*ros_types.TRACKED_OBJECT_TYPES, ros_types.MARKER_ARRAY):
             if (
                 self.topic is not None
                 and ch.topic != self.topic
                 and not ch.topic == self.topic + conv.MARKER_SUFFIX
             ):
                 return None
-            add = to.add_tracked_objects if name == ros_types.TRACKED_OBJECTS else to.add_marker_array
+            add = to.add_tracked_objects if name in ros_types.TRACKED_OBJECT_TYPES else to.add_marker_array
             cols = self._columns(ch.topic, name)
 
             def ros_objects(data: Any, log_time: int) -> None:

@@ -1,8 +1,15 @@
 """rosbags typestores with the message types lanecast needs that the stores do not build in.
 
-Autoware's ``autoware_perception_msgs/msg/TrackedObjects`` (and its sub-messages),
-``unique_identifier_msgs/msg/UUID`` and, for ROS 1, ``tf2_msgs/msg/TFMessage`` are registered from
-the ``.msg`` definitions shipped in ``io_adapters/data/ros_msgs/<package>/msg/<Type>.msg``.
+Autoware's ``autoware_perception_msgs/msg/TrackedObjects`` (and its sub-messages), the same message
+under Autoware.Universe's earlier package name ``autoware_auto_perception_msgs`` (whose kinematics
+hold their fields in another order), ``unique_identifier_msgs/msg/UUID`` and, for ROS 1,
+``tf2_msgs/msg/TFMessage`` are registered from the ``.msg`` definitions shipped in
+``io_adapters/data/ros_msgs/<package>/msg/<Type>.msg``.
+
+A log that carries its own definitions (an MCAP schema) is decoded with them where they differ from
+these (:func:`store_for`): a message of another ROS distribution or package version (Jazzy's
+``visualization_msgs/msg/Marker`` has fields Humble's has not) keeps the fields lanecast reads by
+name, and decoding it with another layout would read garbage.
 """
 
 from __future__ import annotations
@@ -12,15 +19,19 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typestore
 
 MSG_DIR = Path(__file__).parents[1] / "data" / "ros_msgs"
 
 TRACKED_OBJECTS = "autoware_perception_msgs/msg/TrackedObjects"
+TRACKED_OBJECTS_AUTO = "autoware_auto_perception_msgs/msg/TrackedObjects"
+TRACKED_OBJECT_TYPES = (TRACKED_OBJECTS, TRACKED_OBJECTS_AUTO)
 MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
 TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 ODOMETRY = "nav_msgs/msg/Odometry"
 STRING = "std_msgs/msg/String"
+#: the ROS messages lanecast reads tracked objects from, as error messages name them
+OBJECT_MESSAGES = f"{TRACKED_OBJECTS} (or {TRACKED_OBJECTS_AUTO.split('/')[0]}'s) or {MARKER_ARRAY}"
 
 
 def msg_definitions() -> dict[str, str]:
@@ -40,6 +51,30 @@ def typestore(ros_version: int = 2) -> Any:
         if name not in store.fielddefs:
             types.update(get_types_from_msg(text, name))
     store.register(types)
+    return store
+
+
+@cache
+def store_for(typename: str, definition: str, ros_version: int = 2) -> Any:
+    """The typestore to decode ``typename`` with, given the log's own ``definition`` of it (a
+    ``ros2msg``/``ros1msg`` schema's text): :func:`typestore` where the definition is empty, does not
+    parse, names a type nobody defines or agrees with it field for field, else one with the log's
+    own definitions (and lanecast's for the types the definition does not hold)."""
+    ours = typestore(ros_version)
+    if not definition.strip():
+        return ours
+    try:
+        theirs = get_types_from_msg(definition, typename)
+    except TypesysError:  # a definition rosbags cannot parse leaves the decoding to lanecast's own
+        return ours
+    if all(ours.fielddefs.get(name, (None, None))[1] == fields for name, (_, fields) in theirs.items()):
+        return ours
+    store = get_typestore(Stores.EMPTY)
+    try:  # a definition naming a type nobody defines (a damaged schema) leaves it to lanecast's own
+        store.register({**{n: d for n, d in ours.fielddefs.items() if n not in theirs}, **theirs})
+        store.generate_msgdef(typename, ros_version=ros_version)
+    except TypesysError:
+        return ours
     return store
 
 

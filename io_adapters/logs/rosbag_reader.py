@@ -32,8 +32,8 @@ from lanecast.io_adapters.logs.mcap_crc import verify_crcs
 FORMAT = "rosbag"
 ROS1_MAGIC = b"#ROSBAG V2.0\n"
 ROS1_PREFIX = b"#ROSBAG V"  # any version: recognised as a ROS 1 bag, refused unless 2.0
-OBJECT_TYPES = (ros_types.TRACKED_OBJECTS, ros_types.MARKER_ARRAY)
-SUPPORTED = "autoware_perception_msgs/msg/TrackedObjects or visualization_msgs/msg/MarkerArray"
+OBJECT_TYPES = (*ros_types.TRACKED_OBJECT_TYPES, ros_types.MARKER_ARRAY)
+SUPPORTED = ros_types.OBJECT_MESSAGES
 
 
 def bag_path(path: str | Path) -> Path | None:
@@ -262,7 +262,7 @@ def _handler(
         if topic is not None and conn_topic not in (topic, topic + conv.MARKER_SUFFIX):
             return None
         data = topics.setdefault(conn_topic, log_assembly.TopicData(conn_topic, msgtype))
-        add = to.add_tracked_objects if msgtype == ros_types.TRACKED_OBJECTS else to.add_marker_array
+        add = to.add_tracked_objects if msgtype in ros_types.TRACKED_OBJECT_TYPES else to.add_marker_array
         cols = data.columns
         return lambda msg, t: add(cols, msg, t)
     if msgtype == ros_types.TF_MESSAGE:
