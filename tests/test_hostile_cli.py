@@ -598,7 +598,7 @@ def test_a_position_is_blamed_before_the_speed_derived_from_it(
     refused(
         ["convert", str(path), "--out", str(tmp_path / "o.parquet")],
         capsys,
-        f"{path}: row ",
+        f"{path}: topic '/objects', the object of track 1 stamped ",  # where it is in the log
         "column 'x' is 1e+300",
     )
 
