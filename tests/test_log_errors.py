@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import struct
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -637,6 +638,31 @@ def test_a_bad_prediction_document_names_its_message_and_field(
     assert (err.value.expected or "").startswith(expected)
 
 
+def rewrite_mcap(clean: Path, bad: Path, edit: Callable[[int, int, int, bytes], bytes | None]) -> None:
+    """``clean`` rewritten to ``bad`` by the mcap library (valid CRCs), every message's data passed
+    through ``edit(index, number of messages, log_time, data)`` (None: unchanged)."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    with clean.open("rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        assert summary is not None
+        messages = [(ch.id, m.log_time, m.publish_time, m.data) for _s, ch, m in reader.iter_messages()]
+    with bad.open("wb") as f:
+        w = Writer(f)
+        w.start()
+        sids = {i: w.register_schema(s.name, s.encoding, s.data) for i, s in summary.schemas.items()}
+        cids = {
+            i: w.register_channel(c.topic, c.message_encoding, sids[c.schema_id], c.metadata)
+            for i, c in summary.channels.items()
+        }
+        for k, (cid, log_time, publish_time, data) in enumerate(messages):
+            edited = edit(k, len(messages), log_time, data)
+            w.add_message(cids[cid], log_time, data if edited is None else edited, publish_time)
+        w.finish()
+
+
 @pytest.mark.parametrize(
     ("old", "new", "what"),
     [(b"car", b"c\xffr", "class name"), (b"class", b"cl\xedss", "metadata key")],
@@ -648,30 +674,17 @@ def test_a_class_name_that_is_not_utf8_is_refused_with_its_offset(
     new class 'c\ufffdr' in the table (fuzz seed 1071), the metadata key 'class' no key, so the
     vehicle's class silently 'unknown' (seed 1221). Protobuf strings are UTF-8, so either is a
     LogError naming the record."""
-    from mcap.reader import make_reader
-    from mcap.writer import Writer
-
     clean = mcap_writer.write(table, tmp_path / "clean.mcap", "mcap")
     bad = tmp_path / "bad.mcap"
-    with clean.open("rb") as f:
-        reader = make_reader(f)
-        summary = reader.get_summary()
-        assert summary is not None
-        messages = [(ch.id, m.log_time, m.publish_time, m.data) for _s, ch, m in reader.iter_messages()]
-    damaged = 0
-    with bad.open("wb") as f:
-        w = Writer(f)
-        w.start()
-        sids = {i: w.register_schema(s.name, s.encoding, s.data) for i, s in summary.schemas.items()}
-        cids = {
-            i: w.register_channel(c.topic, c.message_encoding, sids[c.schema_id], c.metadata)
-            for i, c in summary.channels.items()
-        }
-        for k, (cid, log_time, publish_time, data) in enumerate(messages):
-            if k == len(messages) // 2 and old in data:
-                data, damaged = data.replace(old, new, 1), 1
-            w.add_message(cids[cid], log_time, data, publish_time)
-        w.finish()
+    damaged: list[int] = []
+
+    def edit(k: int, n: int, _log_time: int, data: bytes) -> bytes | None:
+        if k == n // 2 and old in data:
+            damaged.append(k)
+            return data.replace(old, new, 1)
+        return None
+
+    rewrite_mcap(clean, bad, edit)
     assert damaged
     with pytest.raises(LogError, match=f"{what} .* is not UTF-8") as err:
         mcap_reader.read(bad)
@@ -888,34 +901,20 @@ def test_a_non_finite_position_is_named_by_topic_track_and_stamp(tmp_path: Path,
     """A position of inf in one message (CRCs valid: the writer meant it) was 'log.mcap: row 12658:
     column 'x' is -inf', a row of a table the user never sees (fuzz seed 1112). Now the topic, the
     track and the stamp of the object, which find the message in the log."""
-    from mcap.reader import make_reader
-    from mcap.writer import Writer
-
     clean = mcap_writer.write(table, tmp_path / "clean.mcap", "mcap")
     bad = tmp_path / "bad.mcap"
     xs = {struct.pack("<d", v) for v in table.column("x").to_pylist()}
-    with clean.open("rb") as f:
-        reader = make_reader(f)
-        summary = reader.get_summary()
-        assert summary is not None
-        messages = [(ch.id, m.log_time, m.publish_time, m.data) for _s, ch, m in reader.iter_messages()]
-    damaged = None
-    with bad.open("wb") as f:
-        w = Writer(f)
-        w.start()
-        sids = {i: w.register_schema(s.name, s.encoding, s.data) for i, s in summary.schemas.items()}
-        cids = {
-            i: w.register_channel(c.topic, c.message_encoding, sids[c.schema_id], c.metadata)
-            for i, c in summary.channels.items()
-        }
-        for k, (cid, log_time, publish_time, data) in enumerate(messages):
-            if damaged is None and k >= len(messages) // 2:
-                at = next((i for i in range(len(data) - 7) if data[i : i + 8] in xs), None)
-                if at is not None:
-                    data, damaged = data[:at] + struct.pack("<d", float("inf")) + data[at + 8 :], log_time
-            w.add_message(cids[cid], log_time, data, publish_time)
-        w.finish()
-    assert damaged is not None
+    damaged: list[int] = []
+
+    def edit(k: int, n: int, log_time: int, data: bytes) -> bytes | None:
+        at = next((i for i in range(len(data) - 7) if data[i : i + 8] in xs), None)
+        if damaged or k < n // 2 or at is None:
+            return None
+        damaged.append(log_time)
+        return data[:at] + struct.pack("<d", float("inf")) + data[at + 8 :]
+
+    rewrite_mcap(clean, bad, edit)
+    assert damaged
     with pytest.raises(LogError, match=r"topic '[^']+', the object of track \d+ stamped \d+ ns") as err:
         mcap_reader.read(bad)
     assert "column 'x' is inf" in str(err.value) and err.value.path == str(bad)
