@@ -5,6 +5,7 @@ from __future__ import annotations
 import struct
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -638,9 +639,15 @@ def test_a_bad_prediction_document_names_its_message_and_field(
     assert (err.value.expected or "").startswith(expected)
 
 
-def rewrite_mcap(clean: Path, bad: Path, edit: Callable[[int, int, int, bytes], bytes | None]) -> None:
-    """``clean`` rewritten to ``bad`` by the mcap library (valid CRCs), every message's data passed
-    through ``edit(index, number of messages, log_time, data)`` (None: unchanged)."""
+def rewrite_mcap(
+    clean: Path,
+    bad: Path,
+    edit: Callable[[int, int, int, bytes], bytes | None] | None = None,
+    **writer_options: Any,
+) -> None:
+    """``clean`` rewritten to ``bad`` by the mcap library (valid CRCs; ``writer_options`` for its
+    Writer), every message's data passed through ``edit(index, number of messages, log_time,
+    data)`` (None: unchanged)."""
     from mcap.reader import make_reader
     from mcap.writer import Writer
 
@@ -650,7 +657,7 @@ def rewrite_mcap(clean: Path, bad: Path, edit: Callable[[int, int, int, bytes], 
         assert summary is not None
         messages = [(ch.id, m.log_time, m.publish_time, m.data) for _s, ch, m in reader.iter_messages()]
     with bad.open("wb") as f:
-        w = Writer(f)
+        w = Writer(f, **writer_options)
         w.start()
         sids = {i: w.register_schema(s.name, s.encoding, s.data) for i, s in summary.schemas.items()}
         cids = {
@@ -658,7 +665,7 @@ def rewrite_mcap(clean: Path, bad: Path, edit: Callable[[int, int, int, bytes], 
             for i, c in summary.channels.items()
         }
         for k, (cid, log_time, publish_time, data) in enumerate(messages):
-            edited = edit(k, len(messages), log_time, data)
+            edited = None if edit is None else edit(k, len(messages), log_time, data)
             w.add_message(cids[cid], log_time, data if edited is None else edited, publish_time)
         w.finish()
 
@@ -796,27 +803,11 @@ def test_a_record_of_another_kind_inside_a_chunk_is_refused(
     Channel and Message records; now the chunk's offset and the record's place in it."""
     import zlib
 
-    from mcap.reader import make_reader
-    from mcap.writer import CompressionType, Writer
+    from mcap.writer import CompressionType
 
     clean = mcap_writer.write(table, tmp_path / "clean.mcap", "mcap")
     log = tmp_path / "log.mcap"
-    with clean.open("rb") as f:
-        reader = make_reader(f)
-        summary = reader.get_summary()
-        assert summary is not None
-        messages = [(ch.id, m.log_time, m.publish_time, m.data) for _s, ch, m in reader.iter_messages()]
-    with log.open("wb") as f:
-        w = Writer(f, compression=CompressionType.NONE, chunk_size=4000)
-        w.start()
-        sids = {i: w.register_schema(s.name, s.encoding, s.data) for i, s in summary.schemas.items()}
-        cids = {
-            i: w.register_channel(c.topic, c.message_encoding, sids[c.schema_id], c.metadata)
-            for i, c in summary.channels.items()
-        }
-        for cid, log_time, publish_time, data in messages:
-            w.add_message(cids[cid], log_time, data, publish_time)
-        w.finish()
+    rewrite_mcap(clean, log, compression=CompressionType.NONE, chunk_size=4000)
     data = bytearray(log.read_bytes())
     chunk = [o for o, op, _n in _mcap_records(bytes(data)) if op == 0x06][1]
     body = chunk + 9

@@ -19,10 +19,16 @@ from pathlib import Path
 from typing import Any
 
 from lanecast.io_adapters.errors import LogError
+from lanecast.io_adapters.logs.mcap_walk import (
+    MAGIC,
+    OP_CHANNEL,
+    OP_DATA_END,
+    OP_FOOTER,
+    OP_SCHEMA,
+    read_string,
+)
 
-_MCAP_MAGIC = b"\x89MCAP0\r\n"
 _FOOTER = 1 + 8 + 20  # opcode, length, summary_start, summary_offset_start, summary_crc
-_OP_SCHEMA, _OP_CHANNEL, _OP_FOOTER, _OP_DATA_END = 0x03, 0x04, 0x02, 0x0F
 _DEFINITION_ENCODINGS = ("ros2msg", "ros2idl", "omgidl", "")
 _EXPECTED = "an intact ROS 2 bag"
 
@@ -43,42 +49,35 @@ def located(files: Sequence[Path]) -> LogError | None:
 # ------------------------------------------------------------------------------------------ MCAP
 
 
-def _string(data: bytes, pos: int) -> tuple[str, int]:
-    (n,) = struct.unpack_from("<I", data, pos)
-    if pos + 4 + n > len(data):
-        raise ValueError("a string runs past its record")
-    return data[pos + 4 : pos + 4 + n].decode("utf-8"), pos + 4 + n
-
-
 def mcap_problem(path: Path) -> LogError | None:
     """The first schema or channel record rosbags refuses (offset, id, what is wrong), else None.
 
     Walks the summary section (where rosbags reads them), else the data section's top-level records.
     """
     data = path.read_bytes()
-    if len(data) < len(_MCAP_MAGIC) * 2 + _FOOTER or not data.startswith(_MCAP_MAGIC):
+    if len(data) < len(MAGIC) * 2 + _FOOTER or not data.startswith(MAGIC):
         return None
-    footer = len(data) - len(_MCAP_MAGIC) - _FOOTER
-    if data[footer] != _OP_FOOTER:
+    footer = len(data) - len(MAGIC) - _FOOTER
+    if data[footer] != OP_FOOTER:
         return None
     (summary_start,) = struct.unpack_from("<Q", data, footer + 9)
-    pos = summary_start if 0 < summary_start < footer else len(_MCAP_MAGIC)
+    pos = summary_start if 0 < summary_start < footer else len(MAGIC)
     while pos + 9 <= footer:
         op, n = struct.unpack_from("<BQ", data, pos)
         body = pos + 9
-        if body + n > footer or op == _OP_DATA_END:
+        if body + n > footer or op == OP_DATA_END:
             break
         record = data[body : body + n]
         try:
             problem = (
                 _schema_problem(record)
-                if op == _OP_SCHEMA
+                if op == OP_SCHEMA
                 else _channel_problem(record)
-                if op == _OP_CHANNEL
+                if op == OP_CHANNEL
                 else None
             )
         except (ValueError, struct.error, UnicodeDecodeError) as exc:
-            problem = f"a {'schema' if op == _OP_SCHEMA else 'channel'} record that cannot be read ({exc})"
+            problem = f"a {'schema' if op == OP_SCHEMA else 'channel'} record that cannot be read ({exc})"
         if problem is not None:
             return LogError(path, problem, offset=pos, expected=_EXPECTED)
         pos = body + n
@@ -87,8 +86,8 @@ def mcap_problem(path: Path) -> LogError | None:
 
 def _schema_problem(record: bytes) -> str | None:
     (sid,) = struct.unpack_from("<H", record, 0)
-    name, pos = _string(record, 2)
-    encoding, pos = _string(record, pos)
+    name, pos = read_string(record, 2, len(record))
+    encoding, pos = read_string(record, pos, len(record))
     (n,) = struct.unpack_from("<I", record, pos)
     text = record[pos + 4 : pos + 4 + n].decode("utf-8")
     if encoding not in _DEFINITION_ENCODINGS:
@@ -105,8 +104,8 @@ def _channel_problem(record: bytes) -> str | None:
     from rosbags.rosbag2.storage_mcap import get_qos
 
     (cid,) = struct.unpack_from("<H", record, 0)
-    topic, pos = _string(record, 4)
-    _encoding, pos = _string(record, pos)
+    topic, pos = read_string(record, 4, len(record))
+    _encoding, pos = read_string(record, pos, len(record))
     (n,) = struct.unpack_from("<I", record, pos)
     try:
         get_qos(record[pos + 4 : pos + 4 + n])
