@@ -131,7 +131,7 @@ def test_demo_checks_its_options_before_making_out(
     """`lanecast demo --minutes 0` said '<input>: invalid simulation parameter …' after making --out."""
     assert cli.main(["demo", "--out", str(tmp_path / "d"), "--minutes", "0"]) == 2
     assert capsys.readouterr().err == (
-        "lanecast demo: error: --minutes 0.0: invalid (expected a positive number of minutes)\n"
+        "lanecast demo: error: --minutes 0.0: invalid (expected a number of minutes above 0, at most 120)\n"
     )
     assert not (tmp_path / "d").exists()
 

@@ -280,6 +280,15 @@ def test_a_new_output_directory_gets_ordinary_permissions(tmp_path: Path) -> Non
         ({"lanes_per_direction": 0}, "--lanes-per-direction 0: invalid"),
         ({"seed": -1}, "--seed -1: invalid"),
         ({"recording_id": 100}, "recording id"),
+        # SUMO's clock overflowed: "libsumo.TraCIException" / "OverflowError: cannot convert float infinity"
+        (
+            {"minutes": 1e30},
+            r"--minutes 1e\+30: invalid \(expected a number of minutes above 0, at most 120\)",
+        ),
+        ({"minutes": float("inf")}, "--minutes inf: invalid"),
+        ({"section_length_m": 1e30}, r"--section-length 1e\+30: invalid"),
+        ({"approach_length_m": 1e30}, r"--approach-length 1e\+30: invalid"),
+        ({"lane_change_duration_s": 1e30}, r"--lane-change-duration 1e\+30: invalid"),
     ],
 )
 def test_bad_parameters_raise_input_error(tmp_path: Path, kwargs: dict[str, object], column: str) -> None:

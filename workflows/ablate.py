@@ -18,6 +18,7 @@ from lanecast.io_adapters.contracts.windows import labelled, load_windows, subse
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import check_output_dir, staged_files
 from lanecast.models.ablation_report import write_ablation_report
+from lanecast.workflows.arguments import integer
 from lanecast.workflows.vocabulary import HelpFormatter
 
 #: The ``--quick`` preset (CI, smoke tests): a few epochs on at most this many training windows.
@@ -57,12 +58,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="A,B,…",
         help="comma-separated variants (default: all seven)",
     )
-    p.add_argument("--seeds", type=int, default=3, help="training seeds 0..N-1 per variant")
-    p.add_argument("--epochs", type=int, help="epochs per training (default: 10; --quick: 2)")
+    p.add_argument("--seeds", type=integer(1, 100), default=3, help="training seeds 0..N-1 per variant")
+    p.add_argument("--epochs", type=integer(1, 100_000), help="epochs per training (default: 10; --quick: 2)")
     p.add_argument("--config", type=Path, metavar="JSON", help="training config (lanecast train --config)")
     p.add_argument(
         "--max-train-windows",
-        type=int,
+        type=integer(1, 100_000_000),
         metavar="N",
         help="train on at most N training windows (a seeded sample; default: all; --quick: 1500)",
     )
@@ -71,7 +72,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="a preset small enough for CI: 2 epochs, at most 1,500 training windows, batch 128",
     )
-    p.add_argument("--threads", type=int, default=1, help="torch threads")
+    p.add_argument("--threads", type=integer(1, 1024), default=1, help="torch threads")
     p.set_defaults(func=run)
 
 
@@ -86,8 +87,6 @@ def run(args: argparse.Namespace) -> int:
             None, f"unknown variant(s) {unknown}", column="--variants", expected=", ".join(variants())
         )
     check_output_dir(args.out, files=("ablation.json", "report.md", "report.html", "ablation.png"))
-    if args.seeds < 1:
-        raise InputError(None, f"--seeds {args.seeds}", column="--seeds", expected="at least 1")
     config = TrainConfig.from_file(args.config) if args.config else TrainConfig(epochs=10)
     config.threads = args.threads
     max_train = args.max_train_windows

@@ -16,6 +16,7 @@ from lanecast.io_adapters.files import check_output
 from lanecast.models.serving import check_model
 from lanecast.workflows import bulk
 from lanecast.workflows.annotate_log import AnnotateOptions, read_forecasts_table
+from lanecast.workflows.arguments import MANEUVER_SEQUENCES, MAX_WORKERS, integer, number
 from lanecast.workflows.vocabulary import HelpFormatter, add_model_option
 
 
@@ -52,8 +53,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, type=Path, metavar="OUT_DIR", help="output directory")
     add_model_option(p)
     p.add_argument("--topic", help="topic with tracked objects (default: every supported topic)")
-    p.add_argument("--every", type=float, default=1.0, metavar="SECONDS", help="forecast period")
-    p.add_argument("--top-k", type=int, default=3, help="alternatives drawn per target")
+    p.add_argument(
+        "--every",
+        type=number(0, 86_400, "s", above=True),
+        default=1.0,
+        metavar="SECONDS",
+        help="forecast period",
+    )
+    p.add_argument(
+        "--top-k", type=integer(1, MANEUVER_SEQUENCES), default=3, help="alternatives drawn per target"
+    )
     p.add_argument(
         "--encoding",
         choices=("auto", "protobuf", "json"),
@@ -72,7 +81,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="also /lanecast/explain: each target's what-if forecasts, one per neighbour removed (entity "
         "'<id> without F', as lanecast explain draws them)",
     )
-    p.add_argument("--workers", type=int, default=1, help="logs annotated in parallel")
+    p.add_argument("--workers", type=integer(1, MAX_WORKERS), default=1, help="logs annotated in parallel")
     p.add_argument(
         "--engine", choices=("local", "ray"), default="local", help="local processes or a Ray cluster"
     )
@@ -81,7 +90,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="Ray: host:port of a cluster's head, or ray://host:10001 (default: RAY_ADDRESS, else the "
         "cluster `ray start` runs on this machine, else a new local Ray)",
     )
-    p.add_argument("--retries", type=int, default=2, help="Ray: retries of a task whose worker died")
+    p.add_argument(
+        "--retries", type=integer(0, 100), default=2, help="Ray: retries of a task whose worker died"
+    )
     p.add_argument(
         "--force", action="store_true", help="redo every log, even those the manifest says are done"
     )

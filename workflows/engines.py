@@ -20,6 +20,7 @@ from typing import Any, TypeVar
 
 from lanecast.io_adapters.errors import InputError, LanecastError
 from lanecast.workflows import heap, ray_engine
+from lanecast.workflows.arguments import MAX_WORKERS, integer
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -29,14 +30,16 @@ ENGINES = ("local", "ray")
 def add_arguments(p: argparse.ArgumentParser, unit: str) -> None:
     """``--workers``, ``--engine``, ``--address`` and ``--retries`` (as `annotate` has them) for a
     command spreading ``unit``s."""
-    p.add_argument("--workers", type=int, default=1, help=f"{unit} processed in parallel")
+    p.add_argument("--workers", type=integer(1, MAX_WORKERS), default=1, help=f"{unit} processed in parallel")
     p.add_argument("--engine", choices=ENGINES, default="local", help="local processes or a Ray cluster")
     p.add_argument(
         "--address",
         help="Ray: host:port of a cluster's head, or ray://host:10001 (default: RAY_ADDRESS, else the "
         "cluster `ray start` runs on this machine, else a new local Ray)",
     )
-    p.add_argument("--retries", type=int, default=2, help="Ray: retries of a task whose worker died")
+    p.add_argument(
+        "--retries", type=integer(0, 100), default=2, help="Ray: retries of a task whose worker died"
+    )
 
 
 def check(workers: int, engine: str) -> None:

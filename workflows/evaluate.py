@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from lanecast.io_adapters.contracts.windows import load_windows
-from lanecast.io_adapters.errors import InputError, UsageError
+from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import check_output_dir, staged_files
 from lanecast.models.baselines import constant_acceleration, constant_velocity
 from lanecast.models.card import resolve
@@ -26,6 +26,7 @@ from lanecast.models.evaluation import (
 )
 from lanecast.models.forecaster import Forecaster
 from lanecast.models.report import write_report
+from lanecast.workflows.arguments import MANEUVER_SEQUENCES, MAX_EXAMPLES, integer
 from lanecast.workflows.vocabulary import HelpFormatter, add_model_option
 
 SPLITS = {"test": ("test",), "val": ("val",), "all": ("train", "val", "test", "none")}
@@ -56,9 +57,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="report directory")
     p.add_argument("--split", choices=sorted(SPLITS), default="test", help="windows to evaluate")
-    p.add_argument("--top-k", type=int, default=3, help="maneuver sequences for minADE/minFDE")
-    p.add_argument("--examples", type=int, default=4, help="example scenes in the report")
-    p.add_argument("--batch-size", type=int, default=4096, help="windows per inference batch")
+    p.add_argument(
+        "--top-k", type=integer(1, MANEUVER_SEQUENCES), default=3, help="maneuver sequences for minADE/minFDE"
+    )
+    p.add_argument(
+        "--examples", type=integer(0, MAX_EXAMPLES), default=4, help="example scenes in the report"
+    )
+    p.add_argument("--batch-size", type=integer(1, 1 << 20), default=4096, help="windows per inference batch")
     p.set_defaults(func=run)
 
 
@@ -68,9 +73,6 @@ def run(args: argparse.Namespace) -> int:
     from lanecast.models.predict import STCNNForecaster
 
     check_output_dir(args.out, files=("metrics.json", "report.md", "report.html"))  # before the work
-    for option, value in (("--batch-size", args.batch_size), ("--top-k", args.top_k)):
-        if value < 1:  # a batch of 0 was a ValueError from range(); minADE@0 was reported as @1
-            raise UsageError(option, f"{value}", expected="at least 1")
     torch.set_num_threads(max(1, min(2, torch.get_num_threads())))
     windows = load_windows(args.windows, check_values=True)
     forecasters: list[Forecaster] = [

@@ -9,7 +9,6 @@ is and with each chosen neighbour removed, and drawn into ``--out`` (``explain.h
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -20,13 +19,14 @@ import pyarrow.compute as pc
 
 from lanecast.io_adapters import registry
 from lanecast.io_adapters.contracts.windows import DATASET_FILES, HISTORY, Windows, load_windows
-from lanecast.io_adapters.errors import InputError, UsageError
+from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import check_output_dir, staged_files
 from lanecast.models.explain import parse_removals, present_neighbours, what_if
 from lanecast.models.explain_report import write_explain
 from lanecast.models.serving import load_forecaster
 from lanecast.pipeline.make_windows import make_windows
 from lanecast.pipeline.neighbours import NEIGHBOUR_RANGE_M
+from lanecast.workflows.arguments import MANEUVER_SEQUENCES, MAX_TIME_S, integer, number
 from lanecast.workflows.vocabulary import HelpFormatter, add_model_option
 
 STEP_NS = 100_000_000  # windows sit on the 10 Hz grid
@@ -55,7 +55,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--track", type=int, required=True, metavar="ID", help="the target's track id")
     p.add_argument(
         "--time",
-        type=float,
+        type=number(-MAX_TIME_S, MAX_TIME_S, "s"),
         required=True,
         metavar="T",
         help="forecast time t0 in seconds (the track's time base; in a windows dataset cut with a stride, the nearest window)",
@@ -75,7 +75,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
     add_model_option(p)
-    p.add_argument("--top-k", type=int, default=3, help="maneuver sequences drawn per scene")
+    p.add_argument(
+        "--top-k", type=integer(1, MANEUVER_SEQUENCES), default=3, help="maneuver sequences drawn per scene"
+    )
     p.set_defaults(func=run)
 
 
@@ -139,8 +141,6 @@ def nearest_on_stride(t0: np.ndarray, t0_ns: int) -> tuple[int, int] | None:
 def window_of(args: argparse.Namespace, card: dict[str, Any]) -> tuple[Windows, int]:
     """The windows INPUT gives (a dataset as it is, or cut at --time from a table or log) and the index of
     the target's window."""
-    if not math.isfinite(args.time):
-        raise UsageError("--time", f"{args.time}", expected="a time in seconds")
     t0_ns = round(args.time * 10) * STEP_NS
     # A directory with any file of a windows dataset is one: one missing is load_windows' to name
     # (not read as a Parquet track table dataset of its windows.parquet).

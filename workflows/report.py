@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from lanecast.workflows.arguments import MAX_EXAMPLES, integer
 from lanecast.workflows.log_report import report_logs
 from lanecast.workflows.vocabulary import HelpFormatter
 
@@ -28,7 +29,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("paths", nargs="+", type=Path, metavar="ANNOTATED", help="annotated logs or directories")
     p.add_argument("--out", required=True, type=Path, metavar="DIR", help="report directory")
     p.add_argument("--topic", help="the topic with tracked objects (default: every supported topic)")
-    p.add_argument("--examples", type=int, default=4, help="example scenes in the overall report")
+    p.add_argument(
+        "--examples", type=integer(0, MAX_EXAMPLES), default=4, help="example scenes in the overall report"
+    )
     p.set_defaults(func=run)
 
 

@@ -8,10 +8,10 @@ from pathlib import Path
 
 from lanecast.io_adapters import registry, streaming
 from lanecast.io_adapters.contracts.windows import DATASET_FILES
-from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import check_output_dir
 from lanecast.pipeline.make_windows import WindowOptions, write_windows
 from lanecast.workflows import engines, heap
+from lanecast.workflows.arguments import MAX_SEED, integer, number
 from lanecast.workflows.vocabulary import HelpFormatter, add_location_option
 
 
@@ -47,8 +47,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--split", choices=("pip", "hash", "none"), default="pip", help="split by track (default: pip)"
     )
-    p.add_argument("--seed", type=int, default=0, help="seed of the hash split (default: 0)")
-    p.add_argument("--stride", type=int, default=10, help="frames at 10 Hz between windows (default: 10)")
+    p.add_argument("--seed", type=integer(0, MAX_SEED), default=0, help="seed of the hash split (default: 0)")
+    p.add_argument(
+        "--stride", type=integer(1, 36_000), default=10, help="frames at 10 Hz between windows (default: 10)"
+    )
     p.add_argument(
         "--neighbours",
         choices=("auto", "source", "lanes", "bands"),
@@ -57,7 +59,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--neighbour-range",
-        type=float,
+        type=number(0, 10_000, "m", above=True),
         default=100.0,
         metavar="M",
         help="a vehicle farther ahead or behind is no neighbour, in metres (default: 100)",
@@ -75,8 +77,6 @@ def run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     # before the work: a file there, or a directory holding a user's files, was refused at the end
     check_output_dir(args.out, replaces=DATASET_FILES)
-    if args.stride < 1:
-        raise InputError(None, f"--stride {args.stride}", expected="at least 1")
     engines.check(args.workers, args.engine)
     heap.keep_freed_memory(arrow=True)  # pieces reuse what the previous one freed
     with streaming.spill_directory(args.out) as spill:  # NGSIM exports: a spill per recording

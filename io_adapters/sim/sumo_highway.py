@@ -52,6 +52,10 @@ BOTTLENECK_GAP_M = 50.0  # from the section's end to the bottleneck (the queue g
 SIGNAL_GAP_M = 20.0  # a traffic light right after the section: its queue stands in the section
 BOTTLENECK_LENGTH_M = 300.0  # the slow zone, the lane-drop taper, the ramp's acceleration lane
 RAMP_LENGTH_M = 300.0
+#: the longest recording simulated: its samples are held in memory (10 minutes of a busy 3-lane
+#: highway are about 3 M rows at 25 Hz), and SUMO's clock overflows for absurd lengths
+MAX_MINUTES = 120.0
+MAX_ROAD_M = 10_000.0  # section and approach lengths
 # (type id, class, length m, width m, share within its class)
 _CAR_TYPES = (
     ("car_s", "Car", 4.2, 1.75, 0.3),
@@ -133,8 +137,10 @@ class HighwayConfig:
     def check(self) -> None:
         """Raise InputError for parameters that cannot give a recording."""
         problems = []
-        if not self.minutes > 0:
-            problems.append(("minutes", f"{self.minutes}", "a positive number of minutes"))
+        if not 0 < self.minutes <= MAX_MINUTES:  # beyond, SUMO's clock overflows (a traceback)
+            problems.append(
+                ("minutes", f"{self.minutes}", f"a number of minutes above 0, at most {MAX_MINUTES:g}")
+            )
         if not 0 <= self.seed < 2**31:
             problems.append(("seed", f"{self.seed}", "an integer in 0 … 2³¹−1"))
         if not 1 <= self.lanes_per_direction <= 6:
@@ -143,15 +149,19 @@ class HighwayConfig:
             problems.append(("density", repr(self.density), f"one of {sorted(DENSITY_RATES)}"))
         if not 0.0 <= self.truck_share <= 1.0:
             problems.append(("truck_share", f"{self.truck_share}", "a share in [0, 1]"))
-        if not self.section_length_m >= 50.0:
-            problems.append(("section_length_m", f"{self.section_length_m}", "at least 50 m"))
-        if not self.approach_length_m >= 100.0:
-            problems.append(("approach_length_m", f"{self.approach_length_m}", "at least 100 m"))
+        if not 50.0 <= self.section_length_m <= MAX_ROAD_M:
+            problems.append(("section_length_m", f"{self.section_length_m}", f"50 … {MAX_ROAD_M:g} m"))
+        if not 100.0 <= self.approach_length_m <= MAX_ROAD_M:
+            problems.append(("approach_length_m", f"{self.approach_length_m}", f"100 … {MAX_ROAD_M:g} m"))
         if self.frame_rate not in (10.0, 20.0, 25.0, 50.0):
             problems.append(("frame_rate", f"{self.frame_rate}", "10, 20, 25 or 50 Hz"))
-        elif not self.lane_change_duration_s > self.step_s:
+        elif not self.step_s < self.lane_change_duration_s <= 20.0:
             problems.append(
-                ("lane_change_duration_s", f"{self.lane_change_duration_s}", "longer than a step")
+                (
+                    "lane_change_duration_s",
+                    f"{self.lane_change_duration_s}",
+                    "longer than a step, at most 20 s",
+                )
             )
         if not 20.0 <= self.speed_limit_kmh <= 250.0:
             problems.append(("speed_limit_kmh", f"{self.speed_limit_kmh}", "20 … 250 km/h"))
@@ -176,8 +186,8 @@ class HighwayConfig:
             problems.append(("lateral_smoothing_s", f"{self.lateral_smoothing_s}", "0 … 10 s"))
         if not 0.0 <= self.lateral_wander_m <= 0.5:
             problems.append(("lateral_wander_m", f"{self.lateral_wander_m}", "0 … 0.5 m"))
-        if not self.extra_warmup_s >= 0.0:
-            problems.append(("extra_warmup_s", f"{self.extra_warmup_s}", "a non-negative time"))
+        if not 0.0 <= self.extra_warmup_s <= 3600.0:
+            problems.append(("extra_warmup_s", f"{self.extra_warmup_s}", "0 … 3600 s"))
         if not 0.0 <= self.reaction_time_s <= 3.0:
             problems.append(("reaction_time_s", f"{self.reaction_time_s}", "0 … 3 s"))
         if problems:
