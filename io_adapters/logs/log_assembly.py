@@ -13,6 +13,7 @@ several), or the names stored in lanecast's metadata.
 
 from __future__ import annotations
 
+import math
 import re
 import sys
 from collections.abc import Iterable, Mapping
@@ -45,23 +46,54 @@ class TopicData:
 
 
 def nominal_rate(msg_times: np.ndarray) -> float:
-    """The nominal rate (Hz) of a topic from its distinct message stamps [n] (median interval)."""
+    """The nominal rate (Hz) of a topic from its distinct message stamps [n] (median interval).
+
+    Snapped to a whole rate (25 Hz, 10 Hz, …) where the median is within 1 % of one, or within 5 %
+    of one on whose grid as many consecutive stamps lie one frame apart as on the median's: stamps
+    that jitter by tens of milliseconds bend the median (a 10 Hz topic stamped ±30 ms measured
+    10.14 Hz), and an unsnapped rate drifts off the grid until messages share frames (and rows of a
+    track are lost as repeats).
+    """
     stamps = np.unique(msg_times)
     if stamps.size < 2:
         return 10.0
-    interval = float(np.median(np.diff(stamps)))
-    rate = 1e9 / interval
-    # Snap to a round rate where the log is within 1 % of one (25 Hz, 10 Hz, …).
+    rate = 1e9 / float(np.median(np.diff(stamps)))
     rounded = round(rate)
-    return float(rounded) if rounded > 0 and abs(rate - rounded) < 0.01 * rate else rate
+    if rounded > 0 and abs(rate - rounded) < 0.01 * rate:
+        return float(rounded)
+    wholes = sorted({math.floor(rate), math.ceil(rate)}, key=lambda r: abs(r - rate))
+    candidates = [float(r) for r in wholes if r > 0 and abs(rate - r) < 0.05 * rate] + [rate]
+    return min(candidates, key=lambda r: _off_grid(stamps, r))  # the first of equals: a whole rate
+
+
+def grid_origin(stamps: np.ndarray, rate: float) -> int:
+    """The time (ns) of frame 0 on a ``rate`` grid through sorted distinct ``stamps`` [n]: the first
+    stamp moved by the stamps' mean phase on the grid (a circular mean), so that a first message
+    stamped late or early does not push every other message to the edge of its frame."""
+    if stamps.size == 0:
+        return 0
+    phase = (stamps - stamps[0]).astype(np.float64) * rate / 1e9
+    angle = np.angle(np.exp(2j * np.pi * phase).mean())
+    return int(stamps[0]) + round(angle / (2 * np.pi) * 1e9 / rate)
+
+
+def _grid_frames(times: np.ndarray, origin: int, rate: float) -> np.ndarray:
+    return np.rint((times - origin).astype(np.float64) * rate / 1e9).astype(np.int64)
+
+
+def _off_grid(stamps: np.ndarray, rate: float) -> int:
+    """How many consecutive pairs of the sorted distinct ``stamps`` [n] do not lie one frame apart
+    on a ``rate`` grid (both on one frame: a row lost as a repeat; frames skipped: a gap made)."""
+    frames = _grid_frames(stamps, grid_origin(stamps, rate), rate)
+    return int(np.count_nonzero(np.diff(frames) != 1))
 
 
 def frames_of(msg_times: np.ndarray, spec: Mapping[str, Any] | None) -> tuple[np.ndarray, float]:
     """Frame indices [n] of rows from their message stamps [n], and the frame rate.
 
     ``spec`` (from lanecast's metadata) gives ``frame_rate`` with ``frame0``/``time0_ns`` or an
-    explicit ``frames`` list (one per distinct stamp); without it the rate is estimated and frame 0
-    is the first message.
+    explicit ``frames`` list (one per distinct stamp); without it the rate is estimated, the grid
+    is laid through the stamps (:func:`grid_origin`) and frame 0 is the first message's.
     """
     if spec is not None and "frames" in spec:
         stamps, inverse = np.unique(msg_times, return_inverse=True)
@@ -70,12 +102,10 @@ def frames_of(msg_times: np.ndarray, spec: Mapping[str, Any] | None) -> tuple[np
             return listed[inverse], float(spec["frame_rate"])
     if spec is not None and "frame0" in spec:
         rate = float(spec["frame_rate"])
-        t0, f0 = int(spec["time0_ns"]), int(spec["frame0"])
-    else:
-        rate = nominal_rate(msg_times)
-        t0, f0 = (int(msg_times.min()) if msg_times.size else 0), 0
-    frames = f0 + np.rint((msg_times - t0).astype(np.float64) * rate / 1e9).astype(np.int64)
-    return frames, rate
+        return int(spec["frame0"]) + _grid_frames(msg_times, int(spec["time0_ns"]), rate), rate
+    rate = nominal_rate(msg_times)
+    frames = _grid_frames(msg_times, grid_origin(np.unique(msg_times), rate), rate)
+    return frames - (frames.min() if frames.size else 0), rate
 
 
 def _merge_markers(main: dict[str, np.ndarray], classes: Categorical, markers: ObjectColumns) -> Categorical:
