@@ -332,11 +332,16 @@ def test_wrong_topic_in_metadata_does_not_drop_objects(
 def test_duplicate_track_frames_in_a_log_are_reported(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
+    """An exact repeat (a message recorded twice) is dropped with a note: nothing is lost. A
+    repeat that says something else is refused: dropping either object would lose data."""
     messages = straight_messages()
-    messages[5][2].append(_entity(1, 99.0))  # track 1 twice in one message
+    messages.insert(6, messages[5])  # the message at 0.6 s recorded twice
     table = mcap_reader.read(json_log(tmp_path / "d.mcap", messages))
     assert table.num_rows == 40
-    assert "1 rows repeat a (track, frame)" in capsys.readouterr().err
+    assert "2 rows repeat an object of the same track, frame and stamp exactly" in capsys.readouterr().err
+    messages[5][2].append(_entity(1, 99.0))  # track 1 twice in one message, at another place
+    with pytest.raises(LogError, match=r"topic '/objects': track 1 has two different objects on frame 5"):
+        mcap_reader.read(json_log(tmp_path / "d2.mcap", messages))
 
 
 # ----------------------------------------------------------------------------------------- Parquet

@@ -3,10 +3,13 @@
 :func:`assemble` takes what the MCAP and ROS bag decoders collected per topic
 (:class:`TopicData`), moves objects in moving frames into the fixed frame their transform chain
 reaches (map, odom, world, road, or a frame named in lanecast's metadata), orders rows by (track,
-frame) dropping repeated (track, frame) rows, and fills heading from the quaternion yaw (from the
+frame) dropping rows that repeat another exactly (a message recorded twice; a repeat that says
+something else is refused, never dropped), and fills heading from the quaternion yaw (from the
 velocity where there is no orientation), velocities and accelerations from the message where it
 has them, else from differences (positions, then velocities). Frame indices lie on the topic's
-timeline at its nominal rate (median message interval, snapped to a whole rate within 1 %).
+timeline at its nominal rate (median message interval, snapped to a whole rate within 1 %), from
+each message's stamp (header stamp; for a SceneUpdate its earliest entity stamp), not the log time
+the recorder gave it.
 Recordings: one per object topic, named after the file stem (``<stem>-<topic>`` when a log has
 several), or the names stored in lanecast's metadata.
 """
@@ -205,7 +208,12 @@ def assemble(
             path, tp, cols, frame_ids, transforms, fixed, data.columns.velocity_in_body
         )
         frames, rate = frames_of(cols["msg_time"], spec)
-        piece, order, dropped = _derive(cols, frames, data.columns.velocity_in_body)
+        order, keep = _row_order(cols["track_id"], frames, cols["time_ns"])
+        dropped = int(keep.size - np.count_nonzero(keep))
+        if dropped:
+            _refuse_conflicting_repeats(path, tp, cols, classes.codes, frames, order, keep, rate)
+            order = order[keep]
+        piece = _derive(cols, frames, order, data.columns.velocity_in_body)
         pieces.append(piece)
         piece_classes.append(classes.take(order))
         rec_names.append(rec_name)
@@ -214,8 +222,8 @@ def assemble(
         if dropped:
             rec_extra["duplicates_dropped"] = dropped
             print(
-                f"lanecast: {path}: topic {tp!r}: {dropped:,} rows repeat a (track, frame) of an earlier "
-                "row; kept the earliest by log time",
+                f"lanecast: {path}: topic {tp!r}: {dropped:,} rows repeat an object of the same track, "
+                "frame and stamp exactly (a message recorded twice); kept one of each",
                 file=sys.stderr,
             )
         if extra:
@@ -324,9 +332,10 @@ def _to_fixed_frame(
     return target or "map"
 
 
-def _row_order(track: np.ndarray, frame: np.ndarray, time_ns: np.ndarray) -> np.ndarray:
-    """The order [n] sorting rows by (track, frame, time): one argsort of a combined integer key
-    where (track, frame) pairs are distinct and the key fits, else a lexsort (a third of the speed)."""
+def _row_order(track: np.ndarray, frame: np.ndarray, time_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The order [n] sorting rows by (track, frame, time) and, in that order, bool [n] True on the
+    first row of each (track, frame). One argsort of a combined integer key where (track, frame)
+    pairs are distinct and the key fits, else a lexsort (a third of the speed)."""
     if track.size:
         t0, f0 = int(track.min()), int(frame.min())
         frames = int(frame.max()) - f0 + 1
@@ -335,8 +344,57 @@ def _row_order(track: np.ndarray, frame: np.ndarray, time_ns: np.ndarray) -> np.
             order = np.argsort(key, kind="stable")  # rows come in message order: runs a merge sort uses
             ordered = key[order]
             if not (ordered[1:] == ordered[:-1]).any():
-                return order
-    return np.lexsort((time_ns, frame, track))
+                return order, np.ones(order.size, dtype=bool)
+    order = np.lexsort((time_ns, frame, track))
+    return order, run_starts(track[order], frame[order])
+
+
+# Columns in which a repeated (track, frame) row must equal the row kept (NaN equals NaN).
+_SAME_IN_A_REPEAT = ("time_ns", "x", "y", "yaw", "length", "width", "vx", "vy", "ax", "ay", "lane")
+
+
+def _refuse_conflicting_repeats(
+    path: Path,
+    topic: str,
+    cols: Mapping[str, np.ndarray],
+    class_codes: np.ndarray,
+    frames: np.ndarray,
+    order: np.ndarray,
+    keep: np.ndarray,
+    rate: float,
+) -> None:
+    """LogError where a row repeats the (track, frame) of an earlier one with other values: one
+    of the two would be lost, and nothing tells which is right. Exact repeats pass (a message
+    recorded twice: dropping one loses nothing)."""
+    pos = np.arange(keep.size)
+    kept = order[np.maximum.accumulate(np.where(keep, pos, 0))][~keep]
+    rep = order[~keep]
+    columns = {k: cols[k] for k in _SAME_IN_A_REPEAT if k in cols}
+    columns["object_class"] = class_codes
+    for name, values in columns.items():
+        a, b = values[rep], values[kept]
+        differs = a != b
+        if values.dtype.kind == "f":
+            differs &= ~(np.isnan(a) & np.isnan(b))
+        if not differs.any():
+            continue
+        i = int(np.flatnonzero(differs)[0])
+        r, k = int(rep[i]), int(kept[i])
+        stamps = cols["time_ns"]
+        if name == "time_ns":
+            what = f"stamped {int(stamps[k])} ns and {int(stamps[r])} ns"
+        elif name == "object_class":
+            what = f"both stamped {int(stamps[r])} ns, of two classes"
+        else:
+            what = f"both stamped {int(stamps[r])} ns, {name} {float(b[i]):g} and {float(a[i]):g}"
+        raise LogError(
+            path,
+            f"topic {topic!r}: track {int(cols['track_id'][r])} has two different objects on frame "
+            f"{int(frames[r])} at {rate:g} Hz ({what}; messages stamped {int(cols['msg_time'][k])} "
+            f"and {int(cols['msg_time'][r])} ns); keeping either would drop the other",
+            column=name,
+            expected="one object per track and frame (messages on the topic's frame timeline)",
+        )
 
 
 def _gather(column: np.ndarray, order: np.ndarray) -> np.ndarray:
@@ -348,17 +406,10 @@ def _gather(column: np.ndarray, order: np.ndarray) -> np.ndarray:
 
 
 def _derive(
-    cols: dict[str, np.ndarray], frames: np.ndarray, body: bool
-) -> tuple[dict[str, np.ndarray], np.ndarray, int]:
-    """Sort by (track, frame), drop duplicate (track, frame), derive heading, velocity, acceleration.
-
-    Returns the columns, the row order applied (for the categoricals) and the duplicates dropped.
-    """
-    order = _row_order(cols["track_id"], frames, cols["time_ns"])
-    track, frame = cols["track_id"][order], frames[order]
-    keep = run_starts(track, frame)
-    order = order[keep]
-    dropped = int((~keep).sum())
+    cols: dict[str, np.ndarray], frames: np.ndarray, order: np.ndarray, body: bool
+) -> dict[str, np.ndarray]:
+    """Rows taken in ``order`` [m] (sorted by (track, frame), one per pair); heading, velocity and
+    acceleration derived where the message has none."""
     c = {k: _gather(v, order) for k, v in cols.items() if k != "msg_time"}
     track, frame = c["track_id"], frames[order]
     heading = c["yaw"]
@@ -397,4 +448,4 @@ def _derive(
         "width": c["width"],
         "lane_id": c["lane"],
     }
-    return out, order, dropped
+    return out

@@ -32,6 +32,7 @@ from lanecast.io_adapters.logs.tracked_objects import (
     Categorical,
     ObjectColumns,
     check_quaternions,
+    message_stamps,
     track_id_of,
     yaw_of,
 )
@@ -242,26 +243,26 @@ def scene_update_groups(
     msgs = scan(buf, starts, ends, np.arange(starts.size))
     ent = msgs.pick(2, 2)
     if ent.size <= ENTITY_GROUP:
-        return [_entity_columns(buf, msgs.start[ent], msgs.end[ent], log_times[msgs.owner[ent]])]
+        return [_entity_columns(buf, msgs.start[ent], msgs.end[ent], log_times, msgs.owner[ent])]
     # The entities of consecutive messages, a group at a time: the group's bytes and arrays stay in
     # the CPU cache.
     owner = msgs.owner[ent]
     total = np.cumsum(np.bincount(owner, minlength=starts.size))
     cuts = [0, *np.searchsorted(total, np.arange(ENTITY_GROUP, ent.size, ENTITY_GROUP)).tolist(), starts.size]
     groups = [ent[(owner >= a) & (owner < b)] for a, b in itertools.pairwise(cuts) if b > a]
-    return [_entity_columns(buf, msgs.start[g], msgs.end[g], log_times[msgs.owner[g]]) for g in groups]
+    return [_entity_columns(buf, msgs.start[g], msgs.end[g], log_times, msgs.owner[g]) for g in groups]
 
 
 def _entity_columns(
-    buf: np.ndarray, starts: np.ndarray, ends: np.ndarray, msg_time: np.ndarray
+    buf: np.ndarray, starts: np.ndarray, ends: np.ndarray, log_times: np.ndarray, message: np.ndarray
 ) -> dict[str, Any]:
     """The columns of :func:`scene_update_block` for the SceneEntity messages buf[starts[i]:ends[i]]
-    [n] of messages logged at msg_time [n]."""
+    [n] of messages ``message`` [n] logged at log_times[message]."""
     n = starts.size
     f = scan(buf, starts, ends, np.arange(n))
     # Timestamp (sec, nsec) of each entity; 0 → the message's log time.
     time_ns = _times(buf, f, f.pick(1, 2), n)
-    time_ns = np.where(time_ns == 0, msg_time, time_ns)
+    time_ns = np.where(time_ns == 0, log_times[message], time_ns)
     # The first cube of each entity.
     cube_sel = f.pick(8, 2)
     per_entity = np.bincount(f.owner[cube_sel], minlength=n)
@@ -303,7 +304,7 @@ def _entity_columns(
     block: dict[str, Any] = {k: v if every else v[has_cube] for k, v in vals.items()}
     block.update(
         time_ns=time_ns[has_cube],
-        msg_time=msg_time[has_cube],
+        msg_time=message_stamps(time_ns[has_cube], message[has_cube]),
         track_id=_track_ids(buf, *spans[3]),
         classes=Categorical(cls_codes, [c or "unknown" for c in cls_names]),
         frame_ids=Categorical(*categories(buf, *spans[2], "a frame id")),

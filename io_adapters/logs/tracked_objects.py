@@ -197,13 +197,30 @@ class ObjectColumns:
         return cols, classes, frames
 
 
+def message_stamps(stamps: np.ndarray, message: np.ndarray) -> np.ndarray:
+    """Each row's message stamp [n]: the earliest object stamp of its message (``message`` [n]
+    numbers the messages).
+
+    A Foxglove entity's timestamp is the object's time; the log time is when the recorder got the
+    message and may repeat or jitter. Frames follow this stamp, which equals the log time of every
+    message lanecast writes (the frame's earliest object stamp).
+    """
+    if not stamps.size:
+        return stamps
+    first = np.full(int(message.max()) + 1, np.iinfo(np.int64).max, dtype=np.int64)
+    np.minimum.at(first, message, stamps)
+    return first[message]
+
+
 # --------------------------------------------------------------------------------------- decoders
 
 
 def add_scene_update_json(cols: ObjectColumns, doc: Mapping[str, Any], log_time: int) -> None:
-    """Append the cube entities of a JSON-encoded ``foxglove.SceneUpdate``."""
+    """Append the cube entities of a JSON-encoded ``foxglove.SceneUpdate`` (message stamp: the
+    earliest entity stamp, see :func:`message_stamps`)."""
     ints, floats, classes, frames = cols.ints, cols.floats, cols.classes, cols.frame_ids
     cols.messages += 1
+    first = len(ints)
     for e in doc.get("entities", ()):
         cubes = e.get("cubes")
         if not cubes:
@@ -239,6 +256,8 @@ def add_scene_update_json(cols: ObjectColumns, doc: Mapping[str, Any], log_time:
         )
         classes.append(str(meta.get("class", "unknown")))
         frames.append(str(e.get("frame_id", "")))
+    if len(ints) > first:
+        ints[first + 1 :: 3] = [min(ints[first::3])] * ((len(ints) - first) // 3)
 
 
 def stamp_ns(header: Any) -> int:
