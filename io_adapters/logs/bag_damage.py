@@ -8,8 +8,9 @@ look at the file's own structure, record headers only, and name the first thing 
   past the end of the file, a header field running past its header, a bag that was never indexed
   (index_pos 0, its recorder killed) or whose index lies beyond the end or not at a record, a chunk
   whose bz2/lz4 data does not decompress to the size it states, index data listing a message past
-  its chunk, a chunk info pointing where no chunk starts (or at a chunk another one lists), an
-  indexed connection without a message definition.
+  its chunk, a chunk info pointing where no chunk starts (or at a chunk another one lists) or
+  stating more connections than its data holds, an indexed connection without a message
+  definition.
 * sqlite3: the database header's page size and page count against the file's size.
 
 A message whose bytes cannot be decoded is found in the storage file by its bytes
@@ -136,6 +137,12 @@ def _ros1_walk(mm: mmap.mmap, size: int) -> tuple[int, str] | None:
             )
             if at not in chunks:
                 return pos, f"a chunk info record points at offset {at}, where no chunk starts"
+            listed_conns = _u32(fields.get("count"))
+            if listed_conns is None or data_len < 8 * listed_conns:
+                return pos, (
+                    f"a chunk info record states {listed_conns} connections in {data_len} bytes of data "
+                    "(8 bytes each)"
+                )
             if at in listed:
                 return pos, f"a chunk info record points at the chunk at offset {at}, which another one lists"
             listed.add(at)

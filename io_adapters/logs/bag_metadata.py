@@ -6,8 +6,9 @@ not supported"), and a storage file listed twice is read twice. :func:`check_met
 small YAML file itself (ruamel, rosbags' own library, with line numbers) and refuses, naming
 ``metadata.yaml``, the line and the key: text that is not UTF-8 or not YAML, no
 ``rosbag2_bagfile_information`` mapping, a version rosbags cannot read, a storage plugin other than
-sqlite3 and mcap, storage files missing, listed twice or of the other plugin's format, and topics
-serialized as anything but CDR.
+sqlite3 and mcap, storage files missing, listed twice, copies of one another or of the other
+plugin's format, topics serialized as anything but CDR, and offered QoS profiles rosbags cannot
+parse.
 """
 
 from __future__ import annotations
@@ -94,6 +95,14 @@ def check_metadata(bag: Path) -> list[Path]:
                     f"storage plugin {storage!r}, but {name} is a {wrong[0]} file",
                     f"storage_identifier: {wrong[0]}",
                 )
+    same = _same_bytes([bag / name for name in names])
+    if same is not None:
+        raise fail(
+            info,
+            "relative_file_paths",
+            f"lists {same[0]} and {same[1]}, which hold the same bytes (every message would be read twice)",
+            "each storage file once",
+        )
     if mode in ("file", "message") and compression != "zstd":
         raise fail(info, "compression_format", f"compression {compression!r}", "zstd (what rosbag2 writes)")
     if mode == "file":
@@ -115,7 +124,51 @@ def check_metadata(bag: Path) -> list[Path]:
                 f"topic {topic.get('name')!r} is serialized as {topic['serialization_format']!r}",
                 "cdr (lanecast reads ROS 2 messages in CDR)",
             )
+        problem = _qos_problem(topic.get("offered_qos_profiles")) if isinstance(topic, dict) else None
+        if problem is not None and isinstance(topic, dict):
+            raise fail(
+                topic,
+                "offered_qos_profiles",
+                f"topic {topic.get('name')!r}: offered QoS profiles that do not parse ({problem})",
+                "a list of QoS profiles (history, depth, reliability, durability, deadline, lifespan, "
+                "liveliness, ...), a YAML string of one, or []",
+            )
     return [bag / name for name in names]
+
+
+def _same_bytes(files: list[Path]) -> tuple[str, str] | None:
+    """Names of two storage files with the same bytes (a copy listed beside its original), or None;
+    only files of equal size are compared."""
+    import filecmp
+
+    sizes = [f.stat().st_size for f in files]
+    for i, a in enumerate(files):
+        for j in range(i):
+            if sizes[i] == sizes[j] and filecmp.cmp(files[j], a, shallow=False):
+                return files[j].name, a.name
+    return None
+
+
+def _qos_problem(value: Any) -> str | None:
+    """Why rosbags cannot parse a topic's ``offered_qos_profiles`` (it refuses the whole bag with
+    neither the file nor the line: 'Invalid bag metadata: string indices must be integers'), or None."""
+    from rosbags.rosbag2.errors import ReaderError
+    from rosbags.rosbag2.metadata import parse_qos
+
+    try:
+        parse_qos(_plain(value) if value is not None else [])
+    except (ReaderError, KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:
+        return f"{type(exc).__name__}: {exc}"[:200]
+    return None
+
+
+def _plain(node: Any) -> Any:
+    """ruamel's round-trip containers as plain lists and dicts."""
+    if isinstance(node, dict):
+        return {str(k): _plain(v) for k, v in node.items()}
+    if isinstance(node, list):
+        return [_plain(v) for v in node]
+    return node
 
 
 def check_sqlite_tables(db: Path) -> None:

@@ -122,7 +122,13 @@ class _LogDecoder:
         (n,) = struct.unpack_from("<I", buf, pos)
         if pos + 4 + n > end:
             raise ValueError(f"schema data of {n} bytes runs past the record")
-        self.schemas[sid] = _Schema(name, encoding, bytes(buf[pos + 4 : pos + 4 + n]))
+        schema = _Schema(name, encoding, bytes(buf[pos + 4 : pos + 4 + n]))
+        known = self.schemas.get(sid)
+        if known is not None and known != schema:
+            raise self._redefined(
+                "schema", sid, f"{known.name!r} ({known.encoding})", f"{name!r} ({encoding})"
+            )
+        self.schemas[sid] = schema
 
     def channel(self, buf: Any, pos: int, end: int) -> None:
         """A Channel record whose body is buf[pos:end]."""
@@ -132,12 +138,28 @@ class _LogDecoder:
         topic, pos = read_string(buf, pos + 4, end)
         encoding, pos = read_string(buf, pos, end)
         channel = _Channel(topic, sid, encoding)
-        if self.channels.get(cid) == channel:
+        known = self.channels.get(cid)
+        if known == channel:
             return  # repeated (the summary repeats every channel)
+        if known is not None:
+            raise self._redefined(
+                "channel",
+                cid,
+                f"topic {known.topic!r}, schema {known.schema_id}, encoding {known.encoding!r}",
+                f"topic {topic!r}, schema {sid}, encoding {encoding!r}",
+            )
         self.channels[cid] = channel
-        old = self.handlers.pop(cid, None)
-        if type(old) is wire.SceneUpdateBatch:
-            old.flush()
+
+    def _redefined(self, kind: str, ident: int, before: str, now: str) -> LogDamage:
+        """A Schema or Channel record giving a known id other content: the messages after it would
+        be read as another topic or type (and dropped, or mixed with another's), the ones before
+        not. MCAP ids are unique in a file; a repeated record must repeat the same content."""
+        return LogDamage(
+            self.offset,
+            f"{kind} {ident} defined again with other content ({now}; before: {before})",
+            f"one {kind} per id (a repeated {kind.capitalize()} record the same as the first)",
+            False,
+        )
 
     def metadata(self, buf: Any, pos: int, end: int) -> None:
         """A Metadata record whose body is buf[pos:end]."""

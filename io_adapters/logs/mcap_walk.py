@@ -297,6 +297,7 @@ def walk(buf: Any, path: Path, dec: RecordSink, salvage: bool) -> None:
     pos = 8
     footer_seen = data_end_seen = False
     total_expected: int | None = None
+    statistics_at = 0
     while pos < size:
         dec.offset = pos
         skip_to: int | None = None
@@ -370,6 +371,7 @@ def walk(buf: Any, path: Path, dec: RecordSink, salvage: bool) -> None:
                     raise LogDamage(pos, "data section CRC mismatch", "an undamaged data section", False)
             elif op == OP_STATISTICS:
                 (total_expected,) = struct.unpack_from("<Q", buf, body)
+                statistics_at = pos
             elif op == OP_FOOTER:
                 footer_seen = True
                 summary_start, _, summary_crc = struct.unpack_from("<QQI", buf, body)
@@ -418,6 +420,22 @@ def walk(buf: Any, path: Path, dec: RecordSink, salvage: bool) -> None:
             stats.messages_lost = None
         if not any("truncated" in d for d in stats.damage):
             stats.damage.append(f"offset {size}: the file ends without a footer (truncated)")
+    if total_expected is not None and footer_seen and total_expected != stats.messages:
+        # An intact summary that counts other messages than the data section holds: a chunk was
+        # deleted, repeated or added after it was written, and nothing says which data is the log.
+        what = (
+            f"the summary's Statistics record counts {total_expected:,} messages, but the data section "
+            f"holds {stats.messages:,} (a chunk missing, repeated or added since the summary was written)"
+        )
+        if not salvage:
+            raise LogError(
+                path,
+                what,
+                offset=statistics_at,
+                expected="a summary that matches the data section (--salvage reads the chunks there are)",
+            )
+        if not stats.damage:
+            stats.damage.append(f"offset {statistics_at}: {what}")
     if salvage and total_expected is not None and footer_seen:
         stats.messages_lost = max(total_expected - stats.messages, 0)
 
