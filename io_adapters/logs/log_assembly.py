@@ -303,26 +303,37 @@ def _to_fixed_frame(
     distinct = sorted({frame_ids.names[i].lstrip("/") for i in np.flatnonzero(present)})
     names = [n.lstrip("/") for n in frame_ids.names]
     target: str | None = next((f for f in distinct if f in fixed), None)
+
+    def rows_in(frame: str) -> np.ndarray:
+        return np.isin(frame_ids.codes, [i for i, n in enumerate(names) if n == frame])
+
+    def first_of(frame: str) -> str:
+        """Where the first object in ``frame`` is: one bad entity among thousands is found by it."""
+        rows = rows_in(frame)
+        i = int(np.argmin(np.where(rows, cols["msg_time"], np.iinfo(np.int64).max)))
+        n = int(rows.sum())
+        return f"{n:,} object(s), the first of track {int(cols['track_id'][i])} in the message stamped {int(cols['msg_time'][i])} ns"
+
     for frame in distinct:
         if frame in fixed:
             if target is not None and frame != target:
                 raise FrameError(
-                    f"{path}: topic {topic!r} mixes the fixed frames {target!r} and {frame!r}; "
-                    "expected one fixed frame per topic"
+                    f"{path}: topic {topic!r} mixes the fixed frames {target!r} and {frame!r} "
+                    f"({first_of(frame)} in {frame!r}); expected one fixed frame per topic"
                 )
             continue
         chain = transforms.chain(frame, [target] if target else fixed)
         if chain is None:
             have = ", ".join(sorted(transforms.sources)) or "none"
             raise FrameError(
-                f"{path}: topic {topic!r} has objects in frame {frame!r}, which is not a fixed frame "
-                f"({', '.join(sorted(fixed))}), and the log has no transform from it to one "
-                f"(transform topics found: {have}); expected /tf (tf2_msgs/msg/TFMessage or "
+                f"{path}: topic {topic!r} has objects in frame {frame!r} ({first_of(frame)}), which is "
+                f"not a fixed frame ({', '.join(sorted(fixed))}), and the log has no transform from it "
+                f"to one (transform topics found: {have}); expected /tf (tf2_msgs/msg/TFMessage or "
                 f"foxglove.FrameTransform(s)) or an odometry topic (nav_msgs/msg/Odometry) linking "
                 f"{frame!r} to a fixed frame"
             )
         target = chain[-1]
-        rows = np.isin(frame_ids.codes, [i for i, n in enumerate(names) if n == frame])
+        rows = rows_in(frame)
         x, y, dyaw = transforms.to_fixed(chain, cols["msg_time"][rows], cols["x"][rows], cols["y"][rows])
         cols["x"][rows], cols["y"][rows] = x, y
         cols["yaw"][rows] += dyaw
