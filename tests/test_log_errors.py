@@ -444,6 +444,11 @@ def _ros1_damage(kind: str, data: bytearray) -> tuple[int, str]:
         at = data.index(b"count=", info[0]) + len(b"count=")
         data[at : at + 4] = struct.pack("<I", 0xFFFFFFFF)
         return info[0], "a chunk info record states 4294967295 connections in"
+    if kind == "index data stating fewer messages than it lists":
+        index = next(r for r in ops if r[1]["op"] == b"\x04" and r[0] > chunks[1][0])
+        at = data.index(b"count=", index[0]) + len(b"count=")
+        data[at : at + 4] = struct.pack("<I", 0)
+        return index[0], f"lists 0 messages in {index[3]} bytes (12 bytes each)"
     if kind == "chunk compressed with an unknown method":
         at = data.index(b"compression=none", chunks[1][0]) + len(b"compression=")
         data[at : at + 4] = b"zzzz"
@@ -477,6 +482,7 @@ def _ros1_damage(kind: str, data: bytearray) -> tuple[int, str]:
         "a record of another kind in the index",
         "index data listing no message record",
         "chunk info stating more connections than it holds",
+        "index data stating fewer messages than it lists",
     ],
 )
 def test_ros1_index_damage_names_its_record(tmp_path: Path, table: pa.Table, kind: str) -> None:
@@ -488,7 +494,8 @@ def test_ros1_index_damage_names_its_record(tmp_path: Path, table: pa.Table, kin
     not supported' or 'KeyError: 77': no offset; a connection whose definition does not parse or
     whose md5sum is another's was 'Could not parse: <the whole definition>' or 'hash mismatch' (fuzz
     seeds 1014, 1050); a chunk info stating 4294967295 connections was 'Bag index looks damaged:
-    Could not read uint32' (fuzz2 seed 5021). Now the record's offset and what it says."""
+    Could not read uint32' (fuzz2 seed 5021); index data whose count is 0 was 'AssertionError:'
+    and nothing else (fuzz2 seed 5145). Now the record's offset and what it says."""
     bag = _small_chunks_ros1_bag(table, tmp_path / "b.bag")
     data = bytearray(bag.read_bytes())
     assert sum(1 for r in _ros1_records(bytes(data)) if r[1]["op"] == b"\x05") >= 3

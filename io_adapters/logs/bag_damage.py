@@ -37,6 +37,7 @@ _OP_CHUNK = 0x05
 _OP_CHUNK_INFO = 0x06
 _OP_CONNECTION = 0x07
 SQLITE_MAGIC = b"SQLite format 3\x00"
+_INDEX_DATA_HEADER = 47  # op (1 byte), ver, conn, count (4 bytes each), each with its length and name
 
 
 def located(files: Sequence[Path], ros1: bool) -> LogError | None:
@@ -126,7 +127,7 @@ def _ros1_walk(mm: mmap.mmap, size: int) -> tuple[int, str] | None:
             chunk_size = _u32(fields.get("size"))
             chunks[pos] = chunk_size
         elif opcode == _OP_INDEX_DATA:
-            problem = _index_data_problem(fields, mm[data:end], chunk_size, message_starts)
+            problem = _index_data_problem(fields, header_len, mm[data:end], chunk_size, message_starts)
             if problem is not None:
                 return pos, problem
         elif opcode == _OP_CHUNK_INFO:
@@ -184,13 +185,23 @@ def _u32(raw: bytes | None) -> int | None:
 
 
 def _index_data_problem(
-    fields: dict[str, bytes], data: bytes, chunk_size: int | None, message_starts: set[int]
+    fields: dict[str, bytes], header_len: int, data: bytes, chunk_size: int | None, message_starts: set[int]
 ) -> str | None:
-    """An IndexData record (version 1: count × (time, offset)) listing a message past its chunk or
-    where none of the chunk's message records starts (``message_starts``: empty if unknown)."""
+    """An IndexData record (version 1: op, ver, conn, count in a 47-byte header; count × (time,
+    offset)) whose header or count does not fit that layout (rosbags asserts both), listing a
+    message past its chunk or where none of the chunk's message records starts (``message_starts``:
+    empty if unknown)."""
     conn, count = _u32(fields.get("conn")), _u32(fields.get("count"))
-    if count is None or len(data) < 12 * count:
-        return f"an index data record of connection {conn} lists {count} messages in {len(data)} bytes"
+    if count is None or len(data) != 12 * count:
+        return (
+            f"an index data record of connection {conn} lists {count} messages in {len(data)} bytes "
+            "(12 bytes each)"
+        )
+    if header_len != _INDEX_DATA_HEADER:
+        return (
+            f"an index data record header of {header_len} bytes ({_INDEX_DATA_HEADER} expected: op, ver, "
+            "conn and count)"
+        )
     if chunk_size is None:
         return None
     for k in range(count):
