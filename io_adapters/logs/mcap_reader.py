@@ -19,7 +19,6 @@ import mmap
 import struct
 import sys
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -40,11 +39,16 @@ from lanecast.io_adapters.logs.mcap_walk import (
     OP_MESSAGE,
     OP_SCHEMA,
     REC_HEAD,
+    ChannelRecord,
     LogDamage,
     ReadStats,
+    SchemaRecord,
+    read_channel,
     read_ints,
+    read_schema,
     read_string,
     read_string_map,
+    redefined,
     verified_offsets,
     walk,
 )
@@ -79,28 +83,14 @@ def sniff(path: str | Path) -> bool:
         return f.read(8) == MAGIC
 
 
-@dataclass
-class _Schema:
-    name: str
-    encoding: str
-    data: bytes
-
-
-@dataclass
-class _Channel:
-    topic: str
-    schema_id: int
-    encoding: str
-
-
 class _LogDecoder:
     """Decodes the supported topics of one MCAP into TopicData and Transforms."""
 
     def __init__(self, path: Path, topic: str | None) -> None:
         self.path = path
         self.topic = topic
-        self.schemas: dict[int, _Schema] = {}
-        self.channels: dict[int, _Channel] = {}
+        self.schemas: dict[int, SchemaRecord] = {}
+        self.channels: dict[int, ChannelRecord] = {}
         self.handlers: dict[int, Callable[[Any, int], None] | None] = {}
         self.topics: dict[str, log_assembly.TopicData] = {}
         self.transforms = frame_transforms.Transforms()
@@ -112,54 +102,19 @@ class _LogDecoder:
     # -- records
     def schema(self, buf: Any, pos: int, end: int) -> None:
         """A Schema record whose body is buf[pos:end]."""
-        if pos + 2 > end:
-            raise ValueError("a Schema record too short for its id")
-        (sid,) = struct.unpack_from("<H", buf, pos)
-        name, pos = read_string(buf, pos + 2, end)
-        encoding, pos = read_string(buf, pos, end)
-        if pos + 4 > end:
-            raise ValueError("the schema data length runs past the record")
-        (n,) = struct.unpack_from("<I", buf, pos)
-        if pos + 4 + n > end:
-            raise ValueError(f"schema data of {n} bytes runs past the record")
-        schema = _Schema(name, encoding, bytes(buf[pos + 4 : pos + 4 + n]))
+        sid, schema = read_schema(buf, pos, end)
         known = self.schemas.get(sid)
         if known is not None and known != schema:
-            raise self._redefined(
-                "schema", sid, f"{known.name!r} ({known.encoding})", f"{name!r} ({encoding})"
-            )
+            raise redefined(self.offset, "schema", sid, known, schema)
         self.schemas[sid] = schema
 
     def channel(self, buf: Any, pos: int, end: int) -> None:
-        """A Channel record whose body is buf[pos:end]."""
-        if pos + 4 > end:
-            raise ValueError("a Channel record too short for its ids")
-        cid, sid = struct.unpack_from("<HH", buf, pos)
-        topic, pos = read_string(buf, pos + 4, end)
-        encoding, pos = read_string(buf, pos, end)
-        channel = _Channel(topic, sid, encoding)
+        """A Channel record whose body is buf[pos:end] (a repeat of a known one: nothing)."""
+        cid, channel = read_channel(buf, pos, end)
         known = self.channels.get(cid)
-        if known == channel:
-            return  # repeated (the summary repeats every channel)
-        if known is not None:
-            raise self._redefined(
-                "channel",
-                cid,
-                f"topic {known.topic!r}, schema {known.schema_id}, encoding {known.encoding!r}",
-                f"topic {topic!r}, schema {sid}, encoding {encoding!r}",
-            )
+        if known is not None and known != channel:
+            raise redefined(self.offset, "channel", cid, known, channel)
         self.channels[cid] = channel
-
-    def _redefined(self, kind: str, ident: int, before: str, now: str) -> LogDamage:
-        """A Schema or Channel record giving a known id other content: the messages after it would
-        be read as another topic or type (and dropped, or mixed with another's), the ones before
-        not. MCAP ids are unique in a file; a repeated record must repeat the same content."""
-        return LogDamage(
-            self.offset,
-            f"{kind} {ident} defined again with other content ({now}; before: {before})",
-            f"one {kind} per id (a repeated {kind.capitalize()} record the same as the first)",
-            False,
-        )
 
     def metadata(self, buf: Any, pos: int, end: int) -> None:
         """A Metadata record whose body is buf[pos:end]."""
@@ -184,7 +139,7 @@ class _LogDecoder:
         self.handlers[cid] = h
         return h
 
-    def _make_handler(self, ch: _Channel) -> Callable[[Any, int], None] | None:
+    def _make_handler(self, ch: ChannelRecord) -> Callable[[Any, int], None] | None:
         schema = self.schemas.get(ch.schema_id) if ch.schema_id else None
         if ch.schema_id and schema is None:
             raise LogDamage(
@@ -255,7 +210,7 @@ class _LogDecoder:
             data = self.topics[topic] = log_assembly.TopicData(topic, msgtype)
         return data.columns
 
-    def _frame_transforms(self, ch: _Channel, name: str) -> Callable[[Any, int], None] | None:
+    def _frame_transforms(self, ch: ChannelRecord, name: str) -> Callable[[Any, int], None] | None:
         """foxglove.FrameTransform(s) in protobuf or JSON: transforms between frames."""
         add, topic = self.transforms.add_frame_transform, ch.topic
         many = name.endswith("s")
@@ -281,7 +236,9 @@ class _LogDecoder:
 
         return from_protobuf
 
-    def _scene_update(self, ch: _Channel, schema: _Schema | None) -> Callable[[Any, int], None] | None:
+    def _scene_update(
+        self, ch: ChannelRecord, schema: SchemaRecord | None
+    ) -> Callable[[Any, int], None] | None:
         if self.topic is not None and ch.topic != self.topic:
             return None
         if self.topic is None and ch.topic.startswith(OWN_TOPIC_PREFIX):

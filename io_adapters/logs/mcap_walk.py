@@ -107,6 +107,56 @@ def read_string_map(buf: Any, pos: int, end: int) -> tuple[dict[str, str], int]:
     return out, stop
 
 
+@dataclass
+class SchemaRecord:
+    name: str
+    encoding: str
+    data: bytes
+
+
+@dataclass
+class ChannelRecord:
+    topic: str
+    schema_id: int
+    encoding: str
+
+
+def read_schema(buf: Any, pos: int, end: int) -> tuple[int, SchemaRecord]:
+    """The id and content of the Schema record whose body is buf[pos:end]."""
+    if pos + 2 > end:
+        raise ValueError("a Schema record too short for its id")
+    (sid,) = struct.unpack_from("<H", buf, pos)
+    name, pos = read_string(buf, pos + 2, end)
+    encoding, pos = read_string(buf, pos, end)
+    if pos + 4 > end:
+        raise ValueError("the schema data length runs past the record")
+    (n,) = struct.unpack_from("<I", buf, pos)
+    if pos + 4 + n > end:
+        raise ValueError(f"schema data of {n} bytes runs past the record")
+    return sid, SchemaRecord(name, encoding, bytes(buf[pos + 4 : pos + 4 + n]))
+
+
+def read_channel(buf: Any, pos: int, end: int) -> tuple[int, ChannelRecord]:
+    """The id and content (topic, schema id, message encoding) of the Channel record buf[pos:end]."""
+    if pos + 4 > end:
+        raise ValueError("a Channel record too short for its ids")
+    cid, sid = struct.unpack_from("<HH", buf, pos)
+    topic, pos = read_string(buf, pos + 4, end)
+    encoding, pos = read_string(buf, pos, end)
+    return cid, ChannelRecord(topic, sid, encoding)
+
+
+def redefined(offset: int, kind: str, ident: int, before: object, now: object) -> LogDamage:
+    """A Schema or Channel record giving a known id other content (the messages after it would be
+    read as another topic or type): MCAP ids are unique in a file, a repeat repeats the content."""
+    return LogDamage(
+        offset,
+        f"{kind} {ident} defined again with other content ({now}; before: {before})",
+        f"one {kind} per id (a repeated {kind.capitalize()} record the same as the first)",
+        False,
+    )
+
+
 def read_ints(raw: np.ndarray, at: np.ndarray, dtype: str) -> np.ndarray:
     """Little-endian integers of type ``dtype`` at byte offsets at [n] of raw (uint8 [N]) → [n]."""
     size = np.dtype(dtype).itemsize
@@ -420,9 +470,7 @@ def walk(buf: Any, path: Path, dec: RecordSink, salvage: bool) -> None:
             stats.messages_lost = None
         if not any("truncated" in d for d in stats.damage):
             stats.damage.append(f"offset {size}: the file ends without a footer (truncated)")
-    if total_expected is not None and footer_seen and total_expected != stats.messages:
-        # An intact summary that counts other messages than the data section holds: a chunk was
-        # deleted, repeated or added after it was written, and nothing says which data is the log.
+    if total_expected is not None and footer_seen and total_expected != stats.messages:  # stale summary
         what = (
             f"the summary's Statistics record counts {total_expected:,} messages, but the data section "
             f"holds {stats.messages:,} (a chunk missing, repeated or added since the summary was written)"
