@@ -449,6 +449,10 @@ def _ros1_damage(kind: str, data: bytearray) -> tuple[int, str]:
         at = data.index(b"count=", index[0]) + len(b"count=")
         data[at : at + 4] = struct.pack("<I", 0)
         return index[0], f"lists 0 messages in {index[3]} bytes (12 bytes each)"
+    if kind == "bag header stating no chunks":
+        at = data.index(b"chunk_count=", ops[0][0]) + len(b"chunk_count=")
+        data[at : at + 4] = struct.pack("<I", 0)
+        return ops[0][0], "the bag header states 0 chunks, the index lists"
     if kind == "chunk compressed with an unknown method":
         at = data.index(b"compression=none", chunks[1][0]) + len(b"compression=")
         data[at : at + 4] = b"zzzz"
@@ -483,6 +487,7 @@ def _ros1_damage(kind: str, data: bytearray) -> tuple[int, str]:
         "index data listing no message record",
         "chunk info stating more connections than it holds",
         "index data stating fewer messages than it lists",
+        "bag header stating no chunks",
     ],
 )
 def test_ros1_index_damage_names_its_record(tmp_path: Path, table: pa.Table, kind: str) -> None:
@@ -495,7 +500,9 @@ def test_ros1_index_damage_names_its_record(tmp_path: Path, table: pa.Table, kin
     whose md5sum is another's was 'Could not parse: <the whole definition>' or 'hash mismatch' (fuzz
     seeds 1014, 1050); a chunk info stating 4294967295 connections was 'Bag index looks damaged:
     Could not read uint32' (fuzz2 seed 5021); index data whose count is 0 was 'AssertionError:'
-    and nothing else (fuzz2 seed 5145). Now the record's offset and what it says."""
+    and nothing else (fuzz2 seed 5145); a bag header whose chunk_count is 0 was 'no supported topic
+    with tracked objects (topics: none)' (rosbags read no chunk; fuzz2 seed 5236). Now the record's
+    offset and what it says."""
     bag = _small_chunks_ros1_bag(table, tmp_path / "b.bag")
     data = bytearray(bag.read_bytes())
     assert sum(1 for r in _ros1_records(bytes(data)) if r[1]["op"] == b"\x05") >= 3

@@ -104,12 +104,14 @@ def read_log(
                 h = _handler(path, conn.topic, conn.msgtype, topic, topics, transforms)
                 if h is not None:
                     handlers[conn.id] = h
+            # A damaged index can make rosbags list no topic or no message (a bag header whose
+            # chunk_count is 0): where the bag's structure shows damage, that is the error.
             if topic is not None and topic not in topics:
-                raise LogError(
+                raise _located_damage(target, ros1) or LogError(
                     path, f"topic {topic!r} holds no tracked objects (topics: {listing})", expected=SUPPORTED
                 )
             if not topics:
-                raise LogError(
+                raise _located_damage(target, ros1) or LogError(
                     path, f"no supported topic with tracked objects (topics: {listing})", expected=SUPPORTED
                 )
             # A bag lanecast wrote (it has the metadata topic) is read whole, so that every message
@@ -147,7 +149,9 @@ def read_log(
         ) from exc
     found = {t: d for t, d in topics.items() if len(d.columns)}
     if not found:
-        raise LogError(path, "the supported topics hold no objects", expected=f"messages of type {SUPPORTED}")
+        raise _located_damage(target, ros1) or LogError(
+            path, "the supported topics hold no objects", expected=f"messages of type {SUPPORTED}"
+        )
     return log_assembly.assemble(
         path,
         found,
