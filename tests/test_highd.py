@@ -151,6 +151,9 @@ def test_several_recordings(tmp_path: Path) -> None:
     for prefix in ("01", "02"):
         for name in FILES:
             shutil.copy(DATA / name, tmp_path / name.replace("01", prefix))
+    meta = tmp_path / "02_recordingMeta.csv"  # recording 2's own id, as highD writes it
+    head, row, *rest = meta.read_text().splitlines(keepends=True)
+    meta.write_text("".join([head, "2" + row[row.index(",") :], *rest]))
     t = highd.read([tmp_path])
     names = sorted(set(t.column("recording").cast(pa.string()).to_pylist()))
     assert names == ["highd-01-lower", "highd-01-upper", "highd-02-lower", "highd-02-upper"]
@@ -423,3 +426,29 @@ def test_a_recording_file_that_is_no_regular_file_says_what_it_is(
     with pytest.raises(InputError, match=words) as info:
         highd.read([tmp_path])
     assert Path(info.value.path or "").name == victim
+
+
+@pytest.mark.parametrize("rec_id", ["2", "0", "60"])
+def test_a_recording_meta_of_another_recording_is_refused(tmp_path: Path, rec_id: str) -> None:
+    """01_recordingMeta.csv saying recording 2 is another recording's file put under 01's name:
+    its frame rate and lane markings would be applied to 01's tracks. Before: converted, exit 0."""
+    path = _variant(tmp_path, "01_recordingMeta.csv", lambda lines: _set(lines, 2, "id", rec_id))
+    with pytest.raises(InputError) as err:
+        highd.read([tmp_path])
+    assert err.value.path == str(path) and err.value.line == 2 and err.value.column == "id"
+    assert f"recording id {rec_id} disagrees with the file name's 01" in str(err.value)
+
+
+def test_a_recording_meta_id_of_an_unnumbered_name_or_written_with_zeros_is_read(
+    tmp_path: Path, table: pa.Table
+) -> None:
+    """The id is checked against a numbered name only (01 and 1 are one number)."""
+    _variant(tmp_path, "01_recordingMeta.csv", lambda lines: _set(lines, 2, "id", "01"))
+    assert highd.read([tmp_path]).equals(table, check_metadata=False)
+    named = tmp_path / "named"
+    named.mkdir()
+    for name in FILES:
+        shutil.copy(DATA / name, named / name.replace("01", "a"))
+    meta = named / "a_recordingMeta.csv"
+    meta.write_text("\n".join(_set(meta.read_text().splitlines(), 2, "id", "7")) + "\n")
+    assert highd.read([named / "a_tracks.csv"]).num_rows == table.num_rows

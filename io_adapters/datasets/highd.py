@@ -419,6 +419,24 @@ def _markings(path: Path, text: str | None, column: str, line: int) -> list[floa
     return values
 
 
+def _check_recording_id(path: Path, recording_id: int, line: int) -> None:
+    """recordingMeta's ``id`` is the ``NN`` of its file name (``NN_recordingMeta.csv``, as highD and
+    ``lanecast simulate`` write them): another one is a file of another recording put under this
+    name, whose frame rate and lane markings would be applied to this recording's tracks. A name
+    with no number (``highway_recordingMeta.csv``) is not checked."""
+    match = _NAME.match(path.name)
+    prefix = match.group("prefix") if match is not None else ""
+    if prefix.isdigit() and int(prefix) != recording_id:
+        raise InputError(
+            path,
+            f"recording id {recording_id} disagrees with the file name's {prefix} "
+            "(a recordingMeta of another recording?)",
+            line=line,
+            column="id",
+            expected=f"{int(prefix)}",
+        )
+
+
 def _read_recording_meta(path: Path) -> _Meta:
     table = _read_csv(
         path, RECORDING_META_COLUMNS, "recordingMeta", frozenset({"upperLaneMarkings", "lowerLaneMarkings"})
@@ -429,6 +447,7 @@ def _read_recording_meta(path: Path) -> _Meta:
         )
     row = {name: table.column(name)[0].as_py() for name in RECORDING_META_COLUMNS}
     line = _line(path, 0)
+    _check_recording_id(path, int(row["id"]), line)
     if not track_table.plausible_frame_rate(row["frameRate"]):
         raise InputError(
             path,
