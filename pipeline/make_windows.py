@@ -30,6 +30,7 @@ from lanecast.io_adapters.contracts.track_runs import run_bounds
 from lanecast.io_adapters.contracts.windows import (
     CHANNEL_UNITS,
     CHANNELS,
+    FORMAT_NAME,
     FORMAT_VERSION,
     HISTORY,
     HORIZONS,
@@ -449,7 +450,7 @@ def build_manifest(
                 r, t = rec[m][order], tid[m][order]
                 tracks_by_split[s] = int(1 + np.count_nonzero((r[1:] != r[:-1]) | (t[1:] != t[:-1])))
     return {
-        "format": "lanecast-windows",
+        "format": FORMAT_NAME,
         "format_version": FORMAT_VERSION,
         "lanecast_version": lanecast_version(),
         "parameters": parameters,

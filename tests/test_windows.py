@@ -4,6 +4,7 @@ directions, bad input, the on-disk dataset, normalisation and the `lanecast wind
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Any
 
@@ -456,3 +457,30 @@ def test_cli_windows_reads_a_highd_directory(tmp_path: Path, capsys: pytest.Capt
     assert w.manifest["parameters"]["require_future"] is False
     assert np.isnan(w.future[w.index.column("t0_ns").to_numpy() == 10_000_000_000]).all()
     assert "neighbours from: lanes" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ("key", "value"),
+    [
+        ("format", "lanecast-tracks"),
+        ("rows", ["RR", "RL", "R", "T", "L", "FR", "F", "FL"]),
+        ("channels", ["y", "x", "v", "a"]),
+        ("maneuvers", ["straight", "right", "left"]),
+        ("horizons", 3),
+        ("n_windows", 65),
+        ("n_windows", "64"),
+    ],
+)
+def test_a_manifest_that_does_not_describe_its_arrays_is_refused(
+    tmp_path: Path, key: str, value: Any
+) -> None:
+    """A manifest of another format, with the vehicle rows, channels or maneuver classes in another
+    order, or another window count than the arrays hold was read as if it described them (train and
+    evaluate ran, exit 0): now refused naming manifest.json and the entry."""
+    out = save_windows(make_windows(table_of(straight(SEVEN, np.arange(150))), split="hash"), tmp_path / "ds")
+    manifest = json.loads((out / "manifest.json").read_text())
+    manifest[key] = value
+    (out / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(InputError) as err:
+        load_windows(out)
+    assert err.value.path == str(out / "manifest.json") and err.value.column == key

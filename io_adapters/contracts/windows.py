@@ -43,6 +43,7 @@ ROWS: tuple[str, ...] = ("FL", "F", "FR", "L", "T", "R", "RL", "RR")
 #: Row of the target vehicle.
 TARGET_ROW = ROWS.index("T")
 FORMAT_VERSION = 1  # manifest.json's format_version (pipeline.make_windows writes it)
+FORMAT_NAME = "lanecast-windows"  # manifest.json's format
 #: The neighbour slots (every row but the target's), in row order.
 NEIGHBOUR_ROWS: tuple[str, ...] = tuple(r for r in ROWS if r != "T")
 CHANNELS: tuple[str, ...] = ("x", "y", "v", "a")
@@ -377,9 +378,41 @@ def load_windows(directory: str | Path, mmap: bool = True, check_values: bool = 
         )
     windows = Windows(index=index, manifest=manifest, **arrays)
     windows.check(directory)
+    _check_manifest(directory / "manifest.json", manifest, len(windows))
     if check_values:
         windows.check_values(directory)
     return windows
+
+
+#: manifest entries that fix how the arrays are read: a dataset whose manifest gives other values
+#: (rows in another order, other channels or maneuver classes) would be learnt or scored wrongly
+_LAYOUT_KEYS: dict[str, object] = {
+    "rows": list(ROWS),
+    "channels": list(CHANNELS),
+    "maneuvers": list(MANEUVERS),
+    "horizons": HORIZONS,
+}
+
+
+def _check_manifest(path: Path, manifest: dict[str, Any], n: int) -> None:
+    """The manifest describes these arrays: the format lanecast writes, the layout constants of
+    this lanecast (where the manifest states them; test datasets may carry none) and ``n``
+    windows. A manifest of another dataset or format beside these arrays is refused, never read
+    as if it described them."""
+    fmt = manifest.get("format", FORMAT_NAME)
+    if fmt != FORMAT_NAME:
+        raise InputError(path, f"format {fmt!r}", column="format", expected=repr(FORMAT_NAME))
+    for key, want in _LAYOUT_KEYS.items():
+        if key in manifest and manifest[key] != want:
+            raise InputError(path, f"{key} {manifest[key]!r}", column=key, expected=repr(want))
+    count = manifest.get("n_windows", n)
+    if type(count) is not int or count != n:
+        raise InputError(
+            path,
+            f"n_windows {count!r}, but the arrays and windows.parquet hold {n} windows",
+            column="n_windows",
+            expected=f"{n} (the manifest written with these arrays)",
+        )
 
 
 def _repeated_row(index: pa.Table) -> tuple[int, int] | None:
