@@ -96,7 +96,8 @@ class Piece:
             ) from exc
         table = table.slice(self.offset, table.num_rows - self.offset if self.rows < 0 else self.rows)
         first = sum(pf.metadata.row_group(i).num_rows for i in range(self.row_groups[0])) + self.offset
-        return _with_meta(table, pf, path, first)  # errors name rows of the file, not of the piece
+        # whole recordings: tracks written in another order are put in the contract's order
+        return _with_meta(table, pf, path, first, sort=True)  # errors name rows of the file
 
     def read_with_context(self) -> pa.Table:
         """What windows need of the piece: :meth:`read`, or for a chunk its target tracks with
@@ -132,13 +133,21 @@ def uncut(pieces: Sequence[Piece], keep_whole: Callable[[Chunk], bool]) -> list[
     return out
 
 
-def _with_meta(table: pa.Table, pf: pq.ParquetFile, path: Path, first_row: int = 0) -> pa.Table:
-    """``table`` (rows of ``pf`` from ``first_row`` on) validated, with its recordings' metadata only."""
+def _with_meta(
+    table: pa.Table, pf: pq.ParquetFile, path: Path, first_row: int = 0, *, sort: bool = False
+) -> pa.Table:
+    """``table`` (rows of ``pf`` from ``first_row`` on) validated, with its recordings' metadata only;
+    with ``sort`` (a piece of whole recordings) its rows put in (recording, track_id, frame) order."""
     meta = track_table.read_meta(track_table.file_schema(pf), source=path)
     names = track_table.recording_codes(table)[0]
     meta = track_table.restrict_meta(meta, names.tolist())
     table = table.replace_schema_metadata({track_table.META_KEY: meta.to_json().encode()})
-    track_table.validate(table, source=path, first_row=first_row)
+    order = track_table.file_order(table) if sort else None
+    if order is not None:
+        table = table.take(pa.array(order))
+    track_table.validate(
+        table, source=path, first_row=first_row, file_rows=None if order is None else order + first_row
+    )
     return table
 
 
@@ -274,6 +283,8 @@ def parquet_pieces(path: Path, max_rows: int = MAX_ROWS, *, long: str = "whole")
             path, f"not a readable Parquet track table: {exc}", expected="a lanecast track table"
         ) from exc
     again = [k for k, name in enumerate(names) if name in names[:k]]
+    if again and pf.metadata.num_rows <= max_rows:  # recordings interleaved: read whole, put in order
+        return [Piece(parquet_format.FORMAT, (str(path),))]
     if again:
         k = again[0]
         raise TrackTableError(

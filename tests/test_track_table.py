@@ -241,3 +241,17 @@ def test_input_errors_survive_pickling_between_processes() -> None:
     assert type(back) is LogError
     assert str(back) == str(err) == "a.mcap, offset 1234: truncated (expected a complete chunk)"
     assert back.offset == 1234
+
+
+def test_a_track_table_in_another_row_order_is_read_in_the_contracts_order(tmp_path: Path) -> None:
+    """A track table written by another tool with its rows in another order holds the same rows:
+    read put in (recording, track_id, frame) order (before: refused, 'row 1: rows are not sorted
+    by (recording, track_id, frame)'); an error after sorting names the row of the file."""
+    table = track_table.build_table(_columns(n_tracks=3), _meta("rec-a"))
+    shuffled = table.take(pa.array(np.random.default_rng(0).permutation(table.num_rows)))
+    pq.write_table(shuffled, tmp_path / "t.parquet")
+    assert track_table.read_parquet(tmp_path / "t.parquet").equals(table)
+    twice = pa.concat_tables([shuffled.slice(0, 5), shuffled.slice(3, 1), shuffled.slice(5)])
+    pq.write_table(twice, tmp_path / "d.parquet")
+    with pytest.raises(TrackTableError, match=r"d\.parquet: row 5: duplicate \(recording, track_id, frame\)"):
+        track_table.read_parquet(tmp_path / "d.parquet")

@@ -255,16 +255,23 @@ def read_meta(table: pa.Table | pa.Schema, source: str | Path | None = None) -> 
         raise TrackTableError(f"{where}bad 'lanecast' schema metadata: {exc}") from exc
 
 
-def validate(table: pa.Table, source: str | Path | None = None, first_row: int = 0) -> None:
+def validate(
+    table: pa.Table, source: str | Path | None = None, first_row: int = 0, file_rows: np.ndarray | None = None
+) -> None:
     """Check a table against the contract; raise TrackTableError naming the first violation.
 
     Checks: columns and types, units in the field metadata, recording metadata with a frame rate,
     no NaN/inf/null in required columns, positions within ±1e9 m, sizes and times >= 0, unique
     (recording, track_id, frame), rows sorted by (recording, track_id, frame), and time strictly
     increasing along every track. ``first_row``: the row of ``source`` that is the table's row 0 (a
-    piece of a file), for the rows errors name.
+    piece of a file), for the rows errors name; ``file_rows``: instead, the row of ``source`` of each
+    of the table's rows (a file's rows put in order by :func:`file_order`).
     """
     where = f"{source}: " if source is not None else ""
+
+    def at(row: int) -> int:
+        return int(file_rows[row]) if file_rows is not None else row + first_row
+
     present = set(table.column_names)
     if len(present) != table.num_columns:  # Arrow allows it; every lookup by name would fail
         twice = next(n for i, n in enumerate(table.column_names) if n in table.column_names[:i])
@@ -300,7 +307,7 @@ def validate(table: pa.Table, source: str | Path | None = None, first_row: int =
         column = table.column(name)
         if name != "lane_id" and column.null_count:
             row = _first(pc.is_null(column))
-            raise TrackTableError(f"{where}row {row + first_row}: column {name!r} is null")
+            raise TrackTableError(f"{where}row {at(row)}: column {name!r} is null")
     for name in FINITE_COLUMNS:
         values = table.column(name).to_numpy()
         bad = ~np.isfinite(values)
@@ -312,7 +319,7 @@ def validate(table: pa.Table, source: str | Path | None = None, first_row: int =
                 f"a finite position within ±{MAX_POSITION_M:g} m" if name in ("x", "y") else "a finite number"
             )
             raise TrackTableError(
-                f"{where}row {row + first_row}: column {name!r} is {values[row]}, expected {expected}"
+                f"{where}row {at(row)}: column {name!r} is {values[row]}, expected {expected}"
             )
     for name, limit, expected in RANGES:
         values = table.column(name).to_numpy()
@@ -320,7 +327,7 @@ def validate(table: pa.Table, source: str | Path | None = None, first_row: int =
         if bad.any():
             row = int(np.flatnonzero(bad)[0])
             raise TrackTableError(
-                f"{where}row {row + first_row}: column {name!r} is {values[row]}, expected {expected}"
+                f"{where}row {at(row)}: column {name!r} is {values[row]}, expected {expected}"
             )
     assert rec_codes is not None  # a null recording was refused above
     track = table.column("track_id").to_numpy()
@@ -330,23 +337,40 @@ def validate(table: pa.Table, source: str | Path | None = None, first_row: int =
     order_ok = _in_order(rec_codes, track, frame)
     if not order_ok.all():
         row = int(np.flatnonzero(~order_ok)[0]) + 1
-        raise TrackTableError(
-            f"{where}row {row + first_row}: rows are not sorted by (recording, track_id, frame)"
-        )
+        raise TrackTableError(f"{where}row {at(row)}: rows are not sorted by (recording, track_id, frame)")
     duplicate = same_track & (frame[1:] == frame[:-1])
     if duplicate.any():
         row = int(np.flatnonzero(duplicate)[0]) + 1
         raise TrackTableError(
-            f"{where}row {row + first_row}: duplicate (recording, track_id, frame) = "
+            f"{where}row {at(row)}: duplicate (recording, track_id, frame) = "
             f"({table.column('recording')[row]}, {track[row]}, {frame[row]})"
         )
     backwards = same_track & (time[1:] <= time[:-1])
     if backwards.any():
         row = int(np.flatnonzero(backwards)[0]) + 1
         raise TrackTableError(
-            f"{where}row {row + first_row}: time_ns does not increase along track {track[row]} "
+            f"{where}row {at(row)}: time_ns does not increase along track {track[row]} "
             f"({time[row - 1]} then {time[row]})"
         )
+
+
+def file_order(table: pa.Table) -> np.ndarray | None:
+    """The row order (int64 [n]) that sorts a table read from a file by (recording, track_id,
+    frame), stably (a repeated row stays after its first copy); None if it is in order already or
+    its key columns cannot be put in order (missing, of another type, null: :func:`validate` names
+    them). A track table written by another tool in another row order holds the same data."""
+    names = ("recording", "track_id", "frame")
+    if table.num_rows < 2 or any(n not in table.column_names for n in names):
+        return None
+    if any(
+        table.schema.field(n).type != _FIELDS_BY_NAME[n].type or table.column(n).null_count for n in names
+    ):
+        return None
+    rec = recording_codes(table)[1]
+    track, frame = table.column("track_id").to_numpy(), table.column("frame").to_numpy()
+    if _in_order(rec, track, frame).all():
+        return None
+    return np.lexsort((np.arange(table.num_rows), frame, track, rec))
 
 
 def _first(mask: pa.ChunkedArray | pa.Array) -> int:
@@ -468,7 +492,10 @@ def read_parquet(path: str | Path) -> pa.Table:
         raise InputError(
             path, f"not a readable Parquet file: {exc}", expected="a lanecast track table"
         ) from exc
-    validate(table, source=path)
+    order = file_order(table)  # another tool's row order: the same rows, put in the contract's order
+    if order is not None:
+        table = table.take(pa.array(order))
+    validate(table, source=path, file_rows=order)
     return table
 
 
