@@ -505,3 +505,33 @@ def test_bad_txt_speed_beyond_the_tables_bound(
     txt_lines[3] = _set_field(txt_lines[3], field, "1e12", None)
     err = _error(_write(tmp_path, "a.txt", txt_lines))
     assert (err.line, err.column) == (4, column) and words in str(err)
+
+
+def _freeway_vehicle(vehicle: int, first: int, n: int, y0: float, step: float) -> list[str]:
+    """``n`` .txt rows of one US-101 vehicle whose Local_Y moves ``step`` ft per frame."""
+    return [
+        f"{vehicle} {f} {n} {1118846980000 + 100 * f} 18.0 {y0 + step * (f - first):.3f} 6451155.641 "
+        f"1873444.255 15.0 6.0 2 40.0 0.0 2 0 0 0.0 0.0"
+        for f in range(first, first + n)
+    ]
+
+
+def test_a_freeway_vehicle_driving_backwards_is_refused(tmp_path: Path) -> None:
+    """On US-101 and I-80 (one-way, x = Local_Y) a vehicle whose Local_Y falls 4 ft per frame drove
+    backwards at 12 m/s while v_Vel said forwards: converted with vx = +12 m/s and x falling (exit
+    0). Now refused at the vehicle's first line; stop-and-go jitter and short tracks are kept."""
+    ahead = _freeway_vehicle(1, 10, 40, 100.0, 4.0)
+    backwards = _freeway_vehicle(2, 10, 40, 900.0, -4.0)
+    path = _write(tmp_path, "us-101-trajectories.txt", ahead + backwards)
+    with pytest.raises(InputError) as err:
+        ngsim.read([path])
+    assert err.value.line == 41 and err.value.column == "Local_Y"
+    assert "vehicle 2 drives backwards on a one-way freeway" in str(err.value)
+    jitter = [
+        line.replace(f" {y} ", f" {float(y) + (-0.5 if k % 2 else 0.5):.3f} ")
+        for k, line in enumerate(_freeway_vehicle(3, 10, 40, 200.0, 0.0))
+        for y in [line.split()[5]]
+    ]
+    short = _freeway_vehicle(4, 10, 8, 500.0, -4.0)  # under a second: no direction to tell
+    ok = _write(tmp_path, "us-101-ok.txt", ahead + jitter + short)
+    assert ngsim.read([ok]).num_rows == 40 + 40 + 8

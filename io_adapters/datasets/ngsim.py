@@ -735,6 +735,7 @@ def _assemble(files: list[_Parsed], split_periods: bool) -> pa.Table:
         cols = parsed.columns
         period, epochs = _periods(cols, split_periods)
         _check_period_continuity(parsed, period)
+        _check_wrong_way(parsed, period)
         key = parsed.location_code * len(epochs) + period
         n_rows = key.size
         code = np.empty(n_rows, dtype=np.int64)
@@ -824,6 +825,56 @@ def _check_period_continuity(parsed: _Parsed, period: np.ndarray) -> None:
         line=line,
         column="Global_Time",
         expected=f"Global_Time = epoch + 100 * Frame_ID with the epoch of line {other_line}",
+    )
+
+
+WRONG_WAY_FPS = 1.0 / FEET  # ft/s: a freeway vehicle whose Local_Y falls faster than 1 m/s drives backwards
+MIN_WRONG_WAY_FRAMES = 10  # frames (1 s): a shorter track's direction is noise
+
+
+def _check_wrong_way(parsed: _Parsed, period: np.ndarray) -> None:
+    """Refuse a vehicle on a one-way freeway (US-101, I-80) whose Local_Y falls along its frames: in
+    the road frame (x = Local_Y) it would drive backwards at the speed v_Vel says it drives forward
+    (a column of another vehicle or another unit, never a real vehicle). Stop-and-go noise is no
+    wrong way: the track's net motion and most of its steps must go backwards. ``period`` [n]."""
+    cols = parsed.columns
+    freeway = np.array([_is_freeway(loc) for loc in parsed.locations], dtype=bool)[parsed.location_code]
+    if not freeway.any():
+        return
+    rows = np.flatnonzero(freeway)
+    order = rows[
+        np.lexsort(
+            (cols["frame_id"][rows], cols["vehicle_id"][rows], period[rows], parsed.location_code[rows])
+        )
+    ]
+    key = np.stack([parsed.location_code[order], period[order], cols["vehicle_id"][order]])
+    starts = np.flatnonzero(np.r_[True, (key[:, 1:] != key[:, :-1]).any(axis=0)])
+    ends = np.r_[starts[1:], order.size] - 1
+    y, frame = cols["local_y"][order], cols["frame_id"][order]
+    seconds = (frame[ends] - frame[starts]) / FRAME_RATE
+    steps = ends - starts
+    down = np.r_[np.diff(y) < 0, False]  # row i to row i+1 moves back
+    down[ends] = False  # the step from a track's last row leads into the next track
+    falling = np.add.reduceat(down.astype(np.int64), starts)
+    long_enough = steps >= MIN_WRONG_WAY_FRAMES
+    net = (y[ends] - y[starts]) / np.where(seconds > 0, seconds, 1.0)
+    wrong = np.flatnonzero(long_enough & (net < -WRONG_WAY_FPS) & (2 * falling > steps))
+    if not wrong.size:
+        return
+    first_rows = np.minimum.reduceat(order, starts)  # each track's first row in the file
+    k = int(wrong[np.argmin(first_rows[wrong])])
+    row = int(first_rows[k])
+    header = parsed.location_source == "column" or "," in parsed.path.open("rb").readline().decode(
+        errors="replace"
+    )
+    line = int(record_lines(parsed.path.read_bytes(), whitespace=not header)[0][row + (1 if header else 0)])
+    raise InputError(
+        parsed.path,
+        f"vehicle {cols['vehicle_id'][row]:.0f} drives backwards on a one-way freeway: its Local_Y falls "
+        f"by {y[starts[k]] - y[ends[k]]:.1f} ft over {seconds[k]:.1f} s ({-net[k]:.1f} ft/s)",
+        line=line,
+        column="Local_Y",
+        expected="Local_Y rising along a vehicle's frames (the direction of travel on US-101 and I-80)",
     )
 
 
