@@ -344,7 +344,10 @@ def _null_recording(table: pa.Table) -> pa.Table:
     [
         (lambda t: t.append_column(t.schema.field("x"), t.column("x")), "column 'x' appears twice"),
         (_null_recording, "row 2: column 'recording' is null"),
-        (lambda t: pa.concat_tables([t, t.slice(0, 1)]), "row 14: recording 'highd-01-lower' starts again"),
+        (  # rows in another order are put in order: the repeated row is named
+            lambda t: pa.concat_tables([t, t.slice(0, 1)]),
+            "row 14: duplicate (recording, track_id, frame) = (highd-01-lower, 1, 1)",
+        ),
     ],
     ids=["column twice", "null recording", "recording twice"],
 )
