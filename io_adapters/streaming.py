@@ -141,7 +141,9 @@ def _with_meta(
     meta = track_table.read_meta(track_table.file_schema(pf), source=path)
     names = track_table.recording_codes(table)[0]
     meta = track_table.restrict_meta(meta, names.tolist())
-    table = table.replace_schema_metadata({track_table.META_KEY: meta.to_json().encode()})
+    table = track_table.widen_types(
+        table.replace_schema_metadata({track_table.META_KEY: meta.to_json().encode()})
+    )
     order = track_table.file_order(table) if sort else None
     if order is not None:
         table = table.take(pa.array(order))

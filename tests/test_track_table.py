@@ -255,3 +255,38 @@ def test_a_track_table_in_another_row_order_is_read_in_the_contracts_order(tmp_p
     pq.write_table(twice, tmp_path / "d.parquet")
     with pytest.raises(TrackTableError, match=r"d\.parquet: row 5: duplicate \(recording, track_id, frame\)"):
         track_table.read_parquet(tmp_path / "d.parquet")
+
+
+@pytest.mark.parametrize(
+    ("column", "type_"),
+    [
+        ("recording", pa.string()),
+        ("recording", pa.large_string()),
+        ("object_class", pa.dictionary(pa.int8(), pa.string())),
+        ("track_id", pa.uint32()),
+        ("frame", pa.int32()),
+        ("lane_id", pa.int16()),
+        ("x", pa.float32()),
+    ],
+)
+def test_a_column_in_a_type_holding_the_same_values_is_read_in_the_contracts_type(
+    tmp_path: Path, column: str, type_: pa.DataType
+) -> None:
+    """Another tool's table with plain-string names, narrower integers or float32 positions (values
+    the contract's types hold exactly) was refused ('column 'frame' has type int32, expected
+    int64'); now read as the same table. A float id or an integer out of range is still refused."""
+    columns = _columns()
+    columns["x"] = columns["x"].astype(np.float32)  # values float32 holds: a float32 x is the same x
+    table = track_table.build_table(columns, _meta("rec-a"))
+    i = table.schema.get_field_index(column)
+    other = table.set_column(i, table.schema.field(i).with_type(type_), table.column(i).cast(type_))
+    pq.write_table(other, tmp_path / "t.parquet")
+    assert track_table.read_parquet(tmp_path / "t.parquet").equals(table)
+    for bad, words in ((pa.float64(), "has type double"), (pa.uint64(), "has type uint64")):
+        values = table.column("track_id").cast(bad)
+        if bad == pa.uint64():
+            values = pa.array([2**63 + 1] * table.num_rows, pa.uint64())
+        wrong = table.set_column(1, table.schema.field(1).with_type(bad), values)
+        pq.write_table(wrong, tmp_path / "w.parquet")
+        with pytest.raises(TrackTableError, match=words):
+            track_table.read_parquet(tmp_path / "w.parquet")

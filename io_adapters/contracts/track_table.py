@@ -354,6 +354,39 @@ def validate(
         )
 
 
+def _is_text(type_: pa.DataType) -> bool:
+    return pa.types.is_string(type_) or pa.types.is_large_string(type_)
+
+
+def _same_values_in(got: pa.DataType, want: pa.DataType) -> bool:
+    """A column of type ``got`` can be cast to ``want`` without changing a value (integers are
+    range-checked by the safe cast): ids and frames of a narrower or unsigned integer type, names
+    as plain or large strings or a dictionary with other indices, positions as float32."""
+    if pa.types.is_integer(want):
+        return pa.types.is_integer(got)
+    if pa.types.is_dictionary(want):
+        return _is_text(got) or (pa.types.is_dictionary(got) and _is_text(got.value_type))
+    if pa.types.is_float64(want):
+        return pa.types.is_float32(got) or pa.types.is_float16(got)
+    return False
+
+
+def widen_types(table: pa.Table) -> pa.Table:
+    """A table read from a file (written by another tool) with contract columns in types that hold
+    the same values cast to the contract's types, field metadata (units) kept; any other type, or
+    an integer out of range, is left for :func:`validate` to name."""
+    for i, f in enumerate(table.schema):
+        want = _FIELDS_BY_NAME.get(f.name)
+        if want is None or f.type == want.type or not _same_values_in(f.type, want.type):
+            continue
+        try:
+            column = table.column(i).cast(want.type)  # safe: an integer out of range raises
+        except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
+            continue
+        table = table.set_column(i, f.with_type(want.type), column)
+    return table
+
+
 def file_order(table: pa.Table) -> np.ndarray | None:
     """The row order (int64 [n]) that sorts a table read from a file by (recording, track_id,
     frame), stably (a repeated row stays after its first copy); None if it is in order already or
@@ -492,7 +525,8 @@ def read_parquet(path: str | Path) -> pa.Table:
         raise InputError(
             path, f"not a readable Parquet file: {exc}", expected="a lanecast track table"
         ) from exc
-    order = file_order(table)  # another tool's row order: the same rows, put in the contract's order
+    table = widen_types(table)  # another tool's types and row order: the same values, the contract's form
+    order = file_order(table)
     if order is not None:
         table = table.take(pa.array(order))
     validate(table, source=path, file_rows=order)
