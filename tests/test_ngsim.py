@@ -535,3 +535,16 @@ def test_a_freeway_vehicle_driving_backwards_is_refused(tmp_path: Path) -> None:
     short = _freeway_vehicle(4, 10, 8, 500.0, -4.0)  # under a second: no direction to tell
     ok = _write(tmp_path, "us-101-ok.txt", ahead + jitter + short)
     assert ngsim.read([ok]).num_rows == 40 + 40 + 8
+
+
+def test_a_negative_lane_id_is_refused(tmp_path: Path) -> None:
+    """Lane_ID -1 on one row was kept (exit 0): two lane changes that never happened in the
+    labels. NGSIM numbers lanes from 1 (0 and >= 10 on the arterials), so it is refused at its line."""
+    lines = _freeway_vehicle(1, 10, 40, 100.0, 4.0)
+    cells = lines[20].split()
+    cells[13] = "-1"
+    lines[20] = " ".join(cells)
+    path = _write(tmp_path, "us-101-lanes.txt", lines)
+    with pytest.raises(InputError) as err:
+        ngsim.read([path])
+    assert err.value.line == 21 and err.value.column == "Lane_ID" and "Lane_ID is -1" in str(err.value)

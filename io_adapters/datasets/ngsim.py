@@ -642,8 +642,8 @@ def _checked_ranges(
 ) -> dict[str, np.ndarray]:
     """The columns with the integer ones as int64, after refusing values that parse but cannot be
     right: integers read through float64 beyond 2^53, a Frame_ID whose time overflows, a
-    Global_Time beyond 2^53 ms, a size that is not positive, a negative speed, a Lane_ID outside
-    int32. InputError at the first such cell (file order), naming its line and column."""
+    Global_Time beyond 2^53 ms, a size that is not positive, a negative speed, a Lane_ID that is
+    negative or outside int32. InputError at the first such cell (file order), naming its line and column."""
     out = dict(columns)
     bad_rows: list[tuple[int, str, str]] = []
 
@@ -668,7 +668,9 @@ def _checked_ranges(
         flag(
             "global_time", (out["global_time"] < 0) | (out["global_time"] >= EXACT_FLOAT_INT), "0 to 2^53 ms"
         )
-        flag("lane_id", np.abs(out["lane_id"]) > INT32_MAX, "a lane id within int32")
+        # NGSIM numbers lanes from 1 (0 and >= 10 on the arterials' intersections and bays); a
+        # negative one on a row or two would be two lane changes that never happened
+        flag("lane_id", (out["lane_id"] < 0) | (out["lane_id"] > INT32_MAX), "a lane id >= 0 within int32")
         size = f"> 0 and <= {MAX_SIZE_FT:g} ft"  # no road vehicle is longer than a few hundred feet
         flag("v_length", ~((out["v_length"] > 0) & (out["v_length"] <= MAX_SIZE_FT)), f"a length {size}")
         flag("v_width", ~((out["v_width"] > 0) & (out["v_width"] <= MAX_SIZE_FT)), f"a width {size}")
