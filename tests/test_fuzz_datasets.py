@@ -197,6 +197,16 @@ def txt_edit(fn: Callable[[list[list[str]]], list[list[str]]], sep: str = " ") -
     return apply
 
 
+def txt_cell(row: int, field: int, value: str) -> Callable[[list[list[str]]], list[list[str]]]:
+    """Field ``field`` (0-based) of data row ``row`` of a .txt set to ``value``."""
+
+    def fn(rows: list[list[str]]) -> list[list[str]]:
+        rows[row][field] = value
+        return rows
+
+    return fn
+
+
 def pq_edit(fn: Callable[[pa.Table], pa.Table], **write: object) -> Callable[[Path], None]:
     def apply(path: Path) -> None:
         pf = pq.ParquetFile(path)
@@ -341,6 +351,9 @@ def cases() -> list[Case]:
              "refuse"),
         Case("ngsim-txt", "v_Vel not a number", "txt", "us-101-fuzz.txt",
              txt_edit(lambda rows: [*rows[:33], [*rows[33][:11], "fast", *rows[33][12:]], *rows[34:]]), "refuse", cmd="info"),
+        Case("ngsim-txt", "Lane_ID -1 on one row", "txt", "us-101-fuzz.txt",
+             txt_edit(txt_cell(r.randrange(600), 13, "-1")),
+             "refuse"),
         # NGSIM CSV (real Peachtree rows)
         Case("ngsim-csv", "CRLF line ends", "csv", PEACHTREE.name, edit_bytes(lambda b: b.replace(b"\n", b"\r\n")), "same"),
         Case("ngsim-csv", "two trailing empty columns", "csv", PEACHTREE.name, edit_bytes(lambda b: b.replace(b"\n", b",,\n")), "same"),
