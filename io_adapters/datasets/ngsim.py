@@ -858,7 +858,9 @@ def _check_wrong_way(parsed: _Parsed, period: np.ndarray) -> None:
     down = np.r_[np.diff(y) < 0, False]  # row i to row i+1 moves back
     down[ends] = False  # the step from a track's last row leads into the next track
     falling = np.add.reduceat(down.astype(np.int64), starts)
-    long_enough = steps >= MIN_WRONG_WAY_FRAMES
+    repeat = np.r_[frame[1:] == frame[:-1], False]  # one id driving twice (periods not split): not one track
+    repeat[ends] = False
+    long_enough = (steps >= MIN_WRONG_WAY_FRAMES) & (np.add.reduceat(repeat.astype(np.int64), starts) == 0)
     net = (y[ends] - y[starts]) / np.where(seconds > 0, seconds, 1.0)
     wrong = np.flatnonzero(long_enough & (net < -WRONG_WAY_FPS) & (2 * falling > steps))
     if not wrong.size:
