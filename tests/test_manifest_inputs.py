@@ -161,3 +161,45 @@ def test_an_output_name_with_a_nul_byte_is_no_claim(tmp_path: Path) -> None:
     (out / MANIFEST).write_text(json.dumps(entry) + "\n")
     result = run_bulk([tmp_path / "logs"], out, AnnotateOptions(forecasts=fc))
     assert len(result.done) == 1 and (out / "a.mcap").is_file()
+
+
+@pytest.mark.parametrize(
+    ("claimed", "refused"),
+    [("../logs/a.mcap", True), ("ABSOLUTE-INPUT", True), ("b.mcap", False), ("~/a.mcap", False)],
+)
+def test_an_entry_naming_another_output_keeps_input_and_output_and_names_the_manifest(
+    tmp_path: Path, claimed: str, refused: bool
+) -> None:
+    """A manifest whose entry for a.mcap names another output, run from another folder: one
+    outside OUT_DIR (the input itself, ``..``) is not lanecast's to write, so out/a.mcap, which
+    the manifest no longer records, is kept and the refusal names the manifest, which holds the
+    cause (before: it named only out/a.mcap, 'not written by lanecast annotate'); a name inside
+    OUT_DIR (``b.mcap``, a literal ``~`` folder) is written there. The input is never touched and
+    nothing is written outside OUT_DIR (``~`` is not the home folder)."""
+    fc = tmp_path / "fc"
+    log = _log(tmp_path / "logs", "a", fc)
+    out = tmp_path / "out"
+    run_bulk([tmp_path / "logs"], out, AnnotateOptions(forecasts=fc))
+    manifest = out / MANIFEST
+    entries = [json.loads(line) for line in manifest.read_text().splitlines()]
+    for entry in entries:
+        entry["output"] = str(log) if claimed == "ABSOLUTE-INPUT" else claimed
+    manifest.write_text("".join(json.dumps(e) + "\n" for e in entries))
+    before = {p: p.read_bytes() for p in (log, out / "a.mcap")}
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    cwd = Path.cwd()
+    os.chdir(elsewhere)
+    try:
+        if refused:
+            with pytest.raises(InputError) as err:
+                run_bulk([Path("../logs")], Path("../out"), AnnotateOptions(forecasts=Path("../fc")))
+            assert "not written by lanecast annotate" in str(err.value) and MANIFEST in str(err.value)
+        else:
+            result = run_bulk([Path("../logs")], Path("../out"), AnnotateOptions(forecasts=Path("../fc")))
+            assert len(result.done) == 1 and (out / claimed).is_file()
+    finally:
+        os.chdir(cwd)
+    assert {p: p.read_bytes() for p in before} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["elsewhere", "fc", "logs", "out"]
+    assert not list(elsewhere.iterdir()) and not (Path.home() / "a.mcap").exists()

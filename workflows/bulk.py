@@ -232,7 +232,8 @@ def refuse_foreign_outputs(tasks: Sequence[Task], manifest: Manifest) -> None:
         more = f" (and {len(foreign) - 1} more)" if len(foreign) > 1 else ""
         raise InputError(
             foreign[0],
-            f"exists and was not written by lanecast annotate for this input: refusing to overwrite it{more}",
+            f"exists and was not written by lanecast annotate for this input ({manifest.path} records no such "
+            f"output of it): refusing to overwrite it{more}",
             expected="remove it, or choose another --out",
         )
 
