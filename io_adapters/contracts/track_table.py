@@ -4,6 +4,10 @@ One row per object per frame, an Arrow table, Parquet (zstd) on disk. Units are 
 every physical column carries its unit in its field metadata, and the table carries a JSON document
 under the schema metadata key ``lanecast`` with the source format, the source files and, per
 recording, the frame rate, the coordinate frame and whatever the source gives (lane markings, …).
+
+Size: the format's one definition (schema, metadata, checks, row order, the Parquet form, and what a
+table another tool wrote may differ in: row order, types holding the same values), kept in one place
+so that no reader carries a second copy of a rule.
 """
 
 from __future__ import annotations
