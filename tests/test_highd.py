@@ -452,3 +452,21 @@ def test_a_recording_meta_id_of_an_unnumbered_name_or_written_with_zeros_is_read
     meta = named / "a_recordingMeta.csv"
     meta.write_text("\n".join(_set(meta.read_text().splitlines(), 2, "id", "7")) + "\n")
     assert highd.read([named / "a_tracks.csv"]).num_rows == table.num_rows
+
+
+def test_dropping_identical_duplicate_rows_is_reported(
+    tmp_path: Path, table: pa.Table, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A repeated line is dropped (the same data) and said so on stderr with its line; before, the
+    repair was silent."""
+
+    def duplicate(lines: list[str]) -> list[str]:
+        return [*lines[:5], lines[3], *lines[5:]]
+
+    path = _variant(tmp_path, "01_tracks.csv", duplicate)
+    capsys.readouterr()
+    assert highd.read([tmp_path]).equals(table, check_metadata=False)
+    assert (
+        f"{path}: dropped 1 row(s) repeating an earlier (id, frame) with the same values (the first at line 6)"
+        in (capsys.readouterr().err)
+    )

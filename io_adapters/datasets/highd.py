@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import difflib
 import re
+import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -508,6 +509,24 @@ def _dedupe(path: Path, cols: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarr
     return {name: values[keep] for name, values in cols.items()}, order[keep]
 
 
+def _report_dropped(path: Path, rows: int, kept: np.ndarray, lines_known: bool) -> None:
+    """Say on stderr how many rows repeated an earlier (id, frame) identically and were dropped
+    (a repair, never silent); ``kept`` [N] the file rows kept of ``rows``; with ``lines_known``
+    (the whole file was parsed) the first dropped row's line is named."""
+    dropped = rows - kept.size
+    if not dropped:
+        return
+    where = ""
+    if lines_known:
+        first = int(np.flatnonzero(np.isin(np.arange(rows), kept, invert=True))[0])
+        where = f" (the first at line {_line(path, first)})"
+    print(
+        f"lanecast: {path}: dropped {dropped:,} row(s) repeating an earlier (id, frame) with the same "
+        f"values{where}",
+        file=sys.stderr,
+    )
+
+
 INT32_MAX = 2**31 - 1
 FLOAT32_MAX = float(np.finfo(np.float32).max)  # sizes, velocities, accelerations are float32
 MAX_POSITION_M = 1e9  # highD positions are image metres (below 1e3)
@@ -800,6 +819,7 @@ def convert_tracks(
     io_adapters/datasets/highd_stream.py reads a long file) converted."""
     tracks_path = rec.path("tracks")
     cols, source_row = _dedupe(tracks_path, _numpy(tracks, TRACKS_COLUMNS))
+    _report_dropped(tracks_path, tracks.num_rows, source_row, all_tracks)
     _check_ranges(tracks_path, cols, source_row, meta.frame_rate)
     row_meta, direction = _check_meta(rec, meta_table, cols, source_row, all_tracks)
     _check_direction(rec, cols, row_meta, direction)
