@@ -484,3 +484,28 @@ def test_a_manifest_that_does_not_describe_its_arrays_is_refused(
     with pytest.raises(InputError) as err:
         load_windows(out)
     assert err.value.path == str(out / "manifest.json") and err.value.column == key
+
+
+@pytest.mark.parametrize("command", ["info", "convert", "windows"])
+def test_a_windows_dataset_given_as_a_track_table_is_named_as_such(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], command: str
+) -> None:
+    """`lanecast info win/` (or convert, windows) read win/windows.parquet as a track table:
+    "win/windows.parquet: missing column 'frame'" or "no 'lanecast' schema metadata", about a
+    file the user never named. Now one line saying the folder is a windows dataset."""
+    out = save_windows(
+        make_windows(table_of(straight(SEVEN, np.arange(150))), split="hash"), tmp_path / "win"
+    )
+    argv = {
+        "info": [],
+        "convert": ["--out", str(tmp_path / "t.parquet")],
+        "windows": ["--out", str(tmp_path / "w2")],
+    }
+    assert cli_main([command, str(out), *argv[command]]) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err == (
+        f"lanecast {command}: error: {out}: a windows dataset (the output of `lanecast windows`), not a track "
+        "table (expected a track table, highD or NGSIM files, or a drive log; `lanecast train` and `lanecast "
+        "evaluate` read windows datasets)"
+    )
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["win"]

@@ -10,6 +10,7 @@ from typing import Any
 import pyarrow as pa
 
 from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.contracts.windows import DATASET_FILES
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import not_regular
 
@@ -31,7 +32,16 @@ def dataset_files(directory: Path) -> list[Path]:
 
 def check_parts(directory: Path) -> None:
     """InputError naming a part of the dataset ``directory`` that is no file to read (a FIFO, a
-    device, a link to nothing): left out, its rows would be missing without a word."""
+    device, a link to nothing): left out, its rows would be missing without a word; or naming
+    the directory if it is a windows dataset, whose windows.parquet is no track table (before:
+    "missing column 'frame'" or "no 'lanecast' schema metadata", about a file the user never named)."""
+    if all((directory / name).is_file() for name in DATASET_FILES):
+        raise InputError(
+            directory,
+            "a windows dataset (the output of `lanecast windows`), not a track table",
+            expected="a track table, highD or NGSIM files, or a drive log; `lanecast train` and "
+            "`lanecast evaluate` read windows datasets",
+        )
     for p in sorted(directory.glob("*.parquet")):
         reason = None if p.name.startswith((".", "_")) else not_regular(p)
         if reason is not None:
