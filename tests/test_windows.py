@@ -22,6 +22,7 @@ from lanecast.io_adapters.contracts.windows import (
     NormStats,
     Windows,
     compute_stats,
+    concat_windows,
     denormalise,
     load_windows,
     normalise,
@@ -484,6 +485,19 @@ def test_a_manifest_that_does_not_describe_its_arrays_is_refused(
     with pytest.raises(InputError) as err:
         load_windows(out)
     assert err.value.path == str(out / "manifest.json") and err.value.column == key
+
+
+def test_a_saved_subset_or_concatenation_states_its_own_count(tmp_path: Path) -> None:
+    """subset and concat_windows keep the manifest they were made from; saved as it was, its
+    n_windows described the parent, and load_windows refused the dataset (benchmarks/train_shipped's
+    merged training windows: 'n_windows 7932, but the arrays … hold 443796 windows')."""
+    whole = make_windows(table_of(straight(SEVEN, np.arange(150))), split="hash")
+    part = subset(whole, np.arange(10))
+    merged = concat_windows([whole, part])
+    for name, windows in (("part", part), ("merged", merged)):
+        loaded = load_windows(save_windows(windows, tmp_path / name))
+        assert len(loaded) == loaded.manifest["n_windows"] == len(windows)
+    assert len(merged) == len(whole) + 10
 
 
 @pytest.mark.parametrize("command", ["info", "convert", "windows"])

@@ -225,15 +225,18 @@ def empty_windows(manifest: dict[str, Any] | None = None) -> Windows:
 
 
 def save_windows(windows: Windows, directory: str | Path) -> Path:
-    """Write the dataset directory atomically (a reader never sees half of it); return its path."""
+    """Write the dataset directory atomically (a reader never sees half of it); return its path.
+    The manifest's ``n_windows`` is the count written (a subset or a concatenation keeps the
+    manifest it was made from, whose count :func:`load_windows` would refuse)."""
     windows.check()
     directory = Path(directory)
+    manifest = {**windows.manifest, "n_windows": len(windows)}
     with atomic_path(directory, directory=True, replaces=DATASET_FILES) as tmp:
         for name in _ARRAYS:
             np.save(tmp / f"{name}.npy", np.ascontiguousarray(getattr(windows, name)), allow_pickle=False)
         pq.write_table(windows.index.cast(INDEX_SCHEMA), tmp / "windows.parquet", compression="zstd")
         (tmp / "manifest.json").write_text(
-            json.dumps(_jsonable(windows.manifest), indent=2, sort_keys=True), encoding="utf-8"
+            json.dumps(_jsonable(manifest), indent=2, sort_keys=True), encoding="utf-8"
         )
     return directory
 
