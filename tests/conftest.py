@@ -12,6 +12,7 @@ Factories (plain functions, imported by the test modules with ``from conftest im
 from __future__ import annotations
 
 import json
+import struct
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -89,6 +90,24 @@ def make_track_table(
     )
     validate(table)
     return table
+
+
+def staggered_cars(
+    cars: int, frames: int, *, stagger: int, step_m: float, speed: float, rate: float
+) -> pa.Table:
+    """``cars`` cars in lanes 1, 2, … (3.5 m apart), each ``frames`` frames long, car k starting
+    ``stagger`` * k frames later and 10 m * k farther along, moving ``step_m`` a frame; vx ``speed``."""
+    k = np.arange(cars)
+    f = (np.arange(frames)[None, :] + stagger * k[:, None]).ravel()
+    columns = {
+        "track_id": np.repeat(k + 1, frames),
+        "frame": f,
+        "x": f * step_m + np.repeat(k * 10.0, frames),
+        "y": np.repeat(k * 3.5, frames),
+        "vx": np.full(f.size, speed),
+        "lane_id": np.repeat(k + 1.0, frames),
+    }
+    return make_track_table(columns, rate=rate)
 
 
 def table_of(
@@ -286,6 +305,42 @@ def forecasts_for(recording: str, t0_s: list[int], tracks: list[int], k: int = 2
             extra["alt_probs"].append([0.2 / (j + 1) for j in range(k)])
             extra["alt_maneuvers"].append([[0, 2, 2, 2, 2]] * k)
     return pa.table({**rows, **extra})
+
+
+def mcap_record_spans(data: bytes) -> list[tuple[int, int, int]]:
+    """(offset, opcode, body length) of the top-level records of an MCAP's bytes, up to the footer
+    (its opcode 0x02 included): where a test cuts, swaps or edits records."""
+    out, pos = [], 8
+    while pos + 9 <= len(data):
+        op, n = struct.unpack_from("<BQ", data, pos)
+        out.append((pos, op, n))
+        if op == 0x02:
+            break
+        pos += 9 + n
+    return out
+
+
+def mcap_contents(path: Path) -> tuple[Any, list[tuple[int, int, bytes]], list[Any]]:
+    """(summary, messages as (channel id, log time, data) in file order, metadata records) of an
+    MCAP, read by the mcap library: what a test needs to write it again with something changed."""
+    from mcap.reader import make_reader
+
+    with path.open("rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        assert summary is not None
+        messages = [(ch.id, m.log_time, m.data) for _s, ch, m in reader.iter_messages()]
+        metadata = list(reader.iter_metadata())
+    return summary, messages, metadata
+
+
+def channel_record(channel_id: int, schema_id: int, topic: str, message_encoding: str) -> bytes:
+    """The bytes of an MCAP Channel record (opcode 0x04, no channel metadata)."""
+    body = struct.pack("<HH", channel_id, schema_id)
+    for text in (topic, message_encoding):
+        body += struct.pack("<I", len(text)) + text.encode()
+    body += struct.pack("<I", 0)
+    return struct.pack("<BQ", 0x04, len(body)) + body
 
 
 def records(path: Path) -> dict[str, Any]:

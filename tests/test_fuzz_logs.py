@@ -21,9 +21,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pyarrow as pa
 import pytest
+from conftest import channel_record, mcap_contents, mcap_record_spans, staggered_cars
 
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.logs import mcap_writer, rosbag_writer
@@ -36,28 +36,7 @@ OBJECTS = "/tracked_objects"
 
 def small_table() -> pa.Table:
     """3 cars × 30 frames at 10 Hz, staggered starts."""
-    n, k = 30, np.arange(3)
-    f = (np.arange(n)[None, :] + 4 * k[:, None]).ravel()
-    cols = {
-        "recording": np.full(f.size, "r"),
-        "track_id": np.repeat(k + 1, n),
-        "frame": f,
-        "time_ns": np.rint(f * 1e9 / RATE).astype(np.int64),
-        "x": f * 2.5 + np.repeat(k * 10.0, n),
-        "y": np.repeat(k * 3.5, n),
-        "heading": np.zeros(f.size),
-        "vx": np.full(f.size, 25.0),
-        "vy": np.zeros(f.size),
-        "ax": np.zeros(f.size),
-        "ay": np.zeros(f.size),
-        "length": np.full(f.size, 4.5),
-        "width": np.full(f.size, 1.8),
-        "lane_id": np.repeat(k + 1.0, n),
-        "object_class": np.full(f.size, "car"),
-    }
-    return track_table.build_table(
-        cols, track_table.TableMeta("test", {"r": track_table.RecordingMeta(RATE)})
-    )
+    return staggered_cars(3, 30, stagger=4, step_m=2.5, speed=25.0, rate=RATE)
 
 
 @pytest.fixture(scope="module")
@@ -82,21 +61,9 @@ def bases(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[Path, pa.
 # ------------------------------------------------------------------------------------ MCAP bytes
 
 
-def records(b: bytes) -> list[tuple[int, int, int]]:
-    """(offset, opcode, body length) of the top-level records of an MCAP."""
-    out, pos = [], 8
-    while pos + 9 <= len(b):
-        op, n = struct.unpack_from("<BQ", b, pos)
-        out.append((pos, op, n))
-        if op == 0x02:
-            break
-        pos += 9 + n
-    return out
-
-
 def fix_crcs(d: bytearray) -> None:
     """The DataEnd and summary CRCs recomputed (a writer that meant the change)."""
-    for o, op, _n in records(bytes(d)):
+    for o, op, _n in mcap_record_spans(bytes(d)):
         if op == 0x0F:
             struct.pack_into("<I", d, o + 9, zlib.crc32(bytes(d[:o])))
         if op == 0x02:
@@ -107,7 +74,7 @@ def fix_crcs(d: bytearray) -> None:
 
 def chunk_span(b: bytes, rng: random.Random) -> tuple[int, int]:
     """A chunk with its message indexes, as (start, end)."""
-    recs = records(b)
+    recs = mcap_record_spans(b)
     k = rng.choice([i for i, r in enumerate(recs) if r[1] == 0x06])
     start, end = recs[k][0], recs[k][0] + 9 + recs[k][2]
     while k + 1 < len(recs) and recs[k + 1][1] == 0x07:
@@ -123,15 +90,9 @@ def rewrite(
     ``msgs``, schema encodings and channel message encodings replaced as ``edit`` says; with
     ``redefine`` (unchunked), a Channel record half-way giving the next message's channel id
     another topic."""
-    from mcap.reader import make_reader
     from mcap.writer import Writer
 
-    with src.open("rb") as f:
-        reader = make_reader(f)
-        summary = reader.get_summary()
-        assert summary is not None
-        messages = [(ch.id, m.log_time, m.data) for _s, ch, m in reader.iter_messages()]
-        metadata = list(reader.iter_metadata())
+    summary, messages, metadata = mcap_contents(src)
     with dst.open("wb") as f:
         w = Writer(f, chunk_size=1500, use_chunking="redefine" not in edit)
         w.start()
@@ -153,10 +114,10 @@ def rewrite(
         listed = msgs(messages) if msgs else messages
         for k, (cid, log_time, data) in enumerate(listed):
             if "redefine" in edit and k == len(listed) // 2:
-                body = struct.pack("<HH", cids[cid], sids.get(summary.channels[cid].schema_id, 0))
-                for text in ("/other", summary.channels[cid].message_encoding):
-                    body += struct.pack("<I", len(text)) + text.encode()
-                f.write(struct.pack("<BQ", 0x04, len(body) + 4) + body + struct.pack("<I", 0))
+                first = summary.channels[cid]
+                f.write(
+                    channel_record(cids[cid], sids.get(first.schema_id, 0), "/other", first.message_encoding)
+                )
             w.add_message(cids[cid], log_time, data, log_time)
         for m in metadata:
             w.add_metadata(m.name, m.metadata)
@@ -176,7 +137,7 @@ Mutation = Callable[[random.Random, Path, Path], str]
 
 def m_truncate(rng: random.Random, src: Path, dst: Path) -> str:
     b = src.read_bytes()
-    o, op, n = rng.choice(records(b))
+    o, op, n = rng.choice(mcap_record_spans(b))
     at = o if rng.random() < 0.5 else o + rng.randrange(1, 9 + n)
     dst.write_bytes(b[:at])
     return f"truncated at {at} (record opcode {op:#04x} at {o})"
@@ -184,7 +145,7 @@ def m_truncate(rng: random.Random, src: Path, dst: Path) -> str:
 
 def m_chunk_swap(rng: random.Random, src: Path, dst: Path) -> str:
     b = src.read_bytes()
-    chunks = [(o, o + 9 + n) for o, op, n in records(b) if op == 0x06]
+    chunks = [(o, o + 9 + n) for o, op, n in mcap_record_spans(b) if op == 0x06]
     (s1, e1), (s2, e2) = sorted(rng.sample(chunks, 2))
     dst.write_bytes(b[:s1] + b[s2:e2] + b[e1:s2] + b[s1:e1] + b[e2:])
     return f"chunks at {s1} and {s2} swapped"
@@ -202,7 +163,7 @@ def m_stale_summary(rng: random.Random, src: Path, dst: Path) -> str:
     b = src.read_bytes()
     s, e = chunk_span(b, rng)
     d = bytearray(b[:s] + b[e:])
-    for o, op, _n in records(bytes(d)):
+    for o, op, _n in mcap_record_spans(bytes(d)):
         if op == 0x02:
             start, offsets = struct.unpack_from("<QQ", d, o + 9)
             struct.pack_into("<QQ", d, o + 9, start - (e - s), offsets - (e - s))
@@ -216,7 +177,7 @@ def m_stale_summary(rng: random.Random, src: Path, dst: Path) -> str:
 
 def m_chunk_index(rng: random.Random, src: Path, dst: Path) -> str:
     d = bytearray(src.read_bytes())
-    recs = records(bytes(d))
+    recs = mcap_record_spans(bytes(d))
     o = rng.choice([o for o, op, _ in recs if op == 0x08])
     value = rng.choice([o2 for o2, op, _ in recs if op == 0x06] + [0, 1, len(d) + 9])
     struct.pack_into("<Q", d, o + 25, value)
@@ -227,7 +188,7 @@ def m_chunk_index(rng: random.Random, src: Path, dst: Path) -> str:
 
 def m_summary_offset(rng: random.Random, src: Path, dst: Path) -> str:
     d = bytearray(src.read_bytes())
-    footer = records(bytes(d))[-1][0]
+    footer = mcap_record_spans(bytes(d))[-1][0]
     value = rng.choice([0, 8, rng.randrange(len(d)), len(d) + 5])
     struct.pack_into("<Q", d, footer + 9 + rng.choice([0, 8]), value)
     dst.write_bytes(bytes(d))

@@ -13,6 +13,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 import pytest
+from conftest import channel_record, mcap_contents, mcap_record_spans, staggered_cars
 
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.errors import LogError
@@ -24,28 +25,7 @@ RATE = 25.0
 @pytest.fixture(scope="module")
 def table() -> pa.Table:
     """4 cars × 60 frames at 25 Hz (frames 0..74)."""
-    n, k = 60, np.arange(4)
-    f = (np.arange(n)[None, :] + 5 * k[:, None]).ravel()
-    cols = {
-        "recording": np.full(f.size, "r"),
-        "track_id": np.repeat(k + 1, n),
-        "frame": f,
-        "time_ns": np.rint(f * 1e9 / RATE).astype(np.int64),
-        "x": f * 1.2 + np.repeat(k * 10.0, n),
-        "y": np.repeat(k * 3.5, n),
-        "heading": np.zeros(f.size),
-        "vx": np.full(f.size, 30.0),
-        "vy": np.zeros(f.size),
-        "ax": np.zeros(f.size),
-        "ay": np.zeros(f.size),
-        "length": np.full(f.size, 4.5),
-        "width": np.full(f.size, 1.8),
-        "lane_id": np.repeat(k + 1.0, n),
-        "object_class": np.full(f.size, "car"),
-    }
-    return track_table.build_table(
-        cols, track_table.TableMeta("test", {"r": track_table.RecordingMeta(RATE)})
-    )
+    return staggered_cars(4, 60, stagger=5, step_m=1.2, speed=30.0, rate=RATE)
 
 
 @pytest.fixture(scope="module")
@@ -514,18 +494,6 @@ def test_ros1_index_damage_names_its_record(tmp_path: Path, table: pa.Table, kin
     assert text in str(err.value)
 
 
-def _mcap_records(data: bytes) -> list[tuple[int, int, int]]:
-    """(offset, opcode, length) of the top-level records of an MCAP up to its footer."""
-    out, pos = [], 8
-    while pos + 9 <= len(data) - 8:
-        op, n = struct.unpack_from("<BQ", data, pos)
-        out.append((pos, op, n))
-        if op == 0x02:
-            break
-        pos += 9 + n
-    return out
-
-
 @pytest.mark.parametrize("damage", ["name length", "data length", "crc"])
 def test_damaged_attachment_is_named_by_convert_and_annotate(tmp_path: Path, damage: str) -> None:
     """An Attachment record whose fields do not fit it (or whose CRC is wrong) was read without a
@@ -541,7 +509,7 @@ def test_damaged_attachment_is_named_by_convert_and_annotate(tmp_path: Path, dam
     log = make_mcap(tmp_path / "log.mcap", n=40)
     pq.write_table(forecasts_for("log", [1, 2], [1]), tmp_path / "fc.parquet")  # no track reading: the copy
     data = bytearray(log.read_bytes())
-    at = next(o for o, op, _ in _mcap_records(bytes(data)) if op == 0x09)
+    at = next(o for o, op, _ in mcap_record_spans(bytes(data)) if op == 0x09)
     if damage == "name length":
         struct.pack_into("<I", data, at + 9 + 16, 10**6)
     elif damage == "data length":
@@ -552,7 +520,9 @@ def test_damaged_attachment_is_named_by_convert_and_annotate(tmp_path: Path, dam
     else:
         n = struct.unpack_from("<Q", data, at + 1)[0]
         struct.pack_into("<I", data, at + 9 + n - 4, 0xDEADBEEF)
-    end = next(o for o, op, _ in _mcap_records(bytes(data)) if op == 0x0F)  # the writer meant it: data CRC ok
+    end = next(
+        o for o, op, _ in mcap_record_spans(bytes(data)) if op == 0x0F
+    )  # the writer meant it: data CRC ok
     struct.pack_into("<I", data, end + 9, zlib.crc32(bytes(data[:end])))
     log.write_bytes(bytes(data))
     with pytest.raises(LogError, match="corrupt Attachment record") as err:
@@ -834,7 +804,7 @@ def test_a_record_of_another_kind_inside_a_chunk_is_refused(
     log = tmp_path / "log.mcap"
     rewrite_mcap(clean, log, compression=CompressionType.NONE, chunk_size=4000)
     data = bytearray(log.read_bytes())
-    chunk = [o for o, op, _n in _mcap_records(bytes(data)) if op == 0x06][1]
+    chunk = [o for o, op, _n in mcap_record_spans(bytes(data)) if op == 0x06][1]
     body = chunk + 9
     (clen,) = struct.unpack_from("<I", data, body + 28)
     records_at = body + 32 + clen + 8
@@ -844,7 +814,7 @@ def test_a_record_of_another_kind_inside_a_chunk_is_refused(
         pos += 9 + struct.unpack_from("<Q", data, pos + 1)[0]
     data[pos] = opcode
     struct.pack_into("<I", data, body + 24, zlib.crc32(bytes(data[records_at : records_at + records_len])))
-    end = next(o for o, op, _ in _mcap_records(bytes(data)) if op == 0x0F)
+    end = next(o for o, op, _ in mcap_record_spans(bytes(data)) if op == 0x0F)
     struct.pack_into("<I", data, end + 9, zlib.crc32(bytes(data[:end])))
     log.write_bytes(bytes(data))
     with pytest.raises(
@@ -957,7 +927,7 @@ def test_annotate_names_a_damaged_ros2_bag_as_convert_does(
         meta.write_text(meta.read_text().replace("version: x", "version: 9"))
         storage_file = next(bag.glob("*.mcap"))
         data = storage_file.read_bytes()
-        end = next(o for o, op, _ in _mcap_records(data) if op == 0x0F)
+        end = next(o for o, op, _ in mcap_record_spans(data) if op == 0x0F)
         storage_file.write_bytes(data[:end] + data[end + 13 :])  # the DataEnd record deleted
         with pytest.raises(LogError) as err:
             annotate_log(bag, tmp_path / "out", AnnotateOptions())
@@ -996,7 +966,7 @@ def test_a_chunk_deleted_under_an_intact_summary_is_refused_not_read_short(
     from lanecast.workflows.cli import main
 
     data = log.read_bytes()
-    recs = _mcap_records(data)
+    recs = mcap_record_spans(data)
     k = next(i for i, (_o, op, _n) in enumerate(recs) if op == 0x06 and i > 3)
     start, end = recs[k][0], recs[k][0] + 9 + recs[k][2]
     while recs[k + 1][1] == 0x07:
@@ -1013,7 +983,7 @@ def test_a_chunk_deleted_under_an_intact_summary_is_refused_not_read_short(
             (group,) = struct.unpack_from("<Q", cut, pos + 10)
             struct.pack_into("<Q", cut, pos + 10, group - (end - start))
         pos += 9 + n
-    data_end = next(o for o, op, _ in _mcap_records(bytes(cut)) if op == 0x0F)
+    data_end = next(o for o, op, _ in mcap_record_spans(bytes(cut)) if op == 0x0F)
     struct.pack_into("<I", cut, data_end + 9, zlib.crc32(bytes(cut[:data_end])))
     struct.pack_into(
         "<I", cut, footer + 25, zlib.crc32(bytes(cut[summary_start - (end - start) : footer + 25]))
@@ -1077,15 +1047,9 @@ def test_a_channel_defined_again_with_other_content_is_refused_at_its_record(
     messages after it were read as that topic's, not an object topic, and dropped: exit 0 with
     6,869 of 21,971 rows lost (fuzz2 seed 5043). MCAP channel ids are unique in a file: a record
     that repeats an id with other content is refused at its offset."""
-    from mcap.reader import make_reader
     from mcap.writer import Writer
 
-    with log.open("rb") as f:
-        reader = make_reader(f)
-        summary = reader.get_summary()
-        assert summary is not None
-        messages = [(ch.id, m.log_time, m.data) for _s, ch, m in reader.iter_messages()]
-        metadata = list(reader.iter_metadata())
+    summary, messages, metadata = mcap_contents(log)
     bad = tmp_path / "redefined.mcap"
     with bad.open("wb") as f:
         w = Writer(f, use_chunking=False)
@@ -1101,11 +1065,9 @@ def test_a_channel_defined_again_with_other_content_is_refused_at_its_record(
             if k == len(messages) // 2:
                 first = summary.channels[cid]
                 topic = "/other" if change == "topic" else first.topic
-                body = struct.pack("<HH", cids[cid], sids[first.schema_id] if change == "topic" else 0)
-                for text in (topic, first.message_encoding):
-                    body += struct.pack("<I", len(text)) + text.encode()
+                schema = sids[first.schema_id] if change == "topic" else 0
                 at = f.tell()
-                f.write(struct.pack("<BQ", 0x04, len(body) + 4) + body + struct.pack("<I", 0))
+                f.write(channel_record(cids[cid], schema, topic, first.message_encoding))
             w.add_message(cids[cid], log_time, data, log_time)
         w.finish()
     with pytest.raises(LogError, match=rf"channel {cids[cid]} defined again with other content") as err:
