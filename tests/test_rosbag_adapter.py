@@ -289,7 +289,10 @@ def test_bad_ros2_metadata_yaml_is_named_with_its_line_and_key(
 @pytest.mark.parametrize(
     ("sql", "match"),
     [
-        ("UPDATE topics SET serialization_format = 'json'", "stored with serialization format 'json'"),
+        (
+            "UPDATE topics SET serialization_format = 'json'",
+            r"table topics, row \d+: topic '.*' is stored with serialization format 'json'",
+        ),
         ("ALTER TABLE messages RENAME TO msgs", "no table 'messages'"),
         ("ALTER TABLE topics DROP COLUMN serialization_format", "table topics: no such column"),
         (
@@ -311,6 +314,8 @@ def test_sqlite3_tables_rosbags_cannot_read_are_named(tmp_path: Path, sql: str, 
     with pytest.raises(LogError, match=match) as err:
         rosbag_reader.read(bag)
     assert err.value.path == str(bag / "b.db3")
+    if "serialization format" in match:
+        assert err.value.column == "serialization_format"
     if "UTF-8" in match:  # where the bytes are in the file, and the column
         bad = bytes.fromhex("4142434445fe4647484950")
         assert err.value.offset == (bag / "b.db3").read_bytes().index(bad)

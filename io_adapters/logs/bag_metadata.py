@@ -188,7 +188,7 @@ def check_sqlite_tables(db: Path) -> None:
                     expected="a rosbag2 sqlite3 file with the tables topics and messages",
                 )
             try:
-                rows = con.execute("SELECT name, serialization_format FROM topics").fetchall()
+                rows = con.execute("SELECT id, name, serialization_format FROM topics").fetchall()
             except sqlite3.OperationalError as exc:  # a column missing (a damaged file is DatabaseError)
                 raise LogError(
                     db, f"table topics: {exc}", expected="the columns name and serialization_format"
@@ -218,11 +218,12 @@ def check_sqlite_tables(db: Path) -> None:
             column=column,
             expected="UTF-8 text",
         )
-    for name, fmt in rows:
+    for rowid, name, fmt in rows:
         if fmt != "cdr":
             raise LogError(
                 db,
-                f"topic {name!r} is stored with serialization format {fmt!r} (table topics)",
+                f"table topics, row {rowid}: topic {name!r} is stored with serialization format {fmt!r}",
+                column="serialization_format",
                 expected="cdr (lanecast reads ROS 2 messages in CDR)",
             )
 
