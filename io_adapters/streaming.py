@@ -472,8 +472,10 @@ class TrackTableWriter:
             self._close_part()
             return
         assert self._writer is not None
-        meta = track_table.merge_meta(self._metas, self._sources)
-        self._writer.add_key_value_metadata({track_table.META_KEY: meta.to_json().encode()})
+        meta = track_table.merge_meta(self._metas, self._sources).to_json().encode()
+        self._writer.add_key_value_metadata(
+            {track_table.META_KEY: meta, **track_table.arrow_schema_entry(self._writer.schema, meta)}
+        )
         self._writer.close()
 
 

@@ -328,6 +328,27 @@ def test_convert_streams_into_one_file_or_a_dataset_directory(dataset: Path, tmp
     _assert_same_windows(load_windows(tmp_path / "wo"), load_windows(tmp_path / "wp"))
 
 
+def test_a_streamed_file_shows_its_metadata_to_arrow_readers_and_survives_a_pyarrow_filter(
+    dataset: Path, tmp_path: Path
+) -> None:
+    """pyarrow reads a file's schema from its ``ARROW:schema`` entry, written when the file is
+    opened; the metadata a streamed file learns at its end must reach it too, or a table read,
+    filtered and written back with pyarrow is refused as 'not a lanecast track table'."""
+    out = tmp_path / "one.parquet"
+    assert main(["convert", str(dataset), "--out", str(out)]) == 0
+    plain = pq.read_table(out)  # pyarrow alone, as a user's script reads it
+    expected = track_table.read_meta(registry.read_any([dataset]))
+    assert track_table.read_meta(plain) == expected
+    assert plain.schema.field("x").metadata == {b"unit": b"m"}
+    assert pa.types.is_dictionary(plain.schema.field("recording").type)
+    subset = plain.filter(pc.equal(plain["recording"], "highd-02-upper"))
+    pq.write_table(subset, tmp_path / "subset.parquet")
+    read_back = registry.read_any([tmp_path / "subset.parquet"])
+    assert read_back.num_rows == subset.num_rows > 0
+    assert track_table.read_meta(read_back) == expected
+    assert main(["windows", str(tmp_path / "subset.parquet"), "--out", str(tmp_path / "w")]) == 0
+
+
 def test_convert_of_mixed_neighbour_columns_into_one_file_is_refused_clearly(
     dataset: Path, tmp_path: Path
 ) -> None:

@@ -12,6 +12,7 @@ so that no reader carries a second copy of a rule.
 
 from __future__ import annotations
 
+import base64
 import json
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
@@ -251,7 +252,10 @@ def read_meta(table: pa.Table | pa.Schema, source: str | Path | None = None) -> 
     raw = (schema_.metadata or {}).get(META_KEY)
     if raw is None:
         raise TrackTableError(
-            f"{where}the table carries no 'lanecast' schema metadata (not a lanecast track table)"
+            f"{where}the table carries no 'lanecast' schema metadata (not a lanecast track table); expected "
+            "a Parquet file written by `lanecast convert`, or one filtered and written back with pyarrow "
+            "(a pandas DataFrame written back loses the metadata: copy the original file's 'lanecast' "
+            "schema metadata over)"
         )
     try:
         return TableMeta.from_json(raw)
@@ -535,6 +539,17 @@ def read_parquet(path: str | Path) -> pa.Table:
         table = table.take(pa.array(order))
     validate(table, source=path, file_rows=order)
     return table
+
+
+def arrow_schema_entry(schema_: pa.Schema, meta: bytes) -> dict[bytes, bytes]:
+    """The Parquet key-value entry in which Arrow readers find a file's Arrow schema
+    (``ARROW:schema``: the IPC-serialised schema, base64), for ``schema_`` with the ``lanecast``
+    metadata ``meta``. A file written piece by piece knows its metadata only when complete; adding
+    this entry then (it replaces the one written at the start) lets pyarrow, pandas and other Arrow
+    readers see the metadata in the schema, so a table read, filtered and written back with pyarrow
+    stays a lanecast track table."""
+    serialised = schema_.with_metadata({**(schema_.metadata or {}), META_KEY: meta}).serialize()
+    return {b"ARROW:schema": base64.b64encode(serialised.to_pybytes())}
 
 
 def file_schema(pf: pq.ParquetFile) -> pa.Schema:
