@@ -112,7 +112,7 @@ def test_train_command_writes_a_complete_card(trained: tuple[Path, Path, Path]) 
 
 
 def test_evaluate_command_writes_metrics_and_a_self_contained_report(
-    trained: tuple[Path, Path, Path], tmp_path: Path
+    trained: tuple[Path, Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     windows_dir, model_dir, regonly = trained
     report = tmp_path / "report"
@@ -131,6 +131,10 @@ def test_evaluate_command_writes_metrics_and_a_self_contained_report(
         )
         == 0
     )
+    printed = capsys.readouterr().out
+    # the share of the dataset evaluated, and how to use all of it for a model never trained on it
+    assert "evaluated 100 of 500 windows (test)" in printed
+    assert "can be measured on all 500 windows with --split all" in printed
     metrics = json.loads((report / "metrics.json").read_text())
     assert set(metrics) == {"stcnn", "cv", "ca", "stcnn_regression_only", "meta"}
     for name in ("stcnn", "cv", "ca", "stcnn_regression_only"):

@@ -106,7 +106,8 @@ def run(args: argparse.Namespace) -> int:
     with staged_files(args.out) as stage:  # an interrupted run leaves none of the report's files
         write_metrics(stage / "metrics.json", metrics, meta)
         write_report(stage, metrics, meta, scenes)
-    print(f"evaluated {len(idx):,} windows ({args.split}); RMSE per window at 1-5 s (m):")
+    share = "" if args.split == "all" else f" of {len(windows):,}"
+    print(f"evaluated {len(idx):,}{share} windows ({args.split}); RMSE per window at 1-5 s (m):")
     for name, m in metrics.items():
         rmse = " ".join("–" if v is None else f"{v:.2f}" for v in m["rmse"])
         f1, acc = m["maneuver_macro_f1"], m["maneuver_accuracy"]
@@ -122,6 +123,11 @@ def run(args: argparse.Namespace) -> int:
     if band_note is not None:
         print(f"by target speed, stcnn: {band_note} (report: By target speed)")
     print(f"wrote {args.out / 'metrics.json'}, report.md, report.html")
+    if args.split != "all" and len(idx) < len(windows):
+        print(
+            f"(the {args.split} split only: a model that never trained on this dataset, such as the shipped "
+            f"one on your own recordings, can be measured on all {len(windows):,} windows with --split all)"
+        )
     if ood_note is not None:
         print(f"out of distribution: {ood_note}")
     return 0
