@@ -268,6 +268,7 @@ class _LogDecoder:
             count = self._batched_chunk(buf, end, hint)
             if count is not None:
                 return count
+            self._check_chunk(buf, end)
         pos = start
         count = 0
         unpack_head, unpack_msg = REC_HEAD.unpack_from, MSG_HEAD.unpack_from
@@ -319,6 +320,55 @@ class _LogDecoder:
                 except (ValueError, IndexError) as exc:
                     raise self._undecodable(exc) from exc
         return count
+
+    def _check_chunk(self, buf: Any, end: int) -> None:
+        """Check the records of a chunk buf[:end] before any is decoded: with salvage a damaged chunk
+        is skipped whole, so none of its messages may reach the table before the damage is found.
+
+        ValueError for a record that does not fit; LogDamage for a message on a channel (or a
+        channel of a schema) defined neither before nor earlier in the chunk, or a Schema/Channel
+        record giving a known id other content.
+        """
+        schemas: dict[int, SchemaRecord] = dict(self.schemas)
+        channels: dict[int, ChannelRecord] = dict(self.channels)
+        pos = 0
+        while pos < end:
+            if pos + 9 > end:
+                raise ValueError(f"record header at {pos} runs past the end")
+            op, length = REC_HEAD.unpack_from(buf, pos)
+            body, nxt = pos + 9, pos + 9 + length
+            if nxt > end:
+                raise ValueError(f"record at {pos} declares {length} bytes, only {end - body} left")
+            if op == OP_MESSAGE:
+                if length < MSG_HEAD.size:
+                    raise ValueError(f"a Message record of {length} bytes, shorter than its header")
+                (cid,) = struct.unpack_from("<H", buf, body)
+                ch = channels.get(cid)
+                if ch is None:
+                    raise LogDamage(
+                        self.offset,
+                        f"message at byte {pos} of the chunk on channel {cid}, which was never defined",
+                        "a Channel record first",
+                        True,
+                    )
+                if ch.schema_id and ch.schema_id not in schemas:
+                    raise LogDamage(
+                        self.offset,
+                        f"topic {ch.topic!r} refers to schema {ch.schema_id}, which the file does not define",
+                        "a Schema record for every channel",
+                        True,
+                    )
+            elif op == OP_SCHEMA:
+                sid, schema = read_schema(buf, body, nxt)
+                if sid in schemas and schemas[sid] != schema:
+                    raise redefined(self.offset, "schema", sid, schemas[sid], schema)
+                schemas[sid] = schema
+            elif op == OP_CHANNEL:
+                cid, channel = read_channel(buf, body, nxt)
+                if cid in channels and channels[cid] != channel:
+                    raise redefined(self.offset, "channel", cid, channels[cid], channel)
+                channels[cid] = channel
+            pos = nxt
 
     def _batched_chunk(self, buf: Any, end: int, hint: np.ndarray | None) -> int | None:
         """The message count of a chunk buf[:end] holding only Message records on channels decoded
@@ -427,6 +477,8 @@ def read_log(
         raise LogError(path, f"cannot read the file: {exc}") from exc
     if salvage and (dec.stats.chunks_lost or dec.stats.damage):
         print(f"lanecast: {path}: {dec.stats.summary()}", file=sys.stderr)
+    elif dec.stats.index:
+        print(f"lanecast: {path}: {dec.stats.index_note()}", file=sys.stderr)
     return _table(path, dec, topic, fixed_frames), dec.stats
 
 
@@ -444,6 +496,8 @@ def _table(path: Path, dec: _LogDecoder, topic: str | None, fixed_frames: Sequen
             expected=f"a topic of type {SUPPORTED}",
         )
     extra: dict[str, Any] = {}
+    if dec.stats.index:
+        extra["index_disagrees"] = dec.stats.index
     if dec.stats.damage:
         extra["salvage"] = {
             "chunks_lost": dec.stats.chunks_lost,

@@ -8,6 +8,12 @@ raises :class:`LogError` with the byte offset; with ``salvage`` damaged chunks a
 (resynchronising on the next intact chunk) and the loss is counted in :class:`ReadStats`. Chunk
 sizes are bounded before any allocation, so a chunk that lies about its size costs no more memory
 than it declares.
+
+The data section is the truth: the summary and the indexes (chunk indexes, message indexes,
+summary offsets, the footer's offsets, the summary's copies of schemas and channels) are checked
+against the records the walk found, and where they disagree :attr:`ReadStats.index` says how
+(the read is the linear scan, right whatever the index says; tools that seek by it are not). A
+Statistics message count that differs is refused: it says messages are missing.
 """
 
 from __future__ import annotations
@@ -29,6 +35,9 @@ OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 0x01, 0x02, 
 
 
 OP_MESSAGE_INDEX, OP_ATTACHMENT, OP_STATISTICS, OP_METADATA, OP_DATA_END = 0x07, 0x09, 0x0B, 0x0C, 0x0F
+
+
+OP_CHUNK_INDEX, OP_SUMMARY_OFFSET = 0x08, 0x0E
 
 
 _MAX_OP = 0x10
@@ -59,6 +68,17 @@ class ReadStats:
     messages: int = 0
     messages_lost: int | None = 0
     damage: list[str] = field(default_factory=list)
+    index: list[str] = field(default_factory=list)  # where the summary or an index disagrees with the data
+
+    def index_note(self) -> str:
+        """One line on an index that disagrees with the data section (empty if none does)."""
+        if not self.index:
+            return ""
+        more = f" (and {len(self.index) - 1} more)" if len(self.index) > 1 else ""
+        return (
+            f"the file's index disagrees with its data section: {self.index[0]}{more}; "
+            "read by a linear scan of the data section (tools that seek by the index read this log differently)"
+        )
 
     def summary(self) -> str:
         lost = "an unknown number of" if self.messages_lost is None else f"{self.messages_lost:,}"
@@ -287,6 +307,43 @@ def _index_count(buf: Any, pos: int, size: int) -> tuple[int, int]:
     return count, pos
 
 
+def _message_index_problem(
+    buf: Any, chunk_at: int, pos: int, size: int, data: bytes, count: int, layout: _Layout
+) -> str | None:
+    """How the MessageIndex records at pos (after the chunk at chunk_at, whose records are data and
+    hold count messages) disagree with the chunk: each entry must point at a Message record of its
+    channel and log time, every message listed once; None if they agree (or there are none)."""
+    raw = np.frombuffer(data, dtype=np.uint8)
+    listed = 0
+    while pos + 15 <= size:
+        op, length = REC_HEAD.unpack_from(buf, pos)
+        if op != OP_MESSAGE_INDEX or pos + 9 + length > size:
+            break
+        layout.message_indexes.add(pos)
+        cid, n = struct.unpack_from("<HI", buf, pos + 9)
+        if n % 16 or 6 + n > length:
+            return f"offset {pos}: a MessageIndex record whose entries ({n} bytes) do not fit it"
+        pairs = np.frombuffer(buf, dtype="<u8", count=n // 8, offset=pos + 15).copy()
+        times, at = pairs[0::2], pairs[1::2]
+        listed += at.size
+        if (at + 9 + MSG_HEAD.size > raw.size).any():
+            return f"offset {pos}: a MessageIndex entry points past the end of the chunk at {chunk_at}"
+        at = at.astype(np.int64)
+        if (
+            (raw[at] != OP_MESSAGE).any()
+            or (read_ints(raw, at + 9, "<u2") != cid).any()
+            or (read_ints(raw, at + 9 + 6, "<u8") != times).any()
+        ):
+            return (
+                f"offset {pos}: a MessageIndex entry of channel {cid} points at no message of that channel "
+                f"and log time in the chunk at {chunk_at}"
+            )
+        pos += 9 + length
+    if listed and listed != count:
+        return f"offset {pos}: the MessageIndex records list {listed} messages, the chunk at {chunk_at} holds {count}"
+    return None
+
+
 def _resync(buf: Any, start: int, size: int) -> int | None:
     """The offset of the next intact Chunk record at or after start, else None."""
     pos = start
@@ -303,6 +360,113 @@ def _resync(buf: Any, start: int, size: int) -> int | None:
             except Exception:
                 pass
         pos += 1
+
+
+@dataclass
+class _Layout:
+    """Where the data section's records are, and what the summary says of them (checked at the end)."""
+
+    chunks: dict[int, tuple[int, int, int]] = field(default_factory=dict)  # offset: length, t0, t1
+    summary_start: int = 0  # the offset after DataEnd
+    summary_records: dict[int, int] = field(default_factory=dict)  # offset: opcode, after DataEnd
+    chunk_indexes: list[tuple[int, int, int, int, int]] = field(default_factory=list)
+    statistics_chunks: int | None = None
+    index_offsets: list[tuple[int, int]] = field(default_factory=list)  # ChunkIndex at, MessageIndex offset
+    message_indexes: set[int] = field(default_factory=set)  # the data section's MessageIndex records
+    groups: list[tuple[int, int, int, int]] = field(
+        default_factory=list
+    )  # SummaryOffsets: at, op, start, length
+    notes: list[str] = field(default_factory=list)
+
+    def chunk_index(self, buf: Any, pos: int, body: int, end: int) -> None:
+        """A summary ChunkIndex record: (its offset, chunk start, chunk length, start and end time)."""
+        if end - body < 32:
+            self.notes.append(f"offset {pos}: a ChunkIndex record of {end - body} bytes, too short")
+            return
+        t0, t1, start, length = struct.unpack_from("<QQQQ", buf, body)
+        self.chunk_indexes.append((pos, start, length, t0, t1))
+        (n,) = struct.unpack_from("<I", buf, body + 32)
+        if body + 36 + n > end or n % 10:
+            self.notes.append(
+                f"offset {pos}: a ChunkIndex whose message index offsets ({n} bytes) do not fit it"
+            )
+            return
+        pairs = np.frombuffer(buf, dtype=np.uint8, count=n, offset=body + 36).copy()
+        offsets = np.ndarray((n // 10,), dtype="<u8", buffer=pairs, offset=2, strides=(10,))
+        self.index_offsets += [(pos, int(o)) for o in offsets.tolist()]
+
+    def problems(self, footer_at: int, summary_start: int, offset_start: int) -> list[str]:
+        """Each way the summary (chunk indexes, statistics, summary offsets, footer) disagrees with the
+        records the walk found, most telling first."""
+        out = list(self.notes)
+        for at, start, length, t0, t1 in self.chunk_indexes:
+            chunk = self.chunks.get(start)
+            if chunk is None:
+                out.append(f"offset {at}: a ChunkIndex points at offset {start}, where no chunk starts")
+            elif chunk[0] + 9 != length:
+                out.append(
+                    f"offset {at}: a ChunkIndex gives the chunk at {start} {length} bytes, it has {chunk[0] + 9}"
+                )
+            elif (t0, t1) != chunk[1:]:
+                out.append(f"offset {at}: a ChunkIndex gives the chunk at {start} other message times")
+        for at, offset in self.index_offsets:
+            if offset not in self.message_indexes:
+                out.append(
+                    f"offset {at}: a ChunkIndex points at offset {offset}, where no MessageIndex record is"
+                )
+                break
+        indexed = {start for _, start, *_ in self.chunk_indexes}
+        if self.chunk_indexes and len(indexed) != len(self.chunks):
+            out.append(
+                f"the summary indexes {len(indexed)} chunks, the data section holds {len(self.chunks)}"
+            )
+        if self.statistics_chunks is not None and self.statistics_chunks != len(self.chunks):
+            out.append(
+                f"the Statistics record counts {self.statistics_chunks} chunks, the data section holds "
+                f"{len(self.chunks)}"
+            )
+        if summary_start and summary_start != self.summary_start:
+            out.append(
+                f"offset {footer_at}: the footer puts the summary at offset {summary_start}, "
+                f"it starts at {self.summary_start}"
+            )
+        ends = {*self.summary_records, footer_at}
+        for at, op, start, length in self.groups:
+            if length and (self.summary_records.get(start) != op or start + length not in ends):
+                out.append(
+                    f"offset {at}: a SummaryOffset puts the records of opcode {op:#04x} at offset {start} "
+                    f"({length} bytes), where no such group is"
+                )
+        groups = [o for o, op in self.summary_records.items() if op == OP_SUMMARY_OFFSET]
+        if offset_start and offset_start != (groups[0] if groups else footer_at):
+            out.append(
+                f"offset {footer_at}: the footer puts the summary offsets at {offset_start}, they start at "
+                f"{groups[0] if groups else 'no offset'}"
+            )
+        return out
+
+    def summary_offset(self, buf: Any, pos: int, body: int, end: int) -> None:
+        """A SummaryOffset record: its group (opcode, start, length) must be a run of such records."""
+        if end - body < 17:
+            self.notes.append(f"offset {pos}: a SummaryOffset record of {end - body} bytes, too short")
+            return
+        self.groups.append((pos, *struct.unpack_from("<BQQ", buf, body)))
+
+
+def _summary_definition(buf: Any, pos: int, body: int, end: int, op: int, dec: Any) -> str | None:
+    """What is wrong with a Schema or Channel record of the summary, which must repeat the data
+    section's record of its id; None if it does."""
+    try:
+        ident, record = (read_schema if op == OP_SCHEMA else read_channel)(buf, body, end)
+    except (ValueError, struct.error) as exc:
+        return f"offset {pos}: a summary {_OP_NAMES[op]} record that cannot be read ({exc})"
+    known = getattr(dec, "schemas" if op == OP_SCHEMA else "channels", None)
+    if known is None:
+        return None
+    kind = _OP_NAMES[op].lower()
+    if ident in known and known[ident] != record:  # one unknown: a channel without messages
+        return f"offset {pos}: the summary's {kind} {ident} ({record}) is not the data section's ({known[ident]})"
+    return None
 
 
 class RecordSink(Protocol):
@@ -348,6 +512,7 @@ def walk(buf: Any, path: Path, dec: RecordSink, salvage: bool) -> None:
     footer_seen = data_end_seen = False
     total_expected: int | None = None
     statistics_at = 0
+    layout = _Layout()
     while pos < size:
         dec.offset = pos
         skip_to: int | None = None
@@ -373,12 +538,23 @@ def walk(buf: Any, path: Path, dec: RecordSink, salvage: bool) -> None:
                     complete,
                     True,
                 )
+            if data_end_seen and op != OP_FOOTER:
+                layout.summary_records[pos] = op
             if op == OP_CHUNK:
                 stats.chunks += 1
+                if body + 16 <= nxt:
+                    layout.chunks[pos] = (length, *struct.unpack_from("<QQ", buf, body))
                 try:
                     data = chunk_payload(buf, body, nxt)
                     hint = index_offsets(buf, nxt, size)
-                    stats.messages += dec.records(memoryview(data), 0, len(data), True, hint)
+                    in_chunk = dec.records(memoryview(data), 0, len(data), True, hint)
+                    stats.messages += in_chunk
+                    problem = _message_index_problem(buf, pos, nxt, size, data, in_chunk, layout)
+                    if problem:
+                        stats.index.append(problem)
+                except LogDamage as dmg:  # an intact chunk whose records lack something: it is lost
+                    skip_to = nxt  # its CRC held, so its length did: the walk goes on after it
+                    raise LogDamage(pos, f"corrupt chunk: {dmg.message}", dmg.expected, True) from dmg
                 except (ValueError, struct.error, zlib.error) as exc:
                     raise LogDamage(
                         pos, f"corrupt chunk: {exc}", "an intact zstd/lz4 chunk with a matching CRC", True
@@ -396,6 +572,14 @@ def walk(buf: Any, path: Path, dec: RecordSink, salvage: bool) -> None:
                     f"at least {_FIXED_SIZE[op]} bytes",
                     False,
                 )
+            elif data_end_seen and op in (OP_SCHEMA, OP_CHANNEL):  # the data section's, repeated
+                problem = _summary_definition(buf, pos, body, nxt, op, dec)
+                if problem:
+                    layout.notes.append(problem)
+            elif op == OP_CHUNK_INDEX and data_end_seen:
+                layout.chunk_index(buf, pos, body, nxt)
+            elif op == OP_SUMMARY_OFFSET and data_end_seen:
+                layout.summary_offset(buf, pos, body, nxt)
             elif op in (OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_METADATA):
                 try:
                     if op == OP_METADATA:
@@ -415,6 +599,7 @@ def walk(buf: Any, path: Path, dec: RecordSink, salvage: bool) -> None:
                     ) from exc
             elif op == OP_DATA_END:
                 data_end_seen = True
+                layout.summary_start = nxt
                 (crc,) = struct.unpack_from("<I", buf, body)
                 if crc and crc32_of(buf, 0, pos) != crc:
                     skip_to = nxt
@@ -422,12 +607,16 @@ def walk(buf: Any, path: Path, dec: RecordSink, salvage: bool) -> None:
             elif op == OP_STATISTICS:
                 (total_expected,) = struct.unpack_from("<Q", buf, body)
                 statistics_at = pos
+                if length >= 26:
+                    (layout.statistics_chunks,) = struct.unpack_from("<I", buf, body + 22)
             elif op == OP_FOOTER:
                 footer_seen = True
-                summary_start, _, summary_crc = struct.unpack_from("<QQI", buf, body)
+                summary_start, offset_start, summary_crc = struct.unpack_from("<QQI", buf, body)
                 if summary_crc and summary_start and crc32_of(buf, summary_start, body + 16) != summary_crc:
                     total_expected = None
                     raise LogDamage(pos, "summary CRC mismatch", "an undamaged summary section", False)
+                if data_end_seen:
+                    stats.index += layout.problems(pos, summary_start, offset_start)
                 if bytes(buf[nxt : nxt + 8]) != MAGIC:
                     raise LogDamage(
                         nxt, "the file does not end with the MCAP magic", "the closing magic", False
@@ -449,6 +638,9 @@ def walk(buf: Any, path: Path, dec: RecordSink, salvage: bool) -> None:
                 lost, _ = _index_count(buf, pos + 9 + length, size)
                 if stats.messages_lost is not None:
                     stats.messages_lost = stats.messages_lost + lost if lost else None
+                if skip_to is not None:
+                    pos = skip_to
+                    continue
             elif not data_end_seen:
                 if pos + 9 <= size and buf[pos] == OP_CHUNK:
                     stats.chunks += 1

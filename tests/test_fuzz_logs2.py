@@ -1,0 +1,279 @@
+"""Drive logs whose CRCs all hold but whose records lie: the classes of damage a structure-aware
+fuzzer (records walked, one field changed, every CRC recomputed) found beyond tests/test_fuzz_logs.py.
+
+The data section is the truth: an index or summary that disagrees with it (chunk indexes, message
+indexes, summary offsets, the footer, the summary's schemas and channels) is named on stderr and
+the log read by the linear scan lanecast always does; a chunk whose records lack something (a
+message on a channel never defined) is refused at its offset, and with ``--salvage`` skipped whole
+while the walk goes on after it.
+"""
+
+from __future__ import annotations
+
+import struct
+import zlib
+from pathlib import Path
+
+import pyarrow as pa
+import pytest
+from conftest import staggered_cars
+
+from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.errors import LogError
+from lanecast.io_adapters.logs import mcap_reader, mcap_writer, rosbag_writer
+from lanecast.workflows.cli import main
+
+OP_CHUNK, OP_MESSAGE_INDEX, OP_CHUNK_INDEX, OP_SUMMARY_OFFSET, OP_FOOTER = 0x06, 0x07, 0x08, 0x0E, 0x02
+
+
+def records(d: bytes) -> list[tuple[int, int, int]]:
+    """(offset, opcode, body length) of every top-level record up to and with the footer."""
+    out, pos = [], 8
+    while pos + 9 <= len(d):
+        op, n = struct.unpack_from("<BQ", d, pos)
+        out.append((pos, op, n))
+        if op == OP_FOOTER:
+            break
+        pos += 9 + n
+    return out
+
+
+def chunk_records(d: bytes, chunk: int) -> tuple[int, list[tuple[int, int, int]]]:
+    """(file offset of the records, [(offset in the records, opcode, body length)]) of an
+    uncompressed chunk at ``chunk``."""
+    (comp,) = struct.unpack_from("<I", d, chunk + 9 + 28)
+    assert comp == 0, "the test logs are written uncompressed"
+    start = chunk + 9 + 32 + 8
+    (n,) = struct.unpack_from("<Q", d, start - 8)
+    out, pos = [], 0
+    while pos < n:
+        op, length = struct.unpack_from("<BQ", d, start + pos)
+        out.append((pos, op, length))
+        pos += 9 + length
+    return start, out
+
+
+def fix_crcs(d: bytearray) -> None:
+    """Every CRC recomputed (chunks, data section, summary): a writer that meant the change."""
+    for o, op, _n in records(bytes(d)):
+        if op == OP_CHUNK:
+            start, _ = chunk_records(bytes(d), o)
+            (n,) = struct.unpack_from("<Q", d, start - 8)
+            struct.pack_into("<I", d, o + 9 + 24, zlib.crc32(bytes(d[start : start + n])))
+        if op == 0x0F:
+            struct.pack_into("<I", d, o + 9, zlib.crc32(bytes(d[:o])))
+        if op == OP_FOOTER:
+            (start,) = struct.unpack_from("<Q", d, o + 9)
+            struct.pack_into("<I", d, o + 25, zlib.crc32(bytes(d[start : o + 25])))
+
+
+def uncompressed(src: Path, dst: Path) -> Path:
+    """``src`` written again by the mcap library with small uncompressed chunks and every index."""
+    from mcap.records import Channel, Header, Message, Metadata, Schema
+    from mcap.stream_reader import StreamReader
+    from mcap.writer import CompressionType, Writer
+
+    with src.open("rb") as f, dst.open("wb") as out:
+        w = Writer(out, chunk_size=2000, compression=CompressionType.NONE, enable_data_crcs=True)
+        seen: set[int] = set()  # schema ids, and channel ids negated
+        for r in StreamReader(f).records:
+            if isinstance(r, Header):
+                w.start(r.profile, r.library)
+            elif isinstance(r, Schema) and r.id not in seen:  # ids 1, 2, … as in the source
+                seen.add(r.id)
+                w.register_schema(r.name, r.encoding, r.data)
+            elif isinstance(r, Channel) and -r.id not in seen:
+                seen.add(-r.id)
+                w.register_channel(r.topic, r.message_encoding, r.schema_id, r.metadata)
+            elif isinstance(r, Message):
+                w.add_message(r.channel_id, r.log_time, r.data, r.publish_time, r.sequence)
+            elif isinstance(r, Metadata):
+                w.add_metadata(r.name, r.metadata)
+        w.finish()
+    return dst
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[Path, pa.Table]]:
+    """A protobuf log and a ROS 2 (CDR) MCAP, uncompressed, and their clean conversions."""
+    root = tmp_path_factory.mktemp("lying-logs")
+    table = staggered_cars(3, 30, stagger=4, step_m=2.5, speed=25.0, rate=10.0)
+    pb = uncompressed(mcap_writer.write(table, root / "pb0.mcap", "mcap"), root / "pb.mcap")
+    bag = rosbag_writer.write(table, root / "r2", "ros2", storage="mcap")
+    cdr = uncompressed(next(bag.glob("*.mcap")), root / "cdr.mcap")
+    return {kind: (p, mcap_reader.read(p)) for kind, p in (("pb", pb), ("cdr", cdr))}
+
+
+def chunks(d: bytes) -> list[int]:
+    return [o for o, op, _ in records(d) if op == OP_CHUNK]
+
+
+def message_times(d: bytes, chunk: int, channels: set[int] | None = None) -> list[int]:
+    """The log times of the messages of an uncompressed chunk (on ``channels``: every channel)."""
+    start, recs = chunk_records(d, chunk)
+    heads = [struct.unpack_from("<HIQ", d, start + o + 9) for o, op, _ in recs if op == 0x05]
+    return [t for cid, _seq, t in heads if channels is None or cid in channels]
+
+
+def object_channels(src: Path) -> set[int]:
+    """The ids of the channels with tracked objects (not marker companions or metadata)."""
+    from mcap.reader import make_reader
+
+    with src.open("rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None
+    return {
+        c.id
+        for c in summary.channels.values()
+        if c.topic.startswith("/tracked_objects") and "marker" not in c.topic
+    }
+
+
+def rows_not_at(table: pa.Table, times: list[int]) -> int:
+    stamps = table.column("time_ns").to_pylist()
+    return sum(1 for t in stamps if t not in set(times))
+
+
+# ----------------------------------------------------------------- a chunk whose records lack something
+
+
+@pytest.mark.parametrize(("kind", "which"), [("pb", "middle"), ("cdr", "middle"), ("cdr", "last")])
+def test_a_message_on_an_undefined_channel_loses_its_chunk_and_the_walk_goes_on(
+    tmp_path: Path, logs: dict[str, tuple[Path, pa.Table]], kind: str, which: str
+) -> None:
+    """A message of an intact chunk (CRC recomputed) moved to channel 999, which no Channel record
+    defines. Before, --salvage stopped the whole walk there: every chunk after it lost, and the
+    note said the file was truncated (fuzz: 'lost 0 chunks with an unknown number of messages ...
+    the file ends without a footer'); a CDR chunk's messages before the bad one were in the table
+    though the chunk was counted lost. Now: refused at the chunk's offset, and salvage skips exactly
+    that chunk and reads every other."""
+    src, clean = logs[kind]
+    d = bytearray(src.read_bytes())
+    objects = object_channels(src)
+    offsets = [c for c in chunks(bytes(d)) if len(message_times(bytes(d), c)) > 1]
+    offsets = [c for c in offsets if message_times(bytes(d), c, objects)[:-1]]  # objects before the last
+    chunk = offsets[len(offsets) // 2] if which == "middle" else offsets[-1]
+    start, recs = chunk_records(bytes(d), chunk)
+    last = [o for o, op, _ in recs if op == 0x05][-1]  # the chunk's last message: others come first
+    lost = len(message_times(bytes(d), chunk))
+    lost_times = message_times(bytes(d), chunk, objects)  # lost markers lose no rows
+    struct.pack_into("<H", d, start + last + 9, 999)
+    fix_crcs(d)
+    bad = tmp_path / f"undefined-{kind}.mcap"
+    bad.write_bytes(bytes(d))
+
+    with pytest.raises(LogError, match="on channel 999, which was never defined") as err:
+        mcap_reader.read(bad)
+    assert err.value.offset == chunk and err.value.path == str(bad)
+
+    table, stats = mcap_reader.read_log(bad, salvage=True)
+    assert stats.chunks_lost == 1 and stats.messages_lost == lost
+    assert len(stats.damage) == 1 and f"offset {chunk}: corrupt chunk" in stats.damage[0]
+    assert not any("truncated" in d for d in stats.damage)
+    assert table.num_rows == rows_not_at(clean, lost_times) < clean.num_rows
+    assert not set(table.column("time_ns").to_pylist()) & set(lost_times)
+
+
+# ----------------------------------------------------------------- an index that disagrees with the data
+
+
+def _chunk_index_start(d: bytearray) -> tuple[int, str]:
+    recs = records(bytes(d))
+    at = [o for o, op, _ in recs if op == OP_CHUNK_INDEX][1]
+    struct.pack_into("<Q", d, at + 9 + 16, chunks(bytes(d))[0])  # the second chunk's index → the first
+    return at, "where no chunk starts|other message times|bytes, it has"
+
+
+def _chunk_index_length(d: bytearray) -> tuple[int, str]:
+    at = next(o for o, op, _ in records(bytes(d)) if op == OP_CHUNK_INDEX)
+    (length,) = struct.unpack_from("<Q", d, at + 9 + 24)
+    struct.pack_into("<Q", d, at + 9 + 24, length + 16)
+    return at, f"{length + 16} bytes, it has {length}"
+
+
+def _chunk_index_message_index(d: bytearray) -> tuple[int, str]:
+    at = next(o for o, op, _ in records(bytes(d)) if op == OP_CHUNK_INDEX)
+    struct.pack_into("<Q", d, at + 9 + 32 + 4 + 2, 8)  # its first channel's MessageIndex → the header
+    return at, "where no MessageIndex record is"
+
+
+def _message_index_entry(d: bytearray) -> tuple[int, str]:
+    at = [o for o, op, _ in records(bytes(d)) if op == OP_MESSAGE_INDEX][2]
+    (offset,) = struct.unpack_from("<Q", d, at + 9 + 6 + 8)
+    struct.pack_into("<Q", d, at + 9 + 6 + 8, offset + 1)
+    return at, "points at no message of that channel"
+
+
+def _summary_offset(d: bytearray) -> tuple[int, str]:
+    at = next(o for o, op, _ in records(bytes(d)) if op == OP_SUMMARY_OFFSET)
+    (start,) = struct.unpack_from("<Q", d, at + 9 + 1)
+    struct.pack_into("<Q", d, at + 9 + 1, start + 3)
+    return at, "where no such group is"
+
+
+def _footer_offsets(d: bytearray) -> tuple[int, str]:
+    at = records(bytes(d))[-1][0]
+    (offsets,) = struct.unpack_from("<Q", d, at + 9 + 8)
+    struct.pack_into("<Q", d, at + 9 + 8, offsets - 10)
+    return at, "the footer puts the summary offsets at"
+
+
+def _summary_channel(d: bytearray) -> tuple[int, str]:
+    """The summary's copy of a channel given another topic of the same length."""
+    recs = records(bytes(d))
+    data_end = next(o for o, op, _ in recs if op == 0x0F)
+    at = next(o for o, op, _ in recs if op == 0x04 and o > data_end)
+    (n,) = struct.unpack_from("<I", d, at + 9 + 4)
+    d[at + 9 + 8 + n - 1] ^= 0x01  # the topic's last character
+    return at, "is not the data section's"
+
+
+LIES = {
+    "chunk_index_start": _chunk_index_start,
+    "chunk_index_length": _chunk_index_length,
+    "chunk_index_message_index": _chunk_index_message_index,
+    "message_index_entry": _message_index_entry,
+    "summary_offset": _summary_offset,
+    "footer_summary_offsets": _footer_offsets,
+    "summary_channel": _summary_channel,
+}
+
+
+@pytest.mark.parametrize("lie", sorted(LIES))
+def test_an_index_that_disagrees_with_the_data_is_named_and_the_data_read(
+    tmp_path: Path, logs: dict[str, tuple[Path, pa.Table]], lie: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """An index or summary record changed with every CRC recomputed (a tool that rewrote the data
+    and kept a stale index, or a lying writer). Before, the reader ignored all but the Statistics
+    count: exit 0 and not a word, while any tool seeking by the index reads another log (a summary
+    channel that differed was even refused as a redefinition). Now the conversion is the clean
+    one (the data section is read linearly) and stderr names the record and what disagrees."""
+    src, clean = logs["pb"]
+    d = bytearray(src.read_bytes())
+    at, what = LIES[lie](d)
+    fix_crcs(d)
+    bad = tmp_path / f"{lie}.mcap"
+    bad.write_bytes(bytes(d))
+    out = tmp_path / "out.parquet"
+    capsys.readouterr()
+    assert main(["convert", str(bad), "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert f"lanecast: {bad}: the file's index disagrees with its data section: " in err
+    assert f"offset {at}" in err
+    assert any(part in err for part in what.split("|")), err
+    assert "read by a linear scan of the data section" in err
+    got = track_table.read_parquet(out)
+    assert got.num_rows == clean.num_rows
+    assert got.column("x").equals(clean.column("x")) and got.column("time_ns").equals(clean.column("time_ns"))
+    extra = next(iter(track_table.read_meta(got).recordings.values())).extra
+    assert any(f"offset {at}" in note for note in extra["index_disagrees"])
+
+
+def test_a_consistent_index_says_nothing(
+    logs: dict[str, tuple[Path, pa.Table]], capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Logs of every writer configuration the checks meet are not flagged (no false alarm)."""
+    for src, _ in logs.values():
+        capsys.readouterr()
+        _, stats = mcap_reader.read_log(src)
+        assert stats.index == [] and capsys.readouterr().err == ""
