@@ -277,3 +277,35 @@ def test_a_consistent_index_says_nothing(
         capsys.readouterr()
         _, stats = mcap_reader.read_log(src)
         assert stats.index == [] and capsys.readouterr().err == ""
+
+
+def test_report_reads_the_forecasts_of_the_data_section_not_of_a_lying_chunk_index(tmp_path: Path) -> None:
+    """An annotated log whose second chunk index points at the first chunk (CRCs recomputed): the
+    report's mcap reader seeks by the index, so it read the first forecast twice and never the
+    second, scoring other forecasts than the log holds without a word. The documents are now read
+    from the data section in file order."""
+    import json
+
+    from mcap.writer import CompressionType, Writer
+    from test_log_errors import _prediction_doc
+
+    from lanecast.workflows.log_report import prediction_documents
+
+    log = tmp_path / "annotated.mcap"
+    with log.open("wb") as f:
+        w = Writer(f, chunk_size=64, compression=CompressionType.NONE, enable_data_crcs=True)
+        w.start()
+        cid = w.register_channel("/lanecast/prediction", "json", 0)
+        for i in range(4):
+            doc = {**_prediction_doc(), "t0_ns": (i + 1) * 10**9}
+            w.add_message(cid, log_time=(i + 1) * 10**9, data=json.dumps(doc).encode(), publish_time=0)
+        w.finish()
+    d = bytearray(log.read_bytes())
+    first, second = chunks(bytes(d))[:2]
+    at = [o for o, op, _ in records(bytes(d)) if op == OP_CHUNK_INDEX][1]
+    assert struct.unpack_from("<Q", d, at + 9 + 16)[0] == second
+    struct.pack_into("<Q", d, at + 9 + 16, first)
+    fix_crcs(d)
+    log.write_bytes(bytes(d))
+    docs = prediction_documents(log)
+    assert [doc["t0_ns"] for doc in docs] == [10**9, 2 * 10**9, 3 * 10**9, 4 * 10**9]

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
-from mcap.reader import make_reader
+from mcap.reader import NonSeekingReader
 from rosbags.highlevel import AnyReader
 
 from lanecast.io_adapters import registry
@@ -102,8 +102,11 @@ def _prediction_documents(log: Path) -> list[dict[str, Any]]:
                 docs.append(_document(log, len(docs), log_time, message.data))
     else:
         with log.open("rb") as fh:
-            mcap_reader = make_reader(fh, validate_crcs=True)
-            for _, channel, message in mcap_reader.iter_messages(topics=[PREDICTION_TOPIC]):
+            # the data section in file order, not by the summary's chunk indexes: an index that
+            # disagrees with the data would skip or repeat chunks (the reader names it in the tracks)
+            mcap_reader = NonSeekingReader(fh, validate_crcs=True)
+            messages = mcap_reader.iter_messages(topics=[PREDICTION_TOPIC], log_time_order=False)
+            for _, channel, message in messages:
                 data = bytes(message.data)
                 if channel.message_encoding == "cdr":  # std_msgs/String: header, length, text, NUL
                     length = int.from_bytes(data[4:8], "little")
