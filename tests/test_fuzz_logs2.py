@@ -309,3 +309,65 @@ def test_report_reads_the_forecasts_of_the_data_section_not_of_a_lying_chunk_ind
     log.write_bytes(bytes(d))
     docs = prediction_documents(log)
     assert [doc["t0_ns"] for doc in docs] == [10**9, 2 * 10**9, 3 * 10**9, 4 * 10**9]
+
+
+def _copied(src: Path, out: Path) -> list[tuple[int, int, bytes]]:
+    """``src`` copied by annotate's MCAP copy (no forecasts added); the copy's messages as read back
+    by the mcap library with every CRC checked."""
+    from mcap.reader import make_reader
+
+    from lanecast.io_adapters.annotations import mcap_copy
+
+    with out.open("wb") as f:
+        mcap_copy.copy_mcap(src, f)
+    with out.open("rb") as f:
+        reader = make_reader(f, validate_crcs=True)
+        return [(c.id, m.log_time, m.data) for _s, c, m in reader.iter_messages(log_time_order=False)]
+
+
+def test_annotate_copies_a_log_whose_summary_channel_differs_from_the_data(
+    tmp_path: Path, logs: dict[str, tuple[Path, pa.Table]]
+) -> None:
+    """The summary's copy of a channel with another topic: annotate's copy put the summary's
+    Channel record to the writer, which refused the redefinition; the check that should then name
+    the damage counted no messages and blamed the Statistics record ('counts 750 messages, but the
+    data section holds 0'). The copy now stops at DataEnd (the summary is written anew from the
+    data section) and the output is the log's data, valid with every CRC."""
+    src, _ = logs["pb"]
+    d = bytearray(src.read_bytes())
+    _summary_channel(d)
+    fix_crcs(d)
+    bad = tmp_path / "summary-channel.mcap"
+    bad.write_bytes(bytes(d))
+    assert _copied(bad, tmp_path / "out.mcap") == _copied(src, tmp_path / "clean.mcap")
+    assert len(mcap_reader.read(tmp_path / "out.mcap")) == logs["pb"][1].num_rows
+
+
+def test_an_index_the_mcap_library_cannot_read_is_named_by_annotate_and_read_by_convert(
+    tmp_path: Path, logs: dict[str, tuple[Path, pa.Table]], capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A MessageIndex record declaring 4 GiB of entries, and one whose entry points near 2**63:
+    annotate's copy (the mcap library) failed with 'unpack requires a buffer of 8 bytes' at the
+    offset of the end of the file, and the reader's check of message-index offsets wrapped around
+    int64 (an IndexError). Convert now reads the data and names the index; annotate's error names
+    the index record."""
+    from lanecast.io_adapters.annotations import mcap_copy
+
+    src, clean = logs["pb"]
+    d = bytearray(src.read_bytes())
+    indexes = [o for o, op, _ in records(bytes(d)) if op == OP_MESSAGE_INDEX]
+    struct.pack_into("<I", d, indexes[1] + 9 + 2, 2**32 - 1)
+    struct.pack_into("<Q", d, indexes[4] + 9 + 6 + 8, 2**63 - 1)
+    fix_crcs(d)
+    bad = tmp_path / "index.mcap"
+    bad.write_bytes(bytes(d))
+    capsys.readouterr()
+    assert main(["convert", str(bad), "--out", str(tmp_path / "out.parquet")]) == 0
+    err = capsys.readouterr().err
+    assert f"offset {indexes[1]}: a MessageIndex record whose entries (4294967295 bytes) do not fit it" in err
+    assert "(and 1 more)" in err
+    assert track_table.read_parquet(tmp_path / "out.parquet").num_rows == clean.num_rows
+    with (tmp_path / "copy.mcap").open("wb") as f, pytest.raises(LogError) as exc:
+        mcap_copy.copy_mcap(bad, f)
+    assert exc.value.offset == indexes[1] and exc.value.path == str(bad)
+    assert "a MessageIndex record whose entries (4294967295 bytes) do not fit it" in str(exc.value)

@@ -15,6 +15,7 @@ from __future__ import annotations
 import io
 import mmap
 import os
+import re
 import struct
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
@@ -22,13 +23,13 @@ from pathlib import Path
 from typing import Any, BinaryIO
 
 from mcap.exceptions import McapError
-from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
+from mcap.records import Attachment, Channel, DataEnd, Header, Message, Metadata, Schema
 from mcap.stream_reader import CRCValidationError, StreamReader
 from mcap.writer import CompressionType, IndexType, Writer
 
 from lanecast.io_adapters.annotations.forecast_messages import ChannelSpec
 from lanecast.io_adapters.errors import LogError
-from lanecast.io_adapters.logs.mcap_walk import ReadStats, walk
+from lanecast.io_adapters.logs.mcap_walk import OP_MESSAGE, REC_HEAD, ReadStats, walk
 
 ExtraMessage = tuple[int, int, bytes]  # (log_time_ns, index into the extra channels, payload)
 Progress = Callable[[int, int], None]  # (messages copied since last call, input bytes since last call)
@@ -133,7 +134,8 @@ class McapSummaryInfo:
 
 
 class _Unread:
-    """A record sink that reads nothing: the walk alone checks every record."""
+    """A record sink that decodes nothing: the walk alone checks every record; it counts the
+    messages, which the walk checks against the summary's Statistics."""
 
     offset = 0
 
@@ -141,7 +143,12 @@ class _Unread:
         self.stats = ReadStats()
 
     def records(self, buf: Any, start: int, end: int, in_chunk: bool, hint: Any = None) -> int:
-        return 0
+        count, pos = 0, start
+        while pos + 9 <= end:
+            op, length = REC_HEAD.unpack_from(buf, pos)
+            count += op == OP_MESSAGE
+            pos += 9 + length
+        return count
 
     def metadata(self, buf: Any, pos: int, end: int) -> None:
         pass
@@ -149,12 +156,23 @@ class _Unread:
 
 def check_records(path: Path) -> None:
     """LogError naming the offset of the first damaged record of MCAP ``path`` (the reader's checked
-    walk), for a copy the mcap library refused with a message and no offset; returns if none is."""
+    walk), or of the first index record that disagrees with the data section, for a copy the mcap
+    library refused with a message and no offset; returns if there is neither."""
     with open(path, "rb") as f:
         if os.fstat(f.fileno()).st_size == 0:
             raise LogError(path, "the file is empty", offset=0, expected="an MCAP file")
+        sink = _Unread()
         with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
-            walk(mm, path, _Unread(), False)
+            walk(mm, path, sink, False)
+    for note in sink.stats.index:
+        at = re.match(r"offset (\d+): (.*)", note)
+        if at:
+            raise LogError(
+                path,
+                f"an index record the mcap library cannot read: {at.group(2)}",
+                offset=int(at.group(1)),
+                expected="index records that agree with the data section (lanecast convert reads this log)",
+            )
 
 
 def summary_info(path: Path) -> McapSummaryInfo:
@@ -334,11 +352,21 @@ def copy_mcap(
                     writer.put_extra(channels, schema_ids, channel_ids)
                 elif isinstance(record, Schema):
                     if record.id in reserved_schemas:
-                        raise ValueError(f"schema id {record.id} clashes with a forecast schema id")
+                        raise ValueError(
+                            f"schema id {record.id} of the data section is one the summary left free for "
+                            f"the forecasts (its schemas end at {min(reserved_schemas) - 1}: a stale summary)"
+                            if info.has_summary
+                            else f"schema id {record.id} clashes with a forecast schema id"
+                        )
                     stats.schemas += writer.put_schema(record)
                 elif isinstance(record, Channel):
                     if record.id in reserved_channels:
-                        raise ValueError(f"channel id {record.id} clashes with a forecast channel id")
+                        raise ValueError(
+                            f"channel id {record.id} of the data section is one the summary left free for "
+                            f"the forecasts (its channels end at {min(reserved_channels) - 1}: a stale summary)"
+                            if info.has_summary
+                            else f"channel id {record.id} clashes with a forecast channel id"
+                        )
                     check_new_topics(src, [record.topic], channels)
                     stats.channels += writer.put_channel(record)
                 elif isinstance(record, Attachment):
@@ -349,6 +377,8 @@ def copy_mcap(
                 elif isinstance(record, Metadata):
                     writer.add_metadata(record.name, dict(record.metadata))
                     stats.metadata += 1
+                elif isinstance(record, DataEnd):
+                    break  # the summary, which the writer makes anew from the data section
                 # Chunk contents arrive decoded; indexes, statistics, summary offsets, data end and
                 # footer are regenerated by the writer.
         except (McapError, CRCValidationError, struct.error, ValueError, UnicodeDecodeError) as exc:

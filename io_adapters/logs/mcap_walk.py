@@ -284,7 +284,7 @@ def verified_offsets(raw: np.ndarray, end: int, hint: np.ndarray) -> np.ndarray 
     if not hint.size:
         return None
     at = np.sort(hint)
-    if at[0] != 0 or at[-1] + 9 > end:
+    if at[0] != 0 or at[-1] > end - 9:  # not at[-1] + 9: an offset near 2**63 would wrap
         return None
     lengths = read_ints(raw, at + 1, "<u8")
     if (lengths > np.uint64(end)).any():
