@@ -255,3 +255,16 @@ def _expanded_size(node: Any, budget: int) -> int:
         count += len(values)
         stack.extend(v for v in values if isinstance(v, (dict, list)))
     return count
+
+
+def topic_key_line(bag: Path, topic: str, key: str) -> int | None:
+    """The line of ``key`` in the ``topic_metadata`` of ``topic`` in ``bag/metadata.yaml`` (the
+    topic's name line when it has no such key), None if the topic is not listed."""
+    from ruamel.yaml import YAML
+
+    doc = YAML(typ="rt").load((bag / "metadata.yaml").read_text(encoding="utf-8"))
+    for entry in doc[INFO].get("topics_with_message_count") or []:
+        meta = entry.get("topic_metadata") if isinstance(entry, dict) else None
+        if isinstance(meta, dict) and meta.get("name") == topic and hasattr(meta, "lc"):
+            return int(meta.lc.key(key if key in meta else "name")[0]) + 1
+    return None

@@ -55,6 +55,45 @@ def sniff(path: str | Path) -> bool:
     return bag_path(path) is not None
 
 
+def _storage_topic_unread(bag: Path, reader: Any) -> LogError | None:
+    """LogError naming metadata.yaml (the topic's line and key) for a topic of a storage file that
+    metadata.yaml describes otherwise: rosbags reads only messages whose storage topic equals one of
+    metadata.yaml (name, type, serialization format, QoS profiles, type hash) and skips every other
+    without a word (a QoS profile edited in metadata.yaml lost the whole topic)."""
+    for bag_reader in reader.readers:
+        directory = getattr(bag_reader, "storage", bag_reader)  # rosbags' metadata.yaml reader
+        listed = directory.connections
+        for storage in getattr(directory, "storages", None) or []:  # its storage files' readers
+            for x in storage.connections:
+                if any(
+                    y.topic == x.topic
+                    and y.msgtype == x.msgtype
+                    and y.ext == x.ext
+                    and (not x.digest or not y.digest or y.digest == x.digest)
+                    for y in listed
+                ):
+                    continue
+                same = [y for y in listed if y.topic == x.topic]
+                if not same:
+                    key, what = "name", "is not listed in metadata.yaml"
+                elif all(y.msgtype != x.msgtype for y in same):
+                    key, what = "type", f"has type {x.msgtype!r} there, {same[0].msgtype!r} in metadata.yaml"
+                elif all(y.ext.serialization_format != x.ext.serialization_format for y in same):
+                    key, what = "serialization_format", "has another serialization format there"
+                elif all(y.ext.offered_qos_profiles != x.ext.offered_qos_profiles for y in same):
+                    key, what = "offered_qos_profiles", "has other offered QoS profiles there"
+                else:
+                    key, what = "type_description_hash", "has another type description hash there"
+                return LogError(
+                    bag / "metadata.yaml",
+                    f"topic {x.topic!r} of the storage file {what}: rosbags would skip all its messages",
+                    line=bag_metadata.topic_key_line(bag, x.topic, key),
+                    column=key,
+                    expected="metadata.yaml's topics as the storage file records them (ros2 bag reindex writes them)",
+                )
+    return None
+
+
 def read_log(
     path: str | Path, *, topic: str | None = None, fixed_frames: Sequence[str] | None = None
 ) -> pa.Table:
@@ -98,6 +137,9 @@ def read_log(
                 raise _located_damage(target, ros1) or LogError(
                     path, "two chunk info records list the same chunk", expected="an intact ROS bag"
                 )
+            unread = None if ros1 else _storage_topic_unread(target, reader)
+            if unread is not None:
+                raise unread
             listing = ", ".join(sorted(f"{c.topic} [{c.msgtype}]" for c in reader.connections)) or "none"
             handlers: dict[int, Callable[[Any, int], None]] = {}
             for conn in reader.connections:
