@@ -404,3 +404,57 @@ def test_a_ros2_topic_metadata_yaml_describes_otherwise_is_named_at_its_line(
         rosbag_reader.read(bag)
     assert err.value.path == str(meta) and err.value.line == qos + 1
     assert err.value.column == "offered_qos_profiles"
+
+
+def _ros1_records(d: bytes) -> list[tuple[int, dict[bytes, tuple[int, bytes]]]]:
+    """(offset, {field: (offset of its value, value)}) of the top-level records of a ROS 1 bag."""
+    pos, out = d.index(b"\n") + 1, []
+    while pos + 4 <= len(d):
+        (hl,) = struct.unpack_from("<I", d, pos)
+        fields, p = {}, pos + 4
+        while p < pos + 4 + hl:
+            (fl,) = struct.unpack_from("<I", d, p)
+            key, _, value = d[p + 4 : p + 4 + fl].partition(b"=")
+            fields[key] = (p + 4 + len(key) + 1, value)
+            p += 4 + fl
+        out.append((pos, fields))
+        (dl,) = struct.unpack_from("<I", d, pos + 4 + hl)
+        pos += 8 + hl + dl
+    return out
+
+
+def test_a_foreign_ros1_bag_whose_index_skips_messages_is_refused_at_the_index_record(
+    tmp_path: Path,
+) -> None:
+    """A ROS 1 bag from another recorder (no lanecast checksum) whose index data record of one
+    chunk names a connection the messages are not on: rosbags reads messages through the index
+    only, so that chunk's objects vanished and convert exited 0 with the rows missing. The bag's
+    structure is now checked before a foreign bag is read: the record's offset and what it lists."""
+    from rosbags.rosbag1 import Reader, Writer
+
+    table = staggered_cars(3, 30, stagger=4, step_m=2.5, speed=25.0, rate=10.0)
+    own = rosbag_writer.write(table, tmp_path / "own.bag", "ros1")
+    foreign = tmp_path / "foreign.bag"
+    writer = Writer(foreign)
+    writer.chunk_threshold = 2000
+    with Reader(own) as r, writer as w:
+        conns = {
+            c.id: w.add_connection(c.topic, c.msgtype, msgdef=c.msgdef.data, md5sum=c.digest)
+            for c in r.connections
+            if c.topic != "/lanecast/metadata"
+        }
+        for c, t, raw in r.messages():
+            if c.id in conns:
+                w.write(conns[c.id], t, raw)
+    clean = rosbag_reader.read(foreign)
+    d = bytearray(foreign.read_bytes())
+    index_data = [(o, f) for o, f in _ros1_records(bytes(d)) if f[b"op"][1] == b"\x04"]
+    at, fields = index_data[len(index_data) // 2]
+    d[fields[b"conn"][0] : fields[b"conn"][0] + 4] = struct.pack("<I", 99)
+    foreign.write_bytes(bytes(d))
+    with pytest.raises(
+        LogError, match="an index data record of connection 99 lists the message at offset"
+    ) as err:
+        rosbag_reader.read(foreign)
+    assert err.value.offset == at and err.value.path == str(foreign)
+    assert clean.num_rows == table.num_rows

@@ -75,7 +75,9 @@ def _ros1_walk(mm: mmap.mmap, size: int) -> tuple[int, str] | None:
     chunk_size: int | None = None  # of the chunk the IndexData records that follow it index
     listed: set[int] = set()  # chunks a ChunkInfo record points at
     conns: set[int] = set()  # connections defined so far
-    message_starts: set[int] = set()  # where message records start in the last chunk's records
+    message_starts: dict[int, int] = {}  # where message records start in the last chunk's records: conn
+    unindexed: set[int] = set()  # the last chunk's messages no index data record has listed yet
+    chunk_at = 0  # the offset of the last chunk
     stated: tuple[int | None, int | None] = (None, None)  # the bag header's conn_count, chunk_count
     indexed_conns = 0  # connection records in the index (at or after index_pos)
     while pos < size:
@@ -120,16 +122,21 @@ def _ros1_walk(mm: mmap.mmap, size: int) -> tuple[int, str] | None:
                     f"ends at {size}",
                 )
         elif opcode == _OP_CHUNK:
-            message_starts = set()
+            if unindexed:
+                return chunk_at, _unindexed(unindexed)
+            message_starts = {}
             problem = _chunk_problem(fields, mm[data:end], conns, message_starts)
             if problem is not None:
                 return pos, problem
+            unindexed, chunk_at = set(message_starts), pos
             chunk_size = _u32(fields.get("size"))
             chunks[pos] = chunk_size
         elif opcode == _OP_INDEX_DATA:
             problem = _index_data_problem(fields, header_len, mm[data:end], chunk_size, message_starts)
             if problem is not None:
                 return pos, problem
+            count = _u32(fields.get("count")) or 0
+            unindexed -= {_U32.unpack_from(mm, data + 12 * k + 8)[0] for k in range(count)}
         elif opcode == _OP_CHUNK_INFO:
             at = (
                 struct.unpack("<Q", fields["chunk_pos"])[0]
@@ -155,6 +162,8 @@ def _ros1_walk(mm: mmap.mmap, size: int) -> tuple[int, str] | None:
                 if problem is not None:
                     return pos, problem
         pos = end
+    if unindexed:
+        return chunk_at, _unindexed(unindexed)
     if index_pos is not None and index_pos not in starts:
         return header_at, f"the bag header puts the index at offset {index_pos}, where no record starts"
     return _index_count_problem(header_at, stated, indexed_conns, chunks, listed)
@@ -180,17 +189,30 @@ def _index_count_problem(
     return None
 
 
+def _unindexed(offsets: set[int]) -> str:
+    """A chunk with messages no index data record lists (rosbags reads a chunk's messages from its
+    index data records: these it skips without a word)."""
+    return (
+        f"{len(offsets)} message(s) of the chunk, the first at byte {min(offsets)} of its records, "
+        "listed by no index data record after it"
+    )
+
+
 def _u32(raw: bytes | None) -> int | None:
     return struct.unpack("<I", raw)[0] if raw is not None and len(raw) == 4 else None
 
 
 def _index_data_problem(
-    fields: dict[str, bytes], header_len: int, data: bytes, chunk_size: int | None, message_starts: set[int]
+    fields: dict[str, bytes],
+    header_len: int,
+    data: bytes,
+    chunk_size: int | None,
+    message_starts: dict[int, int],
 ) -> str | None:
     """An IndexData record (version 1: op, ver, conn, count in a 47-byte header; count × (time,
     offset)) whose header or count does not fit that layout (rosbags asserts both), listing a
-    message past its chunk or where none of the chunk's message records starts (``message_starts``:
-    empty if unknown)."""
+    message past its chunk, where none of the chunk's message records starts or where one of another
+    connection does (``message_starts``: offset → connection; empty if unknown)."""
     conn, count = _u32(fields.get("conn")), _u32(fields.get("count"))
     if count is None or len(data) != 12 * count:
         return (
@@ -215,6 +237,11 @@ def _index_data_problem(
             return (
                 f"an index data record of connection {conn} lists a message at offset {offset} of its "
                 "chunk, where no message record starts"
+            )
+        if message_starts and message_starts[offset] != conn:
+            return (
+                f"an index data record of connection {conn} lists the message at offset {offset} of its "
+                f"chunk, which is on connection {message_starts[offset]}"
             )
     return None
 
@@ -298,7 +325,7 @@ def _fields(mm: mmap.mmap, pos: int, end: int) -> dict[str, bytes] | None:
 
 
 def _chunk_problem(
-    fields: dict[str, bytes], data: bytes, conns: set[int], message_starts: set[int]
+    fields: dict[str, bytes], data: bytes, conns: set[int], message_starts: dict[int, int]
 ) -> str | None:
     """What is wrong with a chunk: its compression, its size, or a record inside it (a message on a
     connection no connection record defined before it; ``conns`` grows with those the chunk defines)."""
@@ -322,8 +349,9 @@ def _chunk_problem(
     return _chunk_records_problem(raw, conns, message_starts)
 
 
-def _chunk_records_problem(raw: bytes, conns: set[int], message_starts: set[int]) -> str | None:
-    """What is wrong with a chunk's records (``message_starts`` collects where its messages start)."""
+def _chunk_records_problem(raw: bytes, conns: set[int], message_starts: dict[int, int]) -> str | None:
+    """What is wrong with a chunk's records (``message_starts`` collects where its messages start,
+    and their connections)."""
     pos = 0
     while pos < len(raw):
         if pos + 4 > len(raw):
@@ -345,7 +373,7 @@ def _chunk_records_problem(raw: bytes, conns: set[int], message_starts: set[int]
                     f"a message at byte {pos} of the chunk's records is on connection {conn}, which no "
                     "connection record defines before it"
                 )
-            message_starts.add(pos)
+            message_starts[pos] = conn
         pos = end
     return None
 

@@ -159,6 +159,10 @@ def read_log(
             # A bag lanecast wrote (it has the metadata topic) is read whole, so that every message
             # counts towards the payload checksum its metadata states.
             own = any(c.topic == conv.META_TOPIC for c in reader.connections)
+            if ros1 and not own:  # no checksum to catch what rosbags skips (an index missing messages)
+                damage = _located_damage(target, ros1)
+                if damage is not None:
+                    raise damage
             wanted = [c for c in reader.connections if own or c.id in handlers]
             digest = conv.PayloadDigest()
             for conn, timestamp, raw in reader.messages(connections=wanted):
