@@ -458,3 +458,55 @@ def test_a_foreign_ros1_bag_whose_index_skips_messages_is_refused_at_the_index_r
         rosbag_reader.read(foreign)
     assert err.value.offset == at and err.value.path == str(foreign)
     assert clean.num_rows == table.num_rows
+
+
+def _jittered_log(path: Path, jitter_ms: float, seed: int, twice_at: int | None = None) -> Path:
+    """A foreign 10 Hz JSON log of 2 cars, 200 messages stamped ±jitter_ms (uniform); car k at
+    x = 50 k + 2 i in message i. ``twice_at``: message i sent again 1 ms later with other x."""
+    import numpy as np
+    from test_hostile_inputs import _entity, json_log
+
+    rng = np.random.default_rng(seed)
+    stamps = 1_000_000_000 + np.arange(200) * 100_000_000 + rng.uniform(-jitter_ms, jitter_ms, 200) * 1e6
+    messages = []
+    for i, t in enumerate(stamps.astype(np.int64).tolist()):
+        messages.append(
+            ("/objects", t, [_entity(k, 50 * k + 2.0 * i, t // 10**9, t % 10**9) for k in (1, 2)])
+        )
+        if i == twice_at:
+            t += 1_000_000
+            messages.append(
+                ("/objects", t, [_entity(k, 50 * k + 2.0 * i + 1, t // 10**9, t % 10**9) for k in (1, 2)])
+            )
+    return json_log(path, messages)
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_stamps_jittering_by_45_ms_at_10_hz_convert_every_row_on_its_frame(tmp_path: Path, seed: int) -> None:
+    """A 10 Hz topic stamped ±45 ms (a recorder's clock; the grid laid through the stamps is a few
+    ms off their mean phase): two stamps rounded onto one frame, its neighbour empty, and convert
+    refused the log as 'track 1 has two different objects on frame 1'. Each stamp now takes the
+    free frame beside it: every row converts, on the frame of its message."""
+    import numpy as np
+
+    out = tmp_path / "jitter.parquet"
+    assert main(["convert", str(_jittered_log(tmp_path / "jitter.mcap", 45.0, seed)), "--out", str(out)]) == 0
+    table = track_table.read_parquet(out).to_pandas()
+    assert len(table) == 400
+    for k, track in table.groupby("track_id"):
+        track = track.sort_values("frame")
+        np.testing.assert_array_equal(track["frame"].to_numpy(), np.arange(200))
+        np.testing.assert_allclose(track["x"].to_numpy(), 50 * int(k) + 2.0 * np.arange(200))
+
+
+def test_a_message_sent_twice_with_other_values_is_still_refused_not_spread(tmp_path: Path) -> None:
+    """The spreading of jittered stamps does not hide a conflict: a message sent again 1 ms later
+    with other positions is too far from the next frame to take it, and stays refused."""
+    log = _jittered_log(tmp_path / "twice.mcap", 10.0, 0, twice_at=100)
+    with pytest.raises(LogError, match="track 1 has two different objects on frame 100") as err:
+        mcap_reader.read(log)
+    import re
+
+    stamps = re.search(r"stamped (\d+) ns and (\d+) ns", str(err.value))
+    assert err.value.column == "time_ns" and stamps is not None
+    assert int(stamps.group(2)) - int(stamps.group(1)) == 1_000_000

@@ -87,16 +87,21 @@ def _grid_frames(times: np.ndarray, origin: int, rate: float) -> np.ndarray:
 def _off_grid(stamps: np.ndarray, rate: float) -> int:
     """How many consecutive pairs of the sorted distinct ``stamps`` [n] do not lie one frame apart
     on a ``rate`` grid (both on one frame: a row lost as a repeat; frames skipped: a gap made)."""
-    frames = _grid_frames(stamps, grid_origin(stamps, rate), rate)
+    frames = spread_frames((stamps - grid_origin(stamps, rate)).astype(np.float64) * rate / 1e9)
     return int(np.count_nonzero(np.diff(frames) != 1))
 
 
-def frames_of(msg_times: np.ndarray, spec: Mapping[str, Any] | None) -> tuple[np.ndarray, float]:
+def frames_of(
+    msg_times: np.ndarray, spec: Mapping[str, Any] | None, tracks: np.ndarray | None = None
+) -> tuple[np.ndarray, float]:
     """Frame indices [n] of rows from their message stamps [n], and the frame rate.
 
     ``spec`` (from lanecast's metadata) gives ``frame_rate`` with ``frame0``/``time0_ns`` or an
     explicit ``frames`` list (one per distinct stamp); without it the rate is estimated, the grid
-    is laid through the stamps (:func:`grid_origin`) and frame 0 is the first message's.
+    is laid through the stamps (:func:`grid_origin`) and frame 0 is the first message's. Two
+    stamps that fall on one frame and hold the same track (``tracks`` [n], the rows' track ids)
+    are a stamp jittered past half a period: one moves to the free frame beside it
+    (:func:`spread_frames`).
     """
     if spec is not None and "frames" in spec:
         stamps, inverse = np.unique(msg_times, return_inverse=True)
@@ -107,8 +112,60 @@ def frames_of(msg_times: np.ndarray, spec: Mapping[str, Any] | None) -> tuple[np
         rate = float(spec["frame_rate"])
         return int(spec["frame0"]) + _grid_frames(msg_times, int(spec["time0_ns"]), rate), rate
     rate = nominal_rate(msg_times)
-    frames = _grid_frames(msg_times, grid_origin(np.unique(msg_times), rate), rate)
+    stamps, inverse = np.unique(msg_times, return_inverse=True)
+    exact = (stamps - grid_origin(stamps, rate)).astype(np.float64) * rate / 1e9
+    per_stamp = spread_frames(exact, _shares_track(inverse.reshape(-1), tracks, stamps.size))
+    frames = per_stamp[inverse.reshape(-1)]
     return frames - (frames.min() if frames.size else 0), rate
+
+
+def spread_frames(exact: np.ndarray, movable: np.ndarray | None = None) -> np.ndarray:
+    """Frames [n] (int64) of sorted distinct stamps at ``exact`` [n] frames from the grid origin:
+    each the nearest whole frame, except that a stamp sharing a frame with the one before it takes
+    the next frame (or the one before it the previous) where that is free and within
+    :data:`SPREAD` of a period of it. A clock jittering by nearly half a period, or a grid laid a
+    little off, puts two messages on one frame and none on its neighbour; a message recorded twice
+    (stamps close together) stays on its frame. ``movable`` [n]: bool, True where stamp i may be
+    separated from stamp i - 1 (default: all).
+    """
+    out = np.rint(exact).astype(np.int64)
+    clash = np.flatnonzero(out[1:] <= out[:-1])
+    if not clash.size:
+        return out
+    for i in range(int(clash[0]) + 1, out.size):
+        if out[i] > out[i - 1] or (movable is not None and not movable[i]):
+            continue
+        if out[i - 1] + 1 - exact[i] <= SPREAD and (i + 1 == out.size or out[i + 1] > out[i - 1] + 1):
+            out[i] = out[i - 1] + 1
+        elif (
+            exact[i - 1] - (out[i] - 1) <= SPREAD
+            and out[i - 1] == out[i]
+            and (i < 2 or out[i - 2] < out[i] - 1)
+        ):
+            out[i - 1] = out[i] - 1
+        elif out[i - 1] + 1 - exact[i] <= SPREAD:  # the next frame is taken: the stamps after move on
+            out[i] = out[i - 1] + 1
+    return out
+
+
+#: How far (in periods) a stamp may lie from the frame it is moved to by :func:`spread_frames`.
+SPREAD = 0.7
+
+
+def _shares_track(inverse: np.ndarray, tracks: np.ndarray | None, n: int) -> np.ndarray | None:
+    """bool [n]: True where distinct stamp i holds a track that stamp i - 1 holds too (rows: their
+    stamp's index ``inverse`` and ``tracks``); None without tracks (every pair movable)."""
+    if tracks is None:
+        return None
+    out = np.zeros(n, dtype=bool)
+    if not tracks.size:
+        return out
+    _, track = np.unique(tracks, return_inverse=True)
+    width = int(track.max()) + 1
+    key = inverse.astype(np.int64) * width + track.reshape(-1)  # one integer per (stamp, track)
+    hit = np.isin(key - width, key) & (inverse > 0)  # (stamp i - 1, same track) exists
+    out[inverse[hit]] = True
+    return out
 
 
 def _merge_markers(main: dict[str, np.ndarray], classes: Categorical, markers: ObjectColumns) -> Categorical:
@@ -207,7 +264,7 @@ def assemble(
         frame_name = _to_fixed_frame(
             path, tp, cols, frame_ids, transforms, fixed, data.columns.velocity_in_body
         )
-        frames, rate = frames_of(cols["msg_time"], spec)
+        frames, rate = frames_of(cols["msg_time"], spec, cols["track_id"])
         order, keep = _row_order(cols["track_id"], frames, cols["time_ns"])
         dropped = int(keep.size - np.count_nonzero(keep))
         if dropped:
