@@ -13,6 +13,7 @@ from __future__ import annotations
 import struct
 import zlib
 from pathlib import Path
+from typing import Any
 
 import pyarrow as pa
 import pytest
@@ -510,3 +511,28 @@ def test_a_message_sent_twice_with_other_values_is_still_refused_not_spread(tmp_
     stamps = re.search(r"stamped (\d+) ns and (\d+) ns", str(err.value))
     assert err.value.column == "time_ns" and stamps is not None
     assert int(stamps.group(2)) - int(stamps.group(1)) == 1_000_000
+
+
+@pytest.mark.parametrize(
+    ("edit", "says"),
+    [
+        (lambda e: {**e, "cubes": {"a": 1}}, "(KeyError: 0)"),
+        (lambda e: {**e, "metadata": "car"}, "(AttributeError: 'str' object has no attribute 'get')"),
+    ],
+)
+def test_a_json_field_of_the_wrong_type_is_said_to_be_one(tmp_path: Path, edit: Any, says: str) -> None:
+    """A JSON SceneUpdate whose entity has cubes as an object or metadata as a string: the error
+    said only 'cannot be decoded: 0' (a KeyError's text) or an AttributeError's; it now says a
+    field is missing or of the wrong type, with the exception's name."""
+    from test_hostile_inputs import _entity, json_log
+
+    messages = [("/objects", t * 10**8, [_entity(1, 2.0 * t, 0, t * 10**8)]) for t in range(1, 20)]
+    messages[5] = ("/objects", 6 * 10**8, [edit(_entity(1, 12.0, 0, 6 * 10**8))])
+    log = json_log(tmp_path / "wrong-type.mcap", messages)
+    with pytest.raises(LogError) as err:
+        mcap_reader.read(log)
+    assert (
+        f"message at log time {6 * 10**8} cannot be decoded: a field is missing or of the wrong type {says}"
+        in str(err.value)
+    )
+    assert err.value.path == str(log) and err.value.offset is not None

@@ -445,10 +445,20 @@ class _LogDecoder:
             schema = self.schemas.get(ch.schema_id)
             raise LogError(
                 self.path,
-                f"topic {ch.topic!r}: message at log time {log_time} cannot be decoded: {exc}",
+                f"topic {ch.topic!r}: message at log time {log_time} cannot be decoded: {_why(exc)}",
                 offset=self.offset,
                 expected=f"a valid {schema.name if schema else ch.encoding} message",
             ) from exc
+
+
+def _why(exc: Exception) -> str:
+    """What an exception from decoding a message says, readable: a KeyError's or a TypeError's
+    text alone ('0', "'str' object has no attribute 'get'") does not say a field is wrong."""
+    if isinstance(exc, (KeyError, IndexError, TypeError, AttributeError)):
+        return f"a field is missing or of the wrong type ({type(exc).__name__}: {exc})"
+    if isinstance(exc, RecursionError):
+        return "nested too deeply"
+    return str(exc)
 
 
 def read_log(
