@@ -81,6 +81,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="also /lanecast/explain: each target's what-if forecasts, one per neighbour removed (entity "
         "'<id> without F', as lanecast explain draws them)",
     )
+    p.add_argument(
+        "--salvage",
+        action="store_true",
+        help="for damaged MCAP: annotate every intact chunk (the output holds those) and report the loss",
+    )
     p.add_argument("--workers", type=integer(1, MAX_WORKERS), default=1, help="logs annotated in parallel")
     p.add_argument(
         "--engine", choices=("local", "ray"), default="local", help="local processes or a Ray cluster"
@@ -117,6 +122,7 @@ def run(args: argparse.Namespace) -> int:
         encoding=args.encoding,
         forecasts=args.forecasts,
         explain=args.explain,
+        salvage=args.salvage,
     )
     result = bulk.run_bulk(
         args.inputs,

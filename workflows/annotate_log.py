@@ -57,6 +57,7 @@ class AnnotateOptions:
     forecasts: Path | None = None  # precomputed forecasts: a Parquet file, or a directory of <log>.parquet
     frame_id: str = "map"  # used only when the tracks are not read (precomputed forecasts with origins)
     explain: bool = False  # also /lanecast/explain: each target's forecast with each neighbour removed
+    salvage: bool = False  # a damaged MCAP: annotate its intact chunks, the loss reported
 
 
 def log_kind(path: Path) -> str:
@@ -141,9 +142,12 @@ def refuse_annotated(src: Path, kind: str, *, info: mcap_copy.McapSummaryInfo | 
         )
 
 
-def read_tracks(src: Path, topic: str | None = None) -> pa.Table:
-    """Pass 1: the log's track table (through the registry's MCAP / bag readers)."""
-    options = {"topic": topic} if topic else {}
+def read_tracks(src: Path, topic: str | None = None, *, salvage: bool = False) -> pa.Table:
+    """Pass 1: the log's track table (through the registry's MCAP / bag readers); ``salvage``: an
+    MCAP's intact chunks only (the reader reports the loss)."""
+    options: dict[str, Any] = {"topic": topic} if topic else {}
+    if salvage:
+        options["salvage"] = True
     return registry.read_any([src], **options)
 
 
@@ -265,7 +269,7 @@ def annotate_log(
     )
     read_here = tracks is None and need_tracks
     if read_here:
-        tracks = read_tracks(src, options.topic)
+        tracks = read_tracks(src, options.topic, salvage=options.salvage and kind == "mcap")
     read_s = time.perf_counter() - started
     what_ifs: pa.Table | None = None
     if options.explain:
@@ -328,7 +332,9 @@ def annotate_log(
             _readable(tmp)
     else:
         with atomic_path(out) as tmp, open(tmp, "wb") as f:
-            if kind == "mcap":
+            if kind == "mcap" and options.salvage:
+                stats = mcap_copy.copy_mcap_salvaged(src, f, merge=merge(), info=info, digest=digest)
+            elif kind == "mcap":
                 stats = mcap_copy.copy_mcap(src, f, merge=merge(), info=info, digest=digest)
             else:
                 stats = bag_copy.copy_ros1_to_mcap(src, f, merge())

@@ -180,6 +180,8 @@ def run_options(options: AnnotateOptions, src: Path, model: dict[str, str] | Non
         "encoding": options.encoding,
         "topic": options.topic,
     }
+    if options.salvage:
+        record["salvage"] = True
     if options.forecasts is not None:
         path = precomputed_forecasts_path(src, options.forecasts)
         record["forecasts_sha256"] = checksum(path) if path.is_file() else None

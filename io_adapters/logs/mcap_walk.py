@@ -593,6 +593,9 @@ def walk(buf: Any, path: Path, dec: RecordSink, salvage: bool) -> None:
             elif op == OP_ATTACHMENT:  # copied by annotate: its fields must hold, its CRC match
                 try:
                     check_attachment(buf, body, nxt)
+                    copy_attachment = getattr(dec, "attachment", None)  # a sink that copies the log
+                    if copy_attachment is not None:
+                        copy_attachment(buf, body, nxt)
                 except (ValueError, struct.error) as exc:
                     raise LogDamage(
                         pos, f"corrupt Attachment record: {exc}", "a valid Attachment record", True
