@@ -588,3 +588,20 @@ def test_annotate_salvage_of_an_intact_log_copies_all_of_it(
     salvaged, plain = tmp_path / "a" / src.name, tmp_path / "b" / src.name
     assert _originals(salvaged) == _originals(plain) == _originals(src)
     assert len(mcap_reader.read(salvaged)) == len(mcap_reader.read(plain))
+
+
+def test_annotate_names_a_ros1_bag_of_another_version_as_convert_does(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A ROS 1 bag whose version line says 1.2: convert named offset 0 and the version, annotate
+    said only 'cannot open the bag: Bag version 102 is not supported.' (rosbags' words)."""
+    table = staggered_cars(3, 30, stagger=4, step_m=2.5, speed=25.0, rate=10.0)
+    bag = rosbag_writer.write(table, tmp_path / "old.bag", "ros1")
+    bag.write_bytes(b"#ROSBAG V1.2\n" + bag.read_bytes()[13:])
+    capsys.readouterr()
+    assert main(["annotate", str(bag), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err == (
+        f"lanecast annotate: error: {bag}, offset 0: a ROS 1 bag of another format version ('#ROSBAG V1.2') "
+        "(expected '#ROSBAG V2.0' (the only ROS 1 bag version lanecast reads))"
+    )

@@ -115,16 +115,9 @@ def read_log(
         )
     ros1 = target.is_file()
     if ros1:
-        with target.open("rb") as f:
-            first = f.read(len(ROS1_MAGIC))
-        if first != ROS1_MAGIC:
-            version = first.partition(b"\n")[0].decode("latin-1")
-            raise LogError(
-                path,
-                f"a ROS 1 bag of another format version ({version!r})",
-                offset=0,
-                expected="'#ROSBAG V2.0' (the only ROS 1 bag version lanecast reads)",
-            )
+        other = _other_version(path, target)
+        if other is not None:
+            raise other
     if target.is_dir():
         check_storage(target)
     topics: dict[str, log_assembly.TopicData] = {}
@@ -227,6 +220,21 @@ def check_storage(target: Path) -> None:
         bag_metadata.check_sqlite_tables(storage_file)
 
 
+def _other_version(path: Path, target: Path) -> LogError | None:
+    """The error for a ROS 1 bag file whose version line is not 2.0, else None."""
+    with target.open("rb") as f:
+        first = f.read(len(ROS1_MAGIC))
+    if first == ROS1_MAGIC:
+        return None
+    version = first.partition(b"\n")[0].decode("latin-1")
+    return LogError(
+        path,
+        f"a ROS 1 bag of another format version ({version!r})",
+        offset=0,
+        expected="'#ROSBAG V2.0' (the only ROS 1 bag version lanecast reads)",
+    )
+
+
 def damage_of(target: Path) -> LogError | None:
     """The error naming the file and byte offset of the damage in a bag (a ROS 1 file or a ROS 2
     directory) that rosbags cannot open, where its structure shows it, else None: the checks
@@ -234,6 +242,8 @@ def damage_of(target: Path) -> LogError | None:
     try:
         if target.is_dir():
             check_storage(target)
+        elif target.is_file() and (other := _other_version(target, target)) is not None:
+            return other
         return _located_damage(target, target.is_file())
     except LogError as exc:  # found by the checks of the metadata and the storage files
         return exc
