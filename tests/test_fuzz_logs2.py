@@ -605,3 +605,77 @@ def test_annotate_names_a_ros1_bag_of_another_version_as_convert_does(
         f"lanecast annotate: error: {bag}, offset 0: a ROS 1 bag of another format version ('#ROSBAG V1.2') "
         "(expected '#ROSBAG V2.0' (the only ROS 1 bag version lanecast reads))"
     )
+
+
+def _prediction_log(path: Path, docs: list[tuple[int, dict[str, Any]]]) -> Path:
+    """An MCAP of /lanecast/prediction JSON documents at the given log times."""
+    import json
+
+    from mcap.writer import Writer
+
+    with path.open("wb") as f:
+        w = Writer(f)
+        w.start()
+        cid = w.register_channel("/lanecast/prediction", "json", 0)
+        for log_time, doc in docs:
+            w.add_message(cid, log_time=log_time, data=json.dumps(doc).encode(), publish_time=log_time)
+        w.finish()
+    return path
+
+
+@pytest.mark.parametrize(
+    ("edit", "column", "says"),
+    [
+        (
+            lambda d: d.update(horizon_s=[0.5, 1, 1.5, 2, 2.5]),
+            "horizon_s",
+            "horizon_s is [0.5, 1, 1.5, 2, 2.5]",
+        ),
+        (
+            lambda d: d.update(maneuver_names=["a", "b", "c"]),
+            "maneuver_names",
+            "maneuver_names is ['a', 'b', 'c']",
+        ),
+    ],
+)
+def test_a_forecast_of_another_layout_is_refused_not_scored(
+    tmp_path: Path, edit: Any, column: str, says: str
+) -> None:
+    """A /lanecast/prediction document whose horizons or maneuver names are not lanecast's: the
+    report scored its five points as 1-5 s and its classes as straight/left/right, exit 0."""
+    from test_log_errors import _prediction_doc
+
+    from lanecast.workflows.log_report import prediction_documents
+
+    good = _prediction_doc()
+    bad = _prediction_doc()
+    edit(bad)
+    log = _prediction_log(tmp_path / "layout.mcap", [(good["t0_ns"], good), (bad["t0_ns"], bad)])
+    with pytest.raises(LogError) as err:
+        prediction_documents(log)
+    assert err.value.column == column and err.value.path == str(log)
+    assert f"/lanecast/prediction message 2 (log time {bad['t0_ns']} ns): {says}" in str(err.value)
+
+
+def test_report_refuses_a_forecast_logged_at_another_time_than_its_t0(tmp_path: Path) -> None:
+    """A document whose t0_ns is not its message's log time (edited, or one second off): the
+    report scored it against the windows at t0_ns, other than the ones it was made for, exit 0;
+    and a log whose every forecast has no targets was a ValueError traceback ('axes don't match')."""
+    from test_log_errors import _prediction_doc
+
+    from lanecast.io_adapters.errors import InputError
+    from lanecast.workflows.log_report import checked_forecast_times, prediction_documents
+
+    doc = _prediction_doc()
+    log = _prediction_log(tmp_path / "shifted.mcap", [(doc["t0_ns"], doc), (doc["t0_ns"] - 10**9, doc)])
+    with pytest.raises(LogError) as err:
+        checked_forecast_times(log, prediction_documents(log))
+    assert err.value.column == "t0_ns" and str(
+        f"/lanecast/prediction message 2 (log time {doc['t0_ns'] - 10**9} ns): t0_ns {doc['t0_ns']} is not "
+        "the message's log time"
+    ) in str(err.value)
+    empty = _prediction_log(tmp_path / "empty.mcap", [(doc["t0_ns"], {**doc, "targets": []})] * 3)
+    with pytest.raises(InputError, match="the 3 forecasts on /lanecast/prediction have no targets"):
+        prediction_documents(empty)
+    assert main(["report", str(empty), "--out", str(tmp_path / "r")]) == 2
+    assert not (tmp_path / "r").exists()

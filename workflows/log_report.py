@@ -24,9 +24,10 @@ from mcap.reader import NonSeekingReader
 from rosbags.highlevel import AnyReader
 
 from lanecast.io_adapters import registry
+from lanecast.io_adapters.annotations.forecast_batch import N_STEPS
 from lanecast.io_adapters.annotations.forecast_messages import PREDICTION_TOPIC
 from lanecast.io_adapters.annotations.prediction_json import document_problem
-from lanecast.io_adapters.contracts.windows import to_window_frame
+from lanecast.io_adapters.contracts.windows import MANEUVERS, to_window_frame
 from lanecast.io_adapters.errors import InputError, LanecastError, LogError
 from lanecast.io_adapters.files import progress, staged_files
 from lanecast.models.baselines import constant_acceleration, constant_velocity
@@ -73,6 +74,21 @@ def annotated_logs(paths: list[Path]) -> list[Path]:
     return sorted(dict.fromkeys(found))
 
 
+def checked_forecast_times(log: Path, docs: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """``docs`` if each document's t0_ns is its message's log time (``_log_time``), as lanecast
+    annotate writes them: a forecast scored at another time than it was made is scored wrongly."""
+    for index, doc in enumerate(docs):
+        if doc["t0_ns"] != doc["_log_time"]:
+            raise LogError(
+                log,
+                f"{PREDICTION_TOPIC} message {index + 1} (log time {doc['_log_time']} ns): t0_ns "
+                f"{doc['t0_ns']} is not the message's log time",
+                column="t0_ns",
+                expected="the forecast time, at which lanecast annotate logs it",
+            )
+    return docs
+
+
 def prediction_documents(log: Path) -> list[dict[str, Any]]:
     """Every JSON document on /lanecast/prediction of an annotated MCAP or ROS 2 bag, in log order."""
     try:
@@ -88,6 +104,12 @@ def prediction_documents(log: Path) -> list[dict[str, Any]]:
     if not docs:
         raise InputError(
             log, f"no forecasts on {PREDICTION_TOPIC}", expected="a log written by lanecast annotate"
+        )
+    if not any(doc["targets"] for doc in docs):
+        raise InputError(
+            log,
+            f"the {len(docs)} forecasts on {PREDICTION_TOPIC} have no targets (no vehicle had 3 s of history)",
+            expected="forecasts of at least one vehicle",
         )
     return docs
 
@@ -132,7 +154,16 @@ def _document(log: Path, index: int, log_time: int, text: str | bytes) -> dict[s
         raise LogError(
             log, f"{where}: {what} has the wrong type or shape", column=field or None, expected=expected
         )
-    return dict(doc)
+    layout = {"horizon_s": [float(h) for h in range(1, N_STEPS + 1)], "maneuver_names": list(MANEUVERS)}
+    for key, want in layout.items():  # what the scores assume: another layout would be scored wrongly
+        if key in doc and doc[key] != want:
+            raise LogError(
+                log,
+                f"{where}: {key} is {doc[key]}",
+                column=key,
+                expected=f"{want} (what lanecast annotate writes)",
+            )
+    return {**doc, "_log_time": log_time}
 
 
 def log_forecasts(docs: list[dict[str, Any]]) -> LogForecasts:
@@ -195,7 +226,7 @@ def score_log(log: Path, topic: str | None) -> dict[str, Any]:
     # the tracks first: lanecast's own reader checks the log's records and names the offset of a
     # damage (a truncated log was a traceback from the mcap library reading the predictions)
     tracks = registry.read_any([log], topic=topic) if topic else registry.read_any([log])
-    fc = log_forecasts(prediction_documents(log))
+    fc = log_forecasts(checked_forecast_times(log, prediction_documents(log)))
     windows = make_windows(
         tracks,
         require_future=True,
