@@ -30,6 +30,7 @@ from lanecast.io_adapters.annotations.mcap_copy import (
     zstd_writer,
 )
 from lanecast.io_adapters.errors import LogError
+from lanecast.io_adapters.logs import ros_types
 from lanecast.io_adapters.logs.bag_damage import located
 from lanecast.io_adapters.logs.bag_metadata import check_metadata
 
@@ -161,15 +162,25 @@ def copy_ros2_bag(src: Path, dst: Path, merge: Merge | None = None, *, typestore
             writer.open()
             try:
                 out_conn = {}
+                known = ros_types.typestore(2)
                 for conn in reader.connections:
                     ext = conn.ext
+                    definition: dict[str, Any] = {"msgdef": conn.msgdef.data, "rihs01": conn.digest}
+                    if not conn.msgdef.data:
+                        # a bag of rosbag2's sqlite3 schema before version 4 stores no definitions:
+                        # the copy (version 9) gets the type's own where lanecast knows it, and no
+                        # hash where it does not (a hash without a definition is a damaged bag)
+                        definition = (
+                            {"typestore": known}
+                            if conn.msgtype in known.fielddefs
+                            else {"msgdef": "", "rihs01": ""}
+                        )
                     out_conn[conn.id] = writer.add_connection(
                         conn.topic,
                         conn.msgtype,
-                        msgdef=conn.msgdef.data,
-                        rihs01=conn.digest,
                         serialization_format=ext.serialization_format,  # type: ignore[union-attr]
                         offered_qos_profiles=ext.offered_qos_profiles,  # type: ignore[union-attr]
+                        **definition,
                     )
                     stats.channels += 1
                 extra_conns = [
