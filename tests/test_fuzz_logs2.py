@@ -704,3 +704,44 @@ def test_an_annotated_sqlite3_bag_of_an_older_schema_reads_back(tmp_path: Path) 
             "SELECT topic_type FROM message_definitions WHERE encoded_message_definition = ''"
         )
         assert not [t for (t,) in empty if t.startswith("autoware_perception_msgs")]
+
+
+@pytest.fixture(scope="module")
+def ros1_bag(tmp_path_factory: pytest.TempPathFactory) -> bytes:
+    """The bytes of a ROS 1 bag lanecast wrote (3 cars, 30 frames)."""
+    table = staggered_cars(3, 30, stagger=4, step_m=2.5, speed=25.0, rate=10.0)
+    return rosbag_writer.write(table, tmp_path_factory.mktemp("ros1") / "b.bag", "ros1").read_bytes()
+
+
+@pytest.mark.parametrize("damage", ["index_topic", "index_conn", "chunk_info_version"])
+def test_a_ros1_index_record_that_disagrees_with_the_chunks_is_named(
+    tmp_path: Path, damage: str, ros1_bag: bytes
+) -> None:
+    """The index's copy of a connection record renamed or renumbered (rosbags reads connections
+    from the index: the chunk's messages went to another topic), or a chunk info record of version
+    2: the error was a checksum mismatch naming no place, or rosbags' 'Bag index looks damaged'.
+    Now the record's offset and what disagrees."""
+    bag = tmp_path / "b.bag"
+    d = bytearray(ros1_bag)
+    recs = _ros1_records(bytes(d))
+    index_pos = struct.unpack("<Q", recs[0][1][b"index_pos"][1])[0]
+    if damage == "chunk_info_version":
+        at, fields = next((o, f) for o, f in recs if f[b"op"][1] == b"\x06")
+        d[fields[b"ver"][0]] = 2
+        says = "a chunk info record of version 2"
+    else:
+        at, fields = next(
+            (o, f)
+            for o, f in recs
+            if f[b"op"][1] == b"\x07" and o >= index_pos and b"/tracked" in f[b"topic"][1]
+        )
+        if damage == "index_topic":
+            d[fields[b"topic"][0] + len(fields[b"topic"][1]) - 1] ^= 0x01
+        else:
+            (conn,) = struct.unpack("<I", fields[b"conn"][1])
+            struct.pack_into("<I", d, fields[b"conn"][0], conn + 1 if conn + 1 < 3 else conn - 1)
+        says = "connection record"
+    bag.write_bytes(bytes(d))
+    with pytest.raises(LogError) as err:
+        rosbag_reader.read(bag)
+    assert err.value.offset == at and err.value.path == str(bag) and says in str(err.value)

@@ -74,7 +74,7 @@ def _ros1_walk(mm: mmap.mmap, size: int) -> tuple[int, str] | None:
     chunks: dict[int, int | None] = {}  # chunk offset → uncompressed size it states
     chunk_size: int | None = None  # of the chunk the IndexData records that follow it index
     listed: set[int] = set()  # chunks a ChunkInfo record points at
-    conns: set[int] = set()  # connections defined so far
+    conns: dict[int, tuple[bytes, bytes]] = {}  # connections defined so far: (topic, type and md5sum)
     message_starts: dict[int, int] = {}  # where message records start in the last chunk's records: conn
     unindexed: set[int] = set()  # the last chunk's messages no index data record has listed yet
     chunk_at = 0  # the offset of the last chunk
@@ -145,6 +145,8 @@ def _ros1_walk(mm: mmap.mmap, size: int) -> tuple[int, str] | None:
             )
             if at not in chunks:
                 return pos, f"a chunk info record points at offset {at}, where no chunk starts"
+            if _u32(fields.get("ver")) != 1:
+                return pos, f"a chunk info record of version {_u32(fields.get('ver'))} (1 is the only one)"
             listed_conns = _u32(fields.get("count"))
             if listed_conns is None or data_len < 8 * listed_conns:
                 return pos, (
@@ -155,12 +157,19 @@ def _ros1_walk(mm: mmap.mmap, size: int) -> tuple[int, str] | None:
                 return pos, f"a chunk info record points at the chunk at offset {at}, which another one lists"
             listed.add(at)
         elif opcode == _OP_CONNECTION:
-            conns.add(_u32(fields.get("conn")) or 0)
+            conn = _u32(fields.get("conn")) or 0
+            this = (fields.get("topic", b""), _conn_type(bytes(mm[data:end])))
             if pos >= (index_pos or size):  # the index's copy, which rosbags reads
                 indexed_conns += 1
+                if conn in conns and conns[conn] != this:
+                    return pos, (
+                        f"the index's connection record {conn} (topic {_text(this[0])}) is not the one its "
+                        f"chunks hold (topic {_text(conns[conn][0])}): their messages would be read as another's"
+                    )
                 problem = _connection_problem(fields, mm[data:end])
                 if problem is not None:
                     return pos, problem
+            conns.setdefault(conn, this)
         pos = end
     if unindexed:
         return chunk_at, _unindexed(unindexed)
@@ -196,6 +205,17 @@ def _unindexed(offsets: set[int]) -> str:
         f"{len(offsets)} message(s) of the chunk, the first at byte {min(offsets)} of its records, "
         "listed by no index data record after it"
     )
+
+
+def _conn_type(data: bytes) -> bytes:
+    """The message type and md5sum a connection record's data (its connection header) states: what
+    two copies of one connection must agree on (other fields, such as callerid, may differ)."""
+    fields = _fields_of(data) or {}
+    return fields.get("type", b"") + b" " + fields.get("md5sum", b"")
+
+
+def _text(raw: bytes) -> str:
+    return repr(raw.decode("utf-8", "replace"))
 
 
 def _u32(raw: bytes | None) -> int | None:
@@ -325,7 +345,10 @@ def _fields(mm: mmap.mmap, pos: int, end: int) -> dict[str, bytes] | None:
 
 
 def _chunk_problem(
-    fields: dict[str, bytes], data: bytes, conns: set[int], message_starts: dict[int, int]
+    fields: dict[str, bytes],
+    data: bytes,
+    conns: dict[int, tuple[bytes, bytes]],
+    message_starts: dict[int, int],
 ) -> str | None:
     """What is wrong with a chunk: its compression, its size, or a record inside it (a message on a
     connection no connection record defined before it; ``conns`` grows with those the chunk defines)."""
@@ -349,7 +372,9 @@ def _chunk_problem(
     return _chunk_records_problem(raw, conns, message_starts)
 
 
-def _chunk_records_problem(raw: bytes, conns: set[int], message_starts: dict[int, int]) -> str | None:
+def _chunk_records_problem(
+    raw: bytes, conns: dict[int, tuple[bytes, bytes]], message_starts: dict[int, int]
+) -> str | None:
     """What is wrong with a chunk's records (``message_starts`` collects where its messages start,
     and their connections)."""
     pos = 0
@@ -366,7 +391,7 @@ def _chunk_records_problem(raw: bytes, conns: set[int], message_starts: dict[int
             return f"a record at byte {pos} of the chunk's records declares {data_len} bytes, past them"
         op, conn = header.get("op", b"")[:1], _u32(header.get("conn"))
         if op == bytes([_OP_CONNECTION]) and conn is not None:
-            conns.add(conn)
+            conns.setdefault(conn, (header.get("topic", b""), _conn_type(raw[pos + 8 + header_len : end])))
         elif op == bytes([_OP_MESSAGE_DATA]):
             if conn not in conns:
                 return (
