@@ -161,14 +161,14 @@ def _ros1_walk(mm: mmap.mmap, size: int) -> tuple[int, str] | None:
             this = (fields.get("topic", b""), _conn_type(bytes(mm[data:end])))
             if pos >= (index_pos or size):  # the index's copy, which rosbags reads
                 indexed_conns += 1
+                problem = _connection_problem(fields, mm[data:end])
+                if problem is not None:
+                    return pos, problem
                 if conn in conns and conns[conn] != this:
                     return pos, (
                         f"the index's connection record {conn} (topic {_text(this[0])}) is not the one its "
                         f"chunks hold (topic {_text(conns[conn][0])}): their messages would be read as another's"
                     )
-                problem = _connection_problem(fields, mm[data:end])
-                if problem is not None:
-                    return pos, problem
             conns.setdefault(conn, this)
         pos = end
     if unindexed:
