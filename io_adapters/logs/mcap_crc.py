@@ -9,8 +9,10 @@ each chunk's CRC of its uncompressed records, the data section's (DataEnd) and t
 from __future__ import annotations
 
 import mmap
+import re
 import struct
 from pathlib import Path
+from typing import Any
 
 from lanecast.io_adapters.errors import LogError
 from lanecast.io_adapters.logs.mcap_walk import (
@@ -18,9 +20,12 @@ from lanecast.io_adapters.logs.mcap_walk import (
     OP_CHUNK,
     OP_DATA_END,
     OP_FOOTER,
+    OP_MESSAGE,
     REC_HEAD,
+    ReadStats,
     chunk_payload,
     crc32_of,
+    walk,
 )
 
 _FOOTER_SIZE = 9 + 20  # opcode, length, summary_start u64, summary_offset_start u64, summary_crc u32
@@ -92,4 +97,44 @@ def _check(path: Path, stored: int, actual: int, offset: int, what: str) -> None
             f"{what} CRC mismatch (stored {stored:#010x}, computed {actual:#010x})",
             offset=offset,
             expected="an undamaged MCAP file",
+        )
+
+
+class _Counter:
+    """A record sink that decodes nothing and counts messages (for the walk's index checks)."""
+
+    offset = 0
+
+    def __init__(self) -> None:
+        self.stats = ReadStats()
+
+    def records(self, buf: Any, start: int, end: int, in_chunk: bool, hint: Any = None) -> int:
+        count, pos = 0, start
+        while pos + 9 <= end:
+            op, length = REC_HEAD.unpack_from(buf, pos)
+            count += op == OP_MESSAGE
+            pos += 9 + length
+        return count
+
+    def metadata(self, buf: Any, pos: int, end: int) -> None:
+        pass
+
+
+def verify_index(path: str | Path) -> None:
+    """LogError naming the first index record of the MCAP at ``path`` that disagrees with its data
+    section (chunk indexes, message indexes, summary offsets): rosbags reads a ROS 2 bag's MCAP
+    through its chunk indexes, so it would skip or repeat chunks where they lie, without a word."""
+    path = Path(path)
+    sink = _Counter()
+    with open(path, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
+        walk(mm, path, sink, False)
+    if sink.stats.index:
+        note = sink.stats.index[0]
+        at = re.match(r"offset (\d+): (.*)", note)
+        raise LogError(
+            path,
+            f"the file's index disagrees with its data section: {at.group(2) if at else note}; rosbags reads "
+            "the bag through the index and would read other messages than the file holds",
+            offset=int(at.group(1)) if at else None,
+            expected="indexes that match the data section (mcap recover writes them anew)",
         )

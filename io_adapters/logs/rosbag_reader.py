@@ -27,7 +27,7 @@ from lanecast.io_adapters.logs import (
 )
 from lanecast.io_adapters.logs import log_conventions as conv
 from lanecast.io_adapters.logs import tracked_objects as to
-from lanecast.io_adapters.logs.mcap_crc import verify_crcs
+from lanecast.io_adapters.logs.mcap_crc import verify_crcs, verify_index
 
 FORMAT = "rosbag"
 ROS1_MAGIC = b"#ROSBAG V2.0\n"
@@ -213,6 +213,7 @@ def check_storage(target: Path) -> None:
     listed = bag_metadata.check_metadata(target)  # other files in the directory are not the bag's
     for storage_file in (f for f in listed if f.suffix == ".mcap"):
         verify_crcs(storage_file)
+        verify_index(storage_file)
     for storage_file in (f for f in listed if f.suffix == ".db3"):
         cut = bag_damage.sqlite_truncation(storage_file)
         if cut is not None:
