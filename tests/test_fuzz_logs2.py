@@ -767,3 +767,9 @@ def test_a_ros2_bag_whose_mcap_index_disagrees_with_its_data_is_refused_at_the_i
         rosbag_reader.read(bag)
     assert err.value.path == str(storage) and err.value.offset == at
     assert f"{length + 16} bytes, it has {length}" in str(err.value)
+    # annotate with precomputed forecasts copies the bag without reading its tracks: the same check
+    from lanecast.io_adapters.annotations import bag_copy
+
+    with pytest.raises(LogError, match="rosbags reads the bag through the index") as err:
+        bag_copy.copy_ros2_bag(bag, tmp_path / "copy")
+    assert err.value.path == str(storage) and err.value.offset == at

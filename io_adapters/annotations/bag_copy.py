@@ -33,6 +33,7 @@ from lanecast.io_adapters.errors import LogError
 from lanecast.io_adapters.logs import ros_types
 from lanecast.io_adapters.logs.bag_damage import located
 from lanecast.io_adapters.logs.bag_metadata import check_metadata
+from lanecast.io_adapters.logs.rosbag_reader import check_storage
 
 
 def copy_ros1_to_mcap(
@@ -151,6 +152,7 @@ def copy_ros2_bag(src: Path, dst: Path, merge: Merge | None = None, *, typestore
     src = Path(src)
     merge = merge or Merge()
     stats = CopyStats(profile="ros2")
+    check_storage(src)  # CRCs and indexes rosbags does not check (the tracks may not have been read)
     try:
         with Reader(src) as reader:
             stats.bytes_in = sum(p.stat().st_size for p in src.rglob("*") if p.is_file())
