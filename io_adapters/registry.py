@@ -61,6 +61,15 @@ def writer(fmt: str) -> ModuleType:
     return importlib.import_module(WRITERS[fmt])
 
 
+#: What a file named with these suffixes starts with (a file that does not is named with its first bytes).
+SUFFIX_MAGIC = {
+    ".mcap": ("an MCAP file", b"\x89MCAP0\r\n"),
+    ".bag": ("a ROS 1 bag", b"#ROSBAG V2.0\n"),
+    ".parquet": ("a Parquet file", b"PAR1"),
+    ".db3": ("a ROS 2 bag's SQLite storage", b"SQLite format 3\x00"),
+}
+
+
 def detect(path: str | Path) -> str:
     """The name of the format of ``path`` (a file, or a directory such as a ROS 2 bag)."""
     path = check_input(path)
@@ -77,6 +86,14 @@ def detect(path: str | Path) -> str:
         if kind is not None:
             raise FormatNotRecognisedError(
                 path, f"format not recognised: the file is {kind}", offset=0, expected=expected
+            )
+        magic = SUFFIX_MAGIC.get(path.suffix.lower())
+        if magic is not None and not head.startswith(magic[1]):
+            raise FormatNotRecognisedError(
+                path,
+                f"format not recognised: the file is named {path.suffix} but starts with {head[:16]!r}",
+                offset=0,
+                expected=f"{magic[0]}, which starts with {magic[1]!r}",
             )
     if path.is_dir() and not (path / "metadata.yaml").exists():
         storage = sorted(p.name for p in path.iterdir() if p.suffix in (".db3", ".mcap") and p.is_file())

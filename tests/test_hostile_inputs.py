@@ -998,6 +998,31 @@ def test_a_ros2_bag_without_metadata_yaml_says_so(tmp_path: Path) -> None:
     assert str(bag) in str(err.value)
 
 
+@pytest.mark.parametrize(
+    ("name", "content", "expected"),
+    [
+        ("log.mcap", b"garbage, not a log", r"an MCAP file, which starts with b'\\x89MCAP0"),
+        ("log.bag", b"#ROSX V2.0\n" + bytes(40), r"a ROS 1 bag, which starts with b'#ROSBAG V2\.0"),
+        (
+            "bag_0.db3",
+            b"not sqlite at all" + bytes(40),
+            r"SQLite storage, which starts with b'SQLite format 3",
+        ),
+    ],
+)
+def test_a_log_named_by_its_suffix_that_is_not_one_names_its_first_bytes(
+    tmp_path: Path, name: str, content: bytes, expected: str
+) -> None:
+    """A file named .mcap, .bag or .db3 whose content is not was only 'format not recognised'."""
+    path = tmp_path / name
+    path.write_bytes(content)
+    with pytest.raises(LanecastError, match=expected) as err:
+        registry.read_any([path])
+    assert f"{path}, offset 0: format not recognised: the file is named {path.suffix} but starts with" in str(
+        err.value
+    )
+
+
 # ------------------------------------------------------------------------------- wave 8: tables
 
 
