@@ -778,14 +778,55 @@ def _assemble(files: list[_Parsed], split_periods: bool) -> pa.Table:
 MAX_STRAY_ROWS = 2  # rows of a vehicle in a period, next to its frames in another, taken as a bad cell
 
 
+def small_period(period: np.ndarray) -> int | None:
+    """The period (index into ``period``'s values) of at most MAX_STRAY_ROWS rows when a file has
+    more than one: a phantom recording period made of a bad cell or two; None if there is none."""
+    sizes = np.bincount(period)
+    if sizes.size > 1 and sizes.min() <= MAX_STRAY_ROWS:
+        return int(np.argmin(sizes))
+    return None
+
+
+def stray_pair(
+    location_code: np.ndarray, vehicle: np.ndarray, frame: np.ndarray, period: np.ndarray
+) -> tuple[int, int] | None:
+    """(stray row, its neighbour) [indices into the arrays, [n] each]: the first row of a vehicle
+    put by its Global_Time in another period than its neighbouring frame (frame +-1) while one of
+    the two (location, vehicle, period) groups has at most MAX_STRAY_ROWS rows; None if none is."""
+    order = np.lexsort((frame, vehicle, location_code))
+    veh, fr = vehicle[order], frame[order]
+    loc, per = location_code[order], period[order]
+    cut = (loc[1:] == loc[:-1]) & (veh[1:] == veh[:-1]) & (fr[1:] - fr[:-1] == 1)
+    cut &= per[1:] != per[:-1]
+    if not cut.any():
+        return None
+    # One vehicle id may well drive in two periods (the CSV's Peachtree periods reuse ids and
+    # frames); a stray row or two of it in another period next to its own frames may not.
+    _, group = np.unique(np.stack([loc, veh, per]), axis=1, return_inverse=True)
+    size = np.bincount(group.ravel())[group.ravel()]
+    stray = cut & ((size[1:] <= MAX_STRAY_ROWS) | (size[:-1] <= MAX_STRAY_ROWS))
+    if not stray.any():
+        return None
+    i = int(np.flatnonzero(stray)[0])
+    a, b = int(order[i]), int(order[i + 1])
+    return (a, b) if size[i] <= size[i + 1] else (b, a)
+
+
+def _has_header(parsed: _Parsed) -> bool:
+    with parsed.path.open("rb") as fh:
+        first = fh.readline().decode(errors="replace")
+    return parsed.location_source == "column" or "," in first
+
+
 def _check_period_continuity(parsed: _Parsed, period: np.ndarray) -> None:
     """Refuse a Global_Time that puts one frame of a vehicle in another recording period than the
     frame before it (a phantom recording made of one bad cell); ``period`` [n] per row of ``parsed``."""
     cols = parsed.columns
-    sizes = np.bincount(period)
-    if sizes.size > 1 and sizes.min() <= MAX_STRAY_ROWS:  # a "period" of a row or two is a bad cell
-        odd = int(np.flatnonzero(period == int(np.argmin(sizes)))[0])
-        header = "," in parsed.path.open("rb").readline().decode(errors="replace")
+    small = small_period(period)
+    if small is not None:
+        sizes = np.bincount(period)
+        odd = int(np.flatnonzero(period == small)[0])
+        header = _has_header(parsed)
         line = int(
             record_lines(parsed.path.read_bytes(), whitespace=not header)[0][odd + (1 if header else 0)]
         )
@@ -797,26 +838,11 @@ def _check_period_continuity(parsed: _Parsed, period: np.ndarray) -> None:
             column="Global_Time",
             expected="Global_Time = epoch + 100 * Frame_ID with the epoch of a recording period",
         )
-    order = np.lexsort((cols["frame_id"], cols["vehicle_id"], parsed.location_code))
-    vehicle, frame = cols["vehicle_id"][order], cols["frame_id"][order]
-    loc, per = parsed.location_code[order], period[order]
-    cut = (loc[1:] == loc[:-1]) & (vehicle[1:] == vehicle[:-1]) & (frame[1:] - frame[:-1] == 1)
-    cut &= per[1:] != per[:-1]
-    if not cut.any():
+    pair = stray_pair(parsed.location_code, cols["vehicle_id"], cols["frame_id"], period)
+    if pair is None:
         return
-    # One vehicle id may well drive in two periods (the CSV's Peachtree periods reuse ids and
-    # frames); a stray row or two of it in another period next to its own frames may not.
-    _, group = np.unique(np.stack([loc, vehicle, per]), axis=1, return_inverse=True)
-    size = np.bincount(group.ravel())[group.ravel()]
-    stray = cut & ((size[1:] <= MAX_STRAY_ROWS) | (size[:-1] <= MAX_STRAY_ROWS))
-    if not stray.any():
-        return
-    i = int(np.flatnonzero(stray)[0])
-    a, b = int(order[i]), int(order[i + 1])
-    odd, other = (a, b) if size[i] <= size[i + 1] else (b, a)
-    header = parsed.location_source == "column" or "," in parsed.path.open("rb").readline().decode(
-        errors="replace"
-    )
+    odd, other = pair
+    header = _has_header(parsed)
     lines = record_lines(parsed.path.read_bytes(), whitespace=not header)[0]
     line = int(lines[odd + (1 if header else 0)])
     other_line = int(lines[other + (1 if header else 0)])
@@ -834,48 +860,73 @@ WRONG_WAY_FPS = 1.0 / FEET  # ft/s: a freeway vehicle whose Local_Y falls faster
 MIN_WRONG_WAY_FRAMES = 10  # frames (1 s): a shorter track's direction is noise
 
 
-def _check_wrong_way(parsed: _Parsed, period: np.ndarray) -> None:
-    """Refuse a vehicle on a one-way freeway (US-101, I-80) whose Local_Y falls along its frames: in
-    the road frame (x = Local_Y) it would drive backwards at the speed v_Vel says it drives forward
-    (a column of another vehicle or another unit, never a real vehicle). Stop-and-go noise is no
-    wrong way: the track's net motion and most of its steps must go backwards. ``period`` [n]."""
-    cols = parsed.columns
-    freeway = np.array([_is_freeway(loc) for loc in parsed.locations], dtype=bool)[parsed.location_code]
-    if not freeway.any():
-        return
-    rows = np.flatnonzero(freeway)
-    order = rows[
-        np.lexsort(
-            (cols["frame_id"][rows], cols["vehicle_id"][rows], period[rows], parsed.location_code[rows])
-        )
-    ]
-    key = np.stack([parsed.location_code[order], period[order], cols["vehicle_id"][order]])
+@dataclass(frozen=True)
+class WrongWay:
+    """A freeway track driving backwards: its first row (index into the arrays given), its net
+    fall of Local_Y (ft) and its duration (s)."""
+
+    row: int
+    fall: float
+    seconds: float
+
+
+def wrong_way(
+    location_code: np.ndarray,
+    period: np.ndarray,
+    vehicle: np.ndarray,
+    frame: np.ndarray,
+    local_y: np.ndarray,
+) -> WrongWay | None:
+    """The track (location, period, vehicle; arrays [n] of freeway rows only) that comes first in
+    the arrays among those whose Local_Y falls along their frames, or None. Stop-and-go noise is
+    no wrong way: the track's net motion and most of its steps must go backwards."""
+    if not frame.size:
+        return None
+    order = np.lexsort((frame, vehicle, period, location_code))
+    key = np.stack([location_code[order], period[order], vehicle[order]])
     starts = np.flatnonzero(np.r_[True, (key[:, 1:] != key[:, :-1]).any(axis=0)])
     ends = np.r_[starts[1:], order.size] - 1
-    y, frame = cols["local_y"][order], cols["frame_id"][order]
-    seconds = (frame[ends] - frame[starts]) / FRAME_RATE
+    y, fr = local_y[order], frame[order]
+    seconds = (fr[ends] - fr[starts]) / FRAME_RATE
     steps = ends - starts
     down = np.r_[np.diff(y) < 0, False]  # row i to row i+1 moves back
     down[ends] = False  # the step from a track's last row leads into the next track
     falling = np.add.reduceat(down.astype(np.int64), starts)
-    repeat = np.r_[frame[1:] == frame[:-1], False]  # one id driving twice (periods not split): not one track
+    repeat = np.r_[fr[1:] == fr[:-1], False]  # one id driving twice (periods not split): not one track
     repeat[ends] = False
     long_enough = (steps >= MIN_WRONG_WAY_FRAMES) & (np.add.reduceat(repeat.astype(np.int64), starts) == 0)
     net = (y[ends] - y[starts]) / np.where(seconds > 0, seconds, 1.0)
     wrong = np.flatnonzero(long_enough & (net < -WRONG_WAY_FPS) & (2 * falling > steps))
     if not wrong.size:
-        return
-    first_rows = np.minimum.reduceat(order, starts)  # each track's first row in the file
+        return None
+    first_rows = np.minimum.reduceat(order, starts)  # each track's first row in the arrays
     k = int(wrong[np.argmin(first_rows[wrong])])
-    row = int(first_rows[k])
-    header = parsed.location_source == "column" or "," in parsed.path.open("rb").readline().decode(
-        errors="replace"
+    return WrongWay(int(first_rows[k]), float(y[starts[k]] - y[ends[k]]), float(seconds[k]))
+
+
+def _check_wrong_way(parsed: _Parsed, period: np.ndarray) -> None:
+    """Refuse a vehicle on a one-way freeway (US-101, I-80) whose Local_Y falls along its frames: in
+    the road frame (x = Local_Y) it would drive backwards at the speed v_Vel says it drives forward
+    (a column of another vehicle or another unit, never a real vehicle). ``period`` [n]."""
+    cols = parsed.columns
+    freeway = np.array([_is_freeway(loc) for loc in parsed.locations], dtype=bool)[parsed.location_code]
+    rows = np.flatnonzero(freeway)
+    found = wrong_way(
+        parsed.location_code[rows],
+        period[rows],
+        cols["vehicle_id"][rows],
+        cols["frame_id"][rows],
+        cols["local_y"][rows],
     )
+    if found is None:
+        return
+    row = int(rows[found.row])
+    header = _has_header(parsed)
     line = int(record_lines(parsed.path.read_bytes(), whitespace=not header)[0][row + (1 if header else 0)])
     raise InputError(
         parsed.path,
         f"vehicle {cols['vehicle_id'][row]:.0f} drives backwards on a one-way freeway: its Local_Y falls "
-        f"by {y[starts[k]] - y[ends[k]]:.1f} ft over {seconds[k]:.1f} s ({-net[k]:.1f} ft/s)",
+        f"by {found.fall:.1f} ft over {found.seconds:.1f} s ({found.fall / max(found.seconds, 1e-9):.1f} ft/s)",
         line=line,
         column="Local_Y",
         expected="Local_Y rising along a vehicle's frames (the direction of travel on US-101 and I-80)",

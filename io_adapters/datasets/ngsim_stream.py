@@ -118,16 +118,20 @@ def split_csv(
 def _split(path: Path, spill_dir: Path, location: str | None, split_periods: bool) -> list[SpilledRecording]:
     first, by_lower, wanted, types = _layout(path)
     loc_col, gt_col, frame_col = by_lower["location"], by_lower["global_time"], by_lower["frame_id"]
-    # pass 1: the epochs of every location
+    # pass 1: the epochs of every location, and how many rows each holds
     epochs_of: dict[str, np.ndarray] = {}
+    counts_of: dict[str, np.ndarray] = {}
     for batch in _blocks(path, [loc_col, gt_col, frame_col], types):
         codes, names = _locations(batch.column(loc_col))
         epoch = (
             batch.column(gt_col).to_numpy() - ngsim.GLOBAL_TIME_PER_FRAME * batch.column(frame_col).to_numpy()
         )
         for i, name in enumerate(names):
-            seen = np.unique(epoch[codes == i])
-            epochs_of[name] = np.union1d(epochs_of.get(name, seen), seen)
+            seen, count = np.unique(epoch[codes == i], return_counts=True)
+            if name in epochs_of:
+                seen, where = np.unique(np.r_[epochs_of[name], seen], return_inverse=True)
+                count = np.bincount(where.ravel(), weights=np.r_[counts_of[name], count]).astype(np.int64)
+            epochs_of[name], counts_of[name] = seen, count
     if not epochs_of:
         raise ValueError("no rows")
     if location is not None:
@@ -139,6 +143,8 @@ def _split(path: Path, spill_dir: Path, location: str | None, split_periods: boo
                 column="Location",
                 expected=f"one of {sorted(epochs_of)}",
             )
+        # as ngsim.read: the periods of the rows kept only
+        epochs_of, counts_of = {location: epochs_of[location]}, {location: counts_of[location]}
     all_epochs = np.unique(np.concatenate(list(epochs_of.values())))
     if split_periods:
         cluster = np.concatenate([[0], np.cumsum(np.diff(all_epochs) > ngsim.PERIOD_GAP)])
@@ -146,6 +152,12 @@ def _split(path: Path, spill_dir: Path, location: str | None, split_periods: boo
     else:
         cluster = np.zeros(all_epochs.size, dtype=np.int64)
         period_start = all_epochs[:1]
+    if split_periods:  # a period of a row or two is a bad cell: ngsim.read names its line
+        per_period = np.zeros(int(cluster[-1]) + 1, dtype=np.int64)
+        for loc, seen in epochs_of.items():
+            np.add.at(per_period, cluster[np.searchsorted(all_epochs, seen)], counts_of[loc])
+        if per_period.size > 1 and per_period.min() <= ngsim.MAX_STRAY_ROWS:
+            raise ValueError("a recording period of a row or two")
     # recordings: (location, period) in location order, periods ranked in time
     locations = sorted(epochs_of) if location is None else [location]
     recordings: dict[tuple[str, int], SpilledRecording] = {}
@@ -190,11 +202,50 @@ def _split(path: Path, spill_dir: Path, location: str | None, split_periods: boo
     finally:
         for writer in writers.values():
             writer.close()
+    _check_spills([recordings[key] for key in recordings if key in start])
     return [
         SpilledRecording(**{**asdict(rec), "start": start[key]})
         for key, rec in recordings.items()
         if key in start
     ]
+
+
+def _spilled_columns(rec: SpilledRecording, names: list[str]) -> dict[str, np.ndarray]:
+    with pa.memory_map(rec.spill) as source:
+        table = pa.ipc.open_file(source).read_all().select(names)
+    return {n: table.column(n).to_numpy() for n in names}
+
+
+def _check_spills(spilled: list[SpilledRecording]) -> None:
+    """ValueError (ngsim.read then names the line) where the spills, one or two at a time, break
+    what ngsim.read checks across a whole file: a freeway vehicle driving backwards, a row or two
+    of a vehicle put by its Global_Time in another period than its neighbouring frame."""
+    for rec in spilled:
+        if ngsim._is_freeway(rec.location):
+            c = _spilled_columns(rec, ["vehicle_id", "frame_id", "local_y"])
+            zeros = np.zeros(c["frame_id"].size, dtype=np.int64)
+            if ngsim.wrong_way(zeros, zeros, c["vehicle_id"], c["frame_id"], c["local_y"]) is not None:
+                raise ValueError("a vehicle driving backwards on a one-way freeway")
+    for loc in sorted({rec.location for rec in spilled}):
+        periods = [rec for rec in spilled if rec.location == loc]
+        if len(periods) < 2:
+            continue
+        # only vehicles with a row or two in some period can be strays: their rows in every period
+        few: list[np.ndarray] = []
+        for rec in periods:
+            ids, count = np.unique(_spilled_columns(rec, ["vehicle_id"])["vehicle_id"], return_counts=True)
+            few.append(ids[count <= ngsim.MAX_STRAY_ROWS])
+        suspects = np.unique(np.concatenate(few))
+        if not suspects.size:
+            continue
+        parts = []
+        for p, rec in enumerate(periods):
+            c = _spilled_columns(rec, ["vehicle_id", "frame_id"])
+            keep = np.isin(c["vehicle_id"], suspects)
+            parts.append((c["vehicle_id"][keep], c["frame_id"][keep], np.full(int(keep.sum()), p)))
+        vehicle, frame, period = (np.concatenate(x) for x in zip(*parts, strict=True))
+        if ngsim.stray_pair(np.zeros(vehicle.size, dtype=np.int64), vehicle, frame, period) is not None:
+            raise ValueError("a row of a vehicle in another period than its neighbouring frame")
 
 
 def read_spilled(rec: SpilledRecording) -> pa.Table:
