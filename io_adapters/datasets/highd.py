@@ -704,6 +704,45 @@ def _check_direction(
         )
 
 
+MAX_SPEED_RATIO = 1.5  # mean xVelocity over the motion of x: further apart, one of them is in other units
+MIN_UNITS_SPEED = 3.0  # m/s: slower tracks' ratio is noise (stop and go)
+MIN_UNITS_SECONDS = 1.0  # s: shorter tracks' ratio is noise
+
+
+def _check_speed_units(
+    rec: Recording, cols: dict[str, np.ndarray], source_row: np.ndarray, frame_rate: float
+) -> None:
+    """Refuse a vehicle whose mean xVelocity disagrees with the motion of its x over its frames at
+    the recordingMeta's frameRate by more than MAX_SPEED_RATIO: velocities in km/h, positions in
+    feet or a wrong frameRate, each converted as it came, give tracks whose x and vx disagree.
+
+    ``cols`` sorted by (id, frame) [N], ``source_row`` [N] their rows in the file."""
+    bounds = run_bounds(cols["id"])
+    starts, last = bounds[:-1], bounds[1:] - 1
+    frame, x = cols["frame"], cols["x"]
+    seconds = (frame[last] - frame[starts]) / frame_rate
+    motion = (x[last] - x[starts]) / np.where(seconds > 0, seconds, 1.0)
+    mean_vx = np.add.reduceat(cols["xVelocity"], starts) / (last - starts + 1)
+    judged = (seconds >= MIN_UNITS_SECONDS) & (np.maximum(np.abs(motion), np.abs(mean_vx)) >= MIN_UNITS_SPEED)
+    ratio = mean_vx / np.where(motion != 0, motion, np.nan)
+    wrong = np.flatnonzero(judged & ~((ratio >= 1 / MAX_SPEED_RATIO) & (ratio <= MAX_SPEED_RATIO)))
+    if not wrong.size:
+        return
+    k = int(wrong[np.argmin(source_row[starts[wrong]])])  # the first such track in the file
+    first = int(starts[k])
+    path = rec.path("tracks")
+    raise InputError(
+        path,
+        f"vehicle {cols['id'][first]}: xVelocity averages {mean_vx[k]:.2f} m/s but its x moves "
+        f"{motion[k]:.2f} m/s over frames {frame[first]}..{frame[last[k]]} at the recordingMeta's "
+        f"frameRate {frame_rate:g} Hz",
+        line=_line(path, int(source_row[first])),
+        column="xVelocity",
+        expected=f"xVelocity (m/s) within a factor {MAX_SPEED_RATIO:g} of the motion of x (m): "
+        "velocities in km/h, positions in feet or a wrong frameRate disagree",
+    )
+
+
 def last_lane_id(markings: Mapping[int, Sequence[float]]) -> int | None:
     """The largest laneId highD gives with these lane markings, None when a direction has fewer than two.
 
@@ -823,6 +862,7 @@ def convert_tracks(
     _check_ranges(tracks_path, cols, source_row, meta.frame_rate)
     row_meta, direction = _check_meta(rec, meta_table, cols, source_row, all_tracks)
     _check_direction(rec, cols, row_meta, direction)
+    _check_speed_units(rec, cols, source_row, meta.frame_rate)
     _check_lanes(tracks_path, meta, cols, source_row)
     class_names, class_codes = _classes(meta_table, rec.path("tracksMeta"))
 
