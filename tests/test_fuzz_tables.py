@@ -4,14 +4,16 @@ written by other tools are read right or refused with one error naming the file 
 
 from __future__ import annotations
 
+import zipfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
-from lanecast.io_adapters import streaming
+from lanecast.io_adapters import registry, streaming
 from lanecast.io_adapters.contracts import track_table
-from lanecast.io_adapters.datasets import ngsim, ngsim_stream
+from lanecast.io_adapters.datasets import highd, highd_stream, ngsim, ngsim_stream
 from lanecast.io_adapters.errors import InputError
 
 HEADER = (
@@ -116,3 +118,96 @@ def test_a_clean_freeway_export_reads_the_same_in_pieces(
     streamed = track_table.concat(p.read() for p in _streamed(path, tmp_path))
     assert streamed.num_rows == whole.num_rows == 43
     np.testing.assert_array_equal(streamed.column("x").to_numpy(), whole.column("x").to_numpy())
+
+
+HIGHD = Path(__file__).parent / "data" / "highd"
+HIGHD_HEADER = (
+    "frame,id,x,y,width,height,xVelocity,yVelocity,xAcceleration,yAcceleration,frontSightDistance,"
+    "backSightDistance,dhw,thw,ttc,precedingXVelocity,precedingId,followingId,leftPrecedingId,"
+    "leftAlongsideId,leftFollowingId,rightPrecedingId,rightAlongsideId,rightFollowingId,laneId"
+)
+
+
+def _highd(tmp_path: Path, *, velocity: float = 1.0, position: float = 1.0, frame_rate: str = "25") -> Path:
+    """A highD recording of two cars, 2.4 s at 30 m/s each way (25 Hz), velocities scaled by
+    ``velocity``, positions by ``position``, recordingMeta's frameRate ``frame_rate``."""
+    rows = []
+    for vid, vx, y, lane in ((1, 30.0, 15.2, 6), (2, -30.0, 5.0, 2)):
+        for k in range(60):
+            x = (100.0 + vx * k / 25) * position
+            rows.append(
+                f"{k + 1},{vid},{x:.3f},{y * position:.3f},4.50,2.00,{vx * velocity:.3f},0.00,0.00,0.00,"
+                f"0,0,0,0,0,0,0,0,0,0,0,0,0,0,{lane}"
+            )
+    (tmp_path / "01_tracks.csv").write_text("\n".join([HIGHD_HEADER, *rows]) + "\n")
+    meta = (HIGHD / "01_tracksMeta.csv").read_text().splitlines()[0]
+    (tmp_path / "01_tracksMeta.csv").write_text(
+        f"{meta}\n1,4.50,2.00,1,60,60,Car,2,58.8,30,30,30,0,0,-1,0\n2,4.50,2.00,1,60,60,Car,1,58.8,-30,-30,-30,0,0,-1,0\n"
+    )
+    recording_meta = (HIGHD / "01_recordingMeta.csv").read_text().splitlines()
+    cells = recording_meta[1].split(",")
+    cells[1] = frame_rate
+    (tmp_path / "01_recordingMeta.csv").write_text("\n".join([recording_meta[0], ",".join(cells)]) + "\n")
+    return tmp_path / "01_tracks.csv"
+
+
+@pytest.mark.parametrize(
+    ("edit", "vehicle", "said", "moved"),
+    [
+        ({"velocity": 3.6}, 1, "108.00", "30.00"),  # velocities in km/h
+        ({"position": 3.2808}, 1, "30.00", "98.42"),  # positions in feet
+        ({"frame_rate": "50"}, 1, "30.00", "60.00"),  # a 25 Hz recording said to be 50 Hz
+    ],
+)
+def test_highd_velocities_that_disagree_with_the_motion_of_x_are_refused(
+    tmp_path: Path, edit: dict[str, Any], vehicle: int, said: str, moved: str
+) -> None:
+    """xVelocity in km/h (or x in feet, or a wrong frameRate) was converted as it came: a track
+    table whose vx is 3.6 times the speed its x moves at (a 108 m/s car), exit 0. Now refused at
+    the track's first line, whole and in pieces."""
+    path = _highd(tmp_path, **edit)
+    with pytest.raises(InputError) as whole:
+        highd.read([path])
+    err = whole.value
+    assert err.path == str(path) and err.line == 2 and err.column == "xVelocity"
+    assert f"vehicle {vehicle}: xVelocity averages {said} m/s but its x moves {moved} m/s" in str(err)
+    with pytest.raises(InputError) as pieces:
+        highd_stream.split_tracks(highd.recordings([path])[0], tmp_path / "spill", block_bytes=1 << 10)
+    assert str(pieces.value) == str(err)
+
+
+def test_highd_tracks_whose_velocity_agrees_with_x_are_read(tmp_path: Path) -> None:
+    table = highd.read([_highd(tmp_path)])
+    assert table.num_rows == 120
+    np.testing.assert_allclose(table.column("vx").to_numpy(), 30.0)
+
+
+def test_an_export_zipped_without_compression_under_a_csv_name_is_named_a_zip(tmp_path: Path) -> None:
+    """A zip archive that stores its member uncompressed starts with the member's header line: it
+    was taken for an NGSIM CSV and refused as "missing column 'vehicle_id'" (a column it has); now
+    the format is not recognised and the file is named a zip archive."""
+    inner = _export(tmp_path, _rows(1, range(10, 50), 100.0, 4.0)).read_bytes()
+    path = tmp_path / "us-101.csv"
+    with zipfile.ZipFile(path, "w") as archive:  # ZIP_STORED
+        archive.writestr(zipfile.ZipInfo("ngsim-export.csv", (2005, 6, 15, 7, 50, 0)), inner)
+    assert inner.splitlines()[0] in path.read_bytes().splitlines()[0]  # the header on the first line
+    with pytest.raises(InputError) as err:
+        registry.read_any([path])
+    assert err.value.path == str(path) and err.value.offset == 0
+    assert "format not recognised: the file is a zip archive" in str(err.value)
+
+
+def test_a_missing_direction_written_as_blanks_is_read_as_missing(tmp_path: Path) -> None:
+    """A CSV export written with a space after each comma has `` `` for an empty Direction: it was
+    refused as "cannot parse: In CSV column #18 …" (no line, no column name); now read as a missing
+    Direction, the same table as the export without the spaces."""
+    rows = _rows(1, range(10, 50), 100.0, 4.0) + _rows(2, range(10, 50), 300.0, 5.0)
+    plain = ngsim.read([_export(tmp_path, rows)])
+    spaced = tmp_path / "spaced" / "export.csv"
+    spaced.parent.mkdir()
+    spaced.write_text("\n".join(", ".join(line.split(",")) for line in [HEADER, *rows]) + "\n")
+    table = ngsim.read([spaced])
+    for name in ("x", "y", "vx", "heading", "track_id", "frame"):
+        np.testing.assert_array_equal(
+            table.column(name).to_numpy(), plain.column(name).to_numpy(), err_msg=name
+        )

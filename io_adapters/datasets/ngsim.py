@@ -179,6 +179,8 @@ def sniff(path: Path) -> bool:
             head = fh.read(4096)
     except OSError:
         return False
+    if not_text(head) is not None:  # a zip archive stored uncompressed starts with its member's header line
+        return False
     first = first_line(head).decode("utf-8", errors="replace").lstrip("\ufeff").strip()
     if not first:  # blank lines before the first row of a .txt (which the reader skips)
         first = first_line(head.lstrip(b" \t\r\n")).decode("utf-8", errors="replace")
@@ -468,7 +470,14 @@ def _parse_csv(path: Path, first: str, location: str | None) -> _Parsed:
             for n in checked
         }
         _check_values(path, columns, header, header=True)
-        raise InputError(path, f"cannot parse: {exc}", expected="NGSIM CSV rows") from exc
+        # every used cell is a number: what the typed read refused is a missing Direction written
+        # as blanks (``, ,``, a tool that puts a space after each comma), read as missing
+        if "direction" in by_lower:
+            columns["direction"] = _coerce(strings.column(by_lower["direction"]).to_pandas())
+        table = pa.table(
+            {by_lower[n]: columns[n] for n in checked}
+            | ({by_lower["location"]: strings.column(by_lower["location"])} if "location" in by_lower else {})
+        )
     if table.num_rows == 0:
         raise InputError(path, "the file has a header but no rows", line=2, expected="NGSIM rows")
     check_one_line_per_row(path, table)
