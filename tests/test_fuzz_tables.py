@@ -211,3 +211,19 @@ def test_a_missing_direction_written_as_blanks_is_read_as_missing(tmp_path: Path
         np.testing.assert_array_equal(
             table.column(name).to_numpy(), plain.column(name).to_numpy(), err_msg=name
         )
+
+
+@pytest.mark.parametrize(("sep", "named"), [(";", "';'"), ("\t", "tabs")])
+def test_an_export_saved_with_semicolons_or_tabs_is_named_as_such(
+    tmp_path: Path, sep: str, named: str
+) -> None:
+    """A spreadsheet in a European locale saves the export with ';' and decimal commas (or as
+    tab-separated text): it was "format not recognised" with no hint; now the header's separator
+    is named at line 1."""
+    lines = [HEADER, *_rows(1, range(10, 50), 100.0, 4.0)]
+    path = tmp_path / "export.csv"
+    path.write_text("\n".join(line.replace(",", sep) for line in lines).replace(".", ",") + "\n")
+    with pytest.raises(InputError) as err:
+        registry.read_any([path])
+    assert err.value.path == str(path) and err.value.line == 1
+    assert f"the header is separated by {named}" in str(err.value)

@@ -192,6 +192,8 @@ def sniff(path: Path) -> bool:
         return {"vehicle_id", "frame_id", "local_x", "local_y"} <= names or 2 * len(
             names & set(USED_COLUMNS)
         ) > len(USED_COLUMNS)
+    if _other_separator(first):
+        return True  # the reader says how the header is separated
     tokens = first.split()
     if len(tokens) != len(TXT_COLUMNS):
         return False
@@ -323,6 +325,19 @@ class _Parsed:
     direction: np.ndarray | None  # float64 [n], the CSV's Direction, or None
 
 
+_KEY_COLUMNS = ("vehicle_id", "frame_id", "local_x", "local_y")
+
+
+def _other_separator(first: str) -> str | None:
+    """``';'`` or ``tabs`` where the line ``first`` is the CSV export's header separated by them
+    (a spreadsheet saving with semicolons and decimal commas, or as tab-separated text), else None."""
+    for sep, name in ((";", "';'"), ("\t", "tabs")):
+        names = {cell.strip().strip('"').lower() for cell in first.lstrip("\ufeff").split(sep)}
+        if set(_KEY_COLUMNS) <= names:
+            return name
+    return None
+
+
 def _parse_file(path: Path, location: str | None) -> _Parsed:
     if not path.is_file():
         raise InputError(path, "no such file")
@@ -333,6 +348,14 @@ def _parse_file(path: Path, location: str | None) -> _Parsed:
     first = first_line(head).decode("utf-8", errors="replace")
     if "," in first:
         return _parse_csv(path, first, location)
+    sep = _other_separator(first)
+    if sep is not None:
+        raise InputError(
+            path,
+            f"the header is separated by {sep}",
+            line=1,
+            expected="the NGSIM CSV export's comma-separated fields with decimal points",
+        )
     return _parse_txt(path, location)
 
 
