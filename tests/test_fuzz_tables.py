@@ -227,3 +227,42 @@ def test_an_export_saved_with_semicolons_or_tabs_is_named_as_such(
         registry.read_any([path])
     assert err.value.path == str(path) and err.value.line == 1
     assert f"the header is separated by {named}" in str(err.value)
+
+
+def _edit_csv(path: Path, row: int, column: str, value: str) -> None:
+    lines = path.read_text().splitlines()
+    names = lines[0].split(",")
+    cells = lines[row].split(",")
+    cells[names.index(column)] = value
+    lines[row] = ",".join(cells)
+    path.write_text("\n".join(lines) + "\n")
+
+
+def test_a_highd_vehicle_id_0_is_refused(tmp_path: Path) -> None:
+    """Vehicle ids from 0 (a user's own export) were converted, but 0 is "no vehicle" in the
+    neighbour columns: every vehicle behind vehicle 0 lost its precedingId. Now refused at the
+    first row of vehicle 0."""
+    path = _highd(tmp_path)
+    lines = path.read_text().splitlines()
+    path.write_text(
+        "\n".join([lines[0], *(line.replace(",1,", ",0,", 1) for line in lines[1:61]), *lines[61:]])
+    )
+    _edit_csv(tmp_path / "01_tracksMeta.csv", 1, "id", "0")
+    with pytest.raises(InputError) as err:
+        highd.read([path])
+    assert err.value.path == str(path) and err.value.line == 2 and err.value.column == "id"
+    assert "id is 0" in str(err.value) and ">= 1" in (err.value.expected or "")
+
+
+@pytest.mark.parametrize("markings", ["11.00;4.00;7.50", "4.00;4.00;11.00"])
+def test_highd_lane_markings_out_of_order_are_refused(tmp_path: Path, markings: str) -> None:
+    """Lane markings out of order (or one twice) were kept as given in the recording's metadata
+    (lane_markings_y), where the lanes between them are upside down or of zero width; now
+    refused at recordingMeta's line 2, naming the column."""
+    path = _highd(tmp_path)
+    meta = tmp_path / "01_recordingMeta.csv"
+    _edit_csv(meta, 1, "upperLaneMarkings", markings)
+    with pytest.raises(InputError) as err:
+        highd.read([path])
+    assert err.value.path == str(meta) and err.value.line == 2 and err.value.column == "upperLaneMarkings"
+    assert "not in increasing order" in str(err.value)

@@ -417,6 +417,14 @@ def _markings(path: Path, text: str | None, column: str, line: int) -> list[floa
         ) from exc
     if not all(np.isfinite(values)):
         raise InputError(path, f"lane markings {text!r} are not finite", line=line, column=column)
+    if (np.diff(values) <= 0).any():  # lanes between them: none, or upside down
+        raise InputError(
+            path,
+            f"lane markings {text!r} are not in increasing order",
+            line=line,
+            column=column,
+            expected="y values increasing from the top of the image (highD numbers lanes in that order)",
+        )
     return values
 
 
@@ -544,6 +552,8 @@ def _check_ranges(path: Path, cols: dict[str, np.ndarray], source_row: np.ndarra
     frames = f"a frame from 0 to {max_frame:.4g} (frame / frameRate {frame_rate:g} Hz in ns within int64)"
     checks = (
         ("frame", (cols["frame"] < 0) | (cols["frame"] > max_frame), frames),
+        # highD numbers vehicles from 1: 0 is "no vehicle" in the neighbour columns (precedingId, …)
+        ("id", cols["id"] < 1, "a vehicle id >= 1 (0 means no vehicle in the neighbour columns)"),
         (
             "width",
             ~((cols["width"] > 0) & (cols["width"] <= MAX_SIZE_M)),
