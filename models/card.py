@@ -40,7 +40,7 @@ def resolve(model: Path | str | None) -> tuple[Path, Path]:
     if path.is_dir():
         cards = sorted(p for p in path.glob("*.json") if p.with_suffix(".safetensors").is_file())
         if len(cards) != 1:
-            found = ", ".join(p.name for p in cards) or "none"
+            found = ", ".join(p.name for p in cards) or _unpaired(path)
             raise InputError(path, f"expected one model (<stem>.safetensors + <stem>.json), found {found}")
         path = cards[0]
     if path.suffix not in (".json", ".safetensors", ".onnx"):
@@ -51,6 +51,18 @@ def resolve(model: Path | str | None) -> tuple[Path, Path]:
             hint = " (the shipped model is missing: reinstall lanecast)" if model is None else ""
             raise InputError(p, f"model file not found{hint}")
     return weights, card
+
+
+def _unpaired(directory: Path) -> str:
+    """What a model directory without a model holds: a card or weights missing their other half
+    (one file of the two copied), or nothing of a model."""
+    halves = {".json": ".safetensors", ".safetensors": ".json"}
+    alone = [
+        f"{p.name} without {p.stem}{halves[p.suffix]}"
+        for p in sorted(directory.iterdir())
+        if p.suffix in halves and p.is_file() and not p.with_suffix(halves[p.suffix]).is_file()
+    ]
+    return "; ".join(alone[:3]) if alone else "none"
 
 
 def read_card(path: Path) -> dict[str, Any]:

@@ -4,6 +4,7 @@ written by other tools are read right or refused with one error naming the file 
 
 from __future__ import annotations
 
+import shutil
 import zipfile
 from pathlib import Path
 from typing import Any
@@ -15,6 +16,7 @@ from lanecast.io_adapters import registry, streaming
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.datasets import highd, highd_stream, ngsim, ngsim_stream
 from lanecast.io_adapters.errors import InputError
+from lanecast.models import card
 
 HEADER = (
     "Vehicle_ID,Frame_ID,Total_Frames,Global_Time,Local_X,Local_Y,Global_X,Global_Y,v_length,v_Width,"
@@ -266,3 +268,17 @@ def test_highd_lane_markings_out_of_order_are_refused(tmp_path: Path, markings: 
         highd.read([path])
     assert err.value.path == str(meta) and err.value.line == 2 and err.value.column == "upperLaneMarkings"
     assert "not in increasing order" in str(err.value)
+
+
+@pytest.mark.parametrize(("kept", "missing"), [(".json", ".safetensors"), (".safetensors", ".json")])
+def test_a_model_directory_with_one_half_of_a_model_names_the_missing_file(
+    tmp_path: Path, kept: str, missing: str
+) -> None:
+    """A model directory holding the card but not the weights (or the reverse: one file copied)
+    said "found none" as if it held nothing of a model; now it names the file without its pair."""
+    stem = card.SHIPPED_STEM
+    shutil.copy(card.WEIGHTS_DIR / f"{stem}{kept}", tmp_path / f"{stem}{kept}")
+    with pytest.raises(InputError) as err:
+        card.resolve(tmp_path)
+    assert err.value.path == str(tmp_path)
+    assert f"found {stem}{kept} without {stem}{missing}" in str(err.value)
