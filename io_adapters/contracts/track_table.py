@@ -360,6 +360,46 @@ def validate(
             f"{where}row {at(row)}: time_ns does not increase along track {track[row]} "
             f"({time[row - 1]} then {time[row]})"
         )
+    _check_rate(table, meta, rec_codes, track, frame, time, where, at)
+
+
+RATE_TOLERANCE = 1.25  # a track's frames per second of time_ns over its recording's frame_rate, either way
+MIN_RATE_FRAMES = 10  # tracks spanning fewer frames say little about the rate (a log's jitter)
+
+
+def _check_rate(
+    table: pa.Table,
+    meta: TableMeta,
+    rec_codes: np.ndarray,
+    track: np.ndarray,
+    frame: np.ndarray,
+    time: np.ndarray,
+    where: str,
+    at: Any,
+) -> None:
+    """Refuse a track whose time_ns advances at another rate than its recording's frame_rate says
+    (frame_rate 50 over times of frame / 25, time_ns in microseconds): every window and forecast
+    horizon would be cut at the wrong times. Arrays [n] of the sorted, validated table."""
+    bounds = run_bounds(rec_codes, track)
+    first, last = bounds[:-1], bounds[1:] - 1
+    frames = frame[last] - frame[first]
+    judged = np.flatnonzero(frames >= MIN_RATE_FRAMES)
+    if not judged.size:
+        return
+    names = recording_codes(table)[0]
+    rate_of = np.array([meta.recordings[str(n)].frame_rate for n in names.tolist()])
+    rate = rate_of[rec_codes[first[judged]]]
+    implied = frames[judged] / ((time[last[judged]] - time[first[judged]]) / 1e9)
+    off = np.flatnonzero((implied > rate * RATE_TOLERANCE) | (implied < rate / RATE_TOLERANCE))
+    if not off.size:
+        return
+    k, row = int(off[0]), int(first[judged[off[0]]])
+    raise TrackTableError(
+        f"{where}row {at(row)}: track {track[row]} of recording {str(names[rec_codes[row]])!r} advances "
+        f"{frames[judged[k]]} frames in {(time[last[judged[k]]] - time[row]) / 1e9:.6g} s of time_ns "
+        f"({implied[k]:.4g} Hz), but the recording's frame_rate is {rate[k]:g} Hz, expected time_ns = "
+        "frame / frame_rate in ns"
+    )
 
 
 def _is_text(type_: pa.DataType) -> bool:
