@@ -10,12 +10,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
 import pytest
 
 from lanecast.io_adapters import registry, streaming
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.datasets import highd, highd_stream, ngsim, ngsim_stream
-from lanecast.io_adapters.errors import InputError
+from lanecast.io_adapters.errors import InputError, TrackTableError
 from lanecast.models import card
 
 HEADER = (
@@ -282,3 +284,43 @@ def test_a_model_directory_with_one_half_of_a_model_names_the_missing_file(
         card.resolve(tmp_path)
     assert err.value.path == str(tmp_path)
     assert f"found {stem}{kept} without {stem}{missing}" in str(err.value)
+
+
+@pytest.mark.parametrize(
+    ("rate", "time_scale", "implied"),
+    [(50.0, 1, "(25 Hz), but the recording's frame_rate is 50 Hz"), (25.0, 1000, "(2.5e+04 Hz)")],
+)
+def test_a_track_table_whose_times_disagree_with_its_frame_rate_is_refused(
+    tmp_path: Path, rate: float, time_scale: int, implied: str
+) -> None:
+    """A Parquet track table written by another tool with a recording's frame_rate 50 over times of
+    frame / 25 (or time_ns in microseconds) was read, converted and summarised; `windows` then
+    failed with "longest gap-free track is 1 frame(s)". Now refused at the track's first row."""
+    table = highd.read([_highd(tmp_path)])
+    meta = track_table.read_meta(table)
+    for rec in meta.recordings.values():
+        rec.frame_rate = rate
+    time = table.column("time_ns").to_numpy() // time_scale
+    i = table.schema.get_field_index("time_ns")
+    table = table.set_column(i, table.schema.field("time_ns"), pa.array(time)).replace_schema_metadata(
+        {track_table.META_KEY: meta.to_json().encode()}
+    )
+    path = tmp_path / "other-tool.parquet"
+    pq.write_table(table, path)
+    with pytest.raises(TrackTableError) as err:
+        registry.read_any([path])
+    message = str(err.value)
+    assert message.startswith(f"{path}: row 0: track 1 of recording 'highd-01-lower' advances 59 frames")
+    assert implied in message and "expected time_ns = frame / frame_rate" in message
+
+
+def test_a_highd_companion_that_is_a_symlink_loop_is_named_a_loop(tmp_path: Path) -> None:
+    """01_tracksMeta.csv as a link to itself was "a symbolic link to a missing file"; now "a
+    symbolic link loop" (what the user has to untangle)."""
+    path = _highd(tmp_path)
+    meta = tmp_path / "01_tracksMeta.csv"
+    meta.unlink()
+    meta.symlink_to(meta.name)
+    with pytest.raises(InputError) as err:
+        highd.read([path])
+    assert err.value.path == str(meta) and "a symbolic link loop" in str(err.value)

@@ -22,6 +22,8 @@ Size: one reader, most of it the line-exact diagnosis of bad files that the form
 from __future__ import annotations
 
 import difflib
+import errno
+import os
 import re
 import sys
 from collections.abc import Mapping, Sequence
@@ -222,6 +224,14 @@ def recordings(paths: Sequence[str | Path]) -> list[Recording]:
     return list(found.values())
 
 
+def _loops(path: Path) -> bool:
+    try:
+        os.stat(path)
+    except OSError as exc:
+        return exc.errno == errno.ELOOP
+    return False
+
+
 def not_a_file(path: Path) -> str:
     """Why ``path``, which is no regular file, cannot be read: missing (and, where a compressed copy
     lies beside it, which), a directory, or a FIFO, socket or device (which nothing may open)."""
@@ -230,7 +240,7 @@ def not_a_file(path: Path) -> str:
     if path.exists():
         return NOT_REGULAR
     if path.is_symlink():
-        return "a symbolic link to a missing file"
+        return "a symbolic link loop" if _loops(path) else "a symbolic link to a missing file"
     packed = [path.with_name(path.name + s) for s in COMPRESSED_SUFFIXES]
     found = [p.name for p in packed if p.is_file()]
     return f"no such file ({found[0]} beside it is compressed: decompress it)" if found else "no such file"
