@@ -124,7 +124,7 @@ HEADING_MIN_SPEED = 0.5  # m/s: below it the heading is 0 (direction of travel)
 _ARROW_TYPES = {"int": pa.int64(), "float": pa.float64(), "str": pa.string()}
 _EXPECTED = {"int": "an integer within int64", "float": "a number", "str": "a non-empty value"}
 _NULL_TOKENS = tuple(pacsv.ConvertOptions().null_values)
-_INT_RE = r"^\s*[-+]?\d+\s*$"
+_INT_RE = r"^\s*-?\d+\s*$"  # pyarrow reads no "+3" as int64
 _FLOAT_RE = r"^\s*[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?\s*$|^\s*[-+]?(inf|Inf|INF|infinity|Infinity)\s*$"
 
 

@@ -44,10 +44,10 @@ def split_tracks(
     (sorted by name). Raises highd.read's own InputError where the file has a problem."""
     try:
         return _split(rec, spill_dir, name_prefix, block_bytes or BLOCK_BYTES)
-    except (_NotStreamable, InputError, pa.ArrowInvalid) as exc:
-        whole = highd.read([rec.path("tracks")], recording_prefix=name_prefix)  # names the line, or sorts
-        if isinstance(exc, InputError):
-            raise  # the whole file read cleanly: the block's own message stands
+    except (_NotStreamable, InputError, pa.ArrowInvalid):
+        # names the line, or sorts; a block's error where the whole file reads cleanly came from a
+        # track cut by unsorted rows (a row of it further on), which the whole read puts in order
+        whole = highd.read([rec.path("tracks")], recording_prefix=name_prefix)
         return _spill_whole(whole, spill_dir)
 
 
