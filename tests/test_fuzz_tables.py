@@ -19,6 +19,7 @@ from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.datasets import highd, highd_stream, ngsim, ngsim_stream
 from lanecast.io_adapters.errors import InputError, TrackTableError
 from lanecast.models import card
+from lanecast.workflows.cli import main
 
 HEADER = (
     "Vehicle_ID,Frame_ID,Total_Frames,Global_Time,Local_X,Local_Y,Global_X,Global_Y,v_length,v_Width,"
@@ -352,3 +353,24 @@ def test_a_highd_integer_written_with_a_plus_sign_is_named_at_its_line(tmp_path:
         highd.read([path])
     assert err.value.path == str(path) and err.value.line == 8 and err.value.column == "precedingId"
     assert "cell '+3' is not an integer" in str(err.value)
+
+
+def test_recordings_read_in_pieces_come_in_the_whole_reads_order(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Locations 'i' and 'i-80' in one export: the whole read orders recordings by name
+    (ngsim-i-80-… first), the pieces came in location order ('i' first), so `convert` wrote the
+    same rows in another order for a file of 256 MiB and more. Now the pieces come in the whole
+    read's order and both files hold the rows in one order."""
+    rows = _rows(1, range(10, 50), 100.0, 4.0, loc="i") + _rows(2, range(10, 50), 100.0, 4.0, loc="i-80")
+    path = _export(tmp_path, rows)
+    written = []
+    for stream_bytes in (streaming.STREAM_BYTES, 0):
+        monkeypatch.setattr(streaming, "STREAM_BYTES", stream_bytes)
+        out = tmp_path / f"out-{stream_bytes}.parquet"
+        assert main(["convert", str(path), "--out", str(out)]) == 0
+        written.append(pq.read_table(out))
+    whole, pieces = written
+    assert whole.column("recording").to_pylist()[0] == "ngsim-i-80-export"
+    assert pieces.column("recording").to_pylist() == whole.column("recording").to_pylist()
+    np.testing.assert_array_equal(pieces.column("x").to_numpy(), whole.column("x").to_numpy())

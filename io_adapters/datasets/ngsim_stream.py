@@ -203,11 +203,12 @@ def _split(path: Path, spill_dir: Path, location: str | None, split_periods: boo
         for writer in writers.values():
             writer.close()
     _check_spills([recordings[key] for key in recordings if key in start])
-    return [
+    spilled = [
         SpilledRecording(**{**asdict(rec), "start": start[key]})
         for key, rec in recordings.items()
         if key in start
     ]
+    return sorted(spilled, key=lambda rec: rec.name)  # ngsim.read's order (location "us" after "us-101")
 
 
 def _spilled_columns(rec: SpilledRecording, names: list[str]) -> dict[str, np.ndarray]:
