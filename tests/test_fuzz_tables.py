@@ -374,3 +374,14 @@ def test_recordings_read_in_pieces_come_in_the_whole_reads_order(
     assert whole.column("recording").to_pylist()[0] == "ngsim-i-80-export"
     assert pieces.column("recording").to_pylist() == whole.column("recording").to_pylist()
     np.testing.assert_array_equal(pieces.column("x").to_numpy(), whole.column("x").to_numpy())
+
+
+def test_a_location_on_one_row_only_is_refused_whole_and_in_pieces(tmp_path: Path) -> None:
+    """One row's Location gone bad ('mars' amid US-101 rows) made a phantom recording
+    'ngsim-mars-export' of one row and cut a frame out of its vehicle's track; now refused at
+    its line, whole and in pieces."""
+    rows = _rows(1, range(10, 50), 100.0, 4.0) + _rows(2, range(10, 50), 300.0, 5.0)
+    rows[20] = rows[20].rsplit(",", 1)[0] + ",mars"
+    err = _same_error(_export(tmp_path, rows), tmp_path)
+    assert err.line == 22 and err.column == "Location"
+    assert "Location 'mars' on 1 row(s) only" in str(err) and "us-101" in (err.expected or "")

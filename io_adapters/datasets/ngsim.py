@@ -768,6 +768,7 @@ def _assemble(files: list[_Parsed], split_periods: bool) -> pa.Table:
     for parsed in files:
         cols = parsed.columns
         period, epochs = _periods(cols, split_periods)
+        _check_small_location(parsed)
         _check_period_continuity(parsed, period)
         _check_wrong_way(parsed, period)
         key = parsed.location_code * len(epochs) + period
@@ -842,6 +843,33 @@ def stray_pair(
     i = int(np.flatnonzero(stray)[0])
     a, b = int(order[i]), int(order[i + 1])
     return (a, b) if size[i] <= size[i + 1] else (b, a)
+
+
+def small_location(rows_per_location: np.ndarray) -> int | None:
+    """The location (index) of at most MAX_STRAY_ROWS rows in a file of several: a Location cell
+    gone bad (a phantom recording of a row or two); None if there is none."""
+    if rows_per_location.size > 1 and rows_per_location.min() <= MAX_STRAY_ROWS:
+        return int(np.argmin(rows_per_location))
+    return None
+
+
+def _check_small_location(parsed: _Parsed) -> None:
+    """Refuse a Location that only a row or two of a file with other locations have."""
+    sizes = np.bincount(parsed.location_code, minlength=len(parsed.locations))
+    small = small_location(sizes)
+    if small is None:
+        return
+    row = int(np.flatnonzero(parsed.location_code == small)[0])
+    line = int(record_lines(parsed.path.read_bytes())[0][row + 1])
+    others = [loc for i, loc in enumerate(parsed.locations) if i != small]
+    raise InputError(
+        parsed.path,
+        f"Location {parsed.locations[small]!r} on {int(sizes[small])} row(s) only would make a recording "
+        "of its own",
+        line=line,
+        column="Location",
+        expected=f"the location of the vehicle's other rows ({', '.join(others)})",
+    )
 
 
 def _has_header(parsed: _Parsed) -> bool:

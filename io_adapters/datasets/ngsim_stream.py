@@ -145,6 +145,8 @@ def _split(path: Path, spill_dir: Path, location: str | None, split_periods: boo
             )
         # as ngsim.read: the periods of the rows kept only
         epochs_of, counts_of = {location: epochs_of[location]}, {location: counts_of[location]}
+    if ngsim.small_location(np.array([int(c.sum()) for c in counts_of.values()])) is not None:
+        raise ValueError("a location of a row or two")  # ngsim.read names its line
     all_epochs = np.unique(np.concatenate(list(epochs_of.values())))
     if split_periods:
         cluster = np.concatenate([[0], np.cumsum(np.diff(all_epochs) > ngsim.PERIOD_GAP)])
