@@ -95,6 +95,12 @@ def detect(path: str | Path) -> str:
                 offset=0,
                 expected=f"{magic[0]}, which starts with {magic[1]!r}",
             )
+    if path.suffix in (".safetensors", ".onnx") or (path.is_dir() and any(path.glob("*.safetensors"))):
+        raise FormatNotRecognisedError(
+            path,
+            "a model (the output of `lanecast train`), not a dataset or log",
+            expected=f"{expected}; a model goes to --model or --init",
+        )
     if path.is_dir() and not (path / "metadata.yaml").exists():
         storage = sorted(p.name for p in path.iterdir() if p.suffix in (".db3", ".mcap") and p.is_file())
         if storage:  # the files of a ROS 2 bag without the index that says what they hold

@@ -1023,6 +1023,26 @@ def test_a_log_named_by_its_suffix_that_is_not_one_names_its_first_bytes(
     )
 
 
+def test_a_model_given_where_data_goes_is_named_as_a_model(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A model directory (or its weights) given to info, windows, evaluate or train was 'format
+    not recognised' or 'inputs.npy: missing file of a windows dataset'."""
+    model = _model_copy(tmp_path)
+    weights = next(model.glob("*.safetensors"))
+    for argv, named, words in (
+        (["info", str(model)], model, "a model (the output of `lanecast train`), not a dataset or log"),
+        (["info", str(weights)], weights, "a model (the output of `lanecast train`), not a dataset or log"),
+        (["windows", str(model), "--out", str(tmp_path / "w")], model, "not a dataset or log"),
+        (["evaluate", str(model), "--out", str(tmp_path / "e")], model, "a model directory (the output of"),
+        (["train", str(model), "--out", str(tmp_path / "t")], model, "not a windows dataset"),
+    ):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert f"error: {named}: " in err and words in err and "--model or --init" in err, err
+    assert not any((tmp_path / name).exists() for name in ("w", "e", "t"))
+
+
 # ------------------------------------------------------------------------------- wave 8: tables
 
 

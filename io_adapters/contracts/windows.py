@@ -342,6 +342,12 @@ def load_windows(directory: str | Path, mmap: bool = True, check_values: bool = 
             "not a directory" if directory.exists() else "no such windows directory",
             expected="a directory from `lanecast windows`",
         )
+    if any(directory.glob("*.safetensors")) and not (directory / "manifest.json").exists():
+        raise InputError(
+            directory,
+            "a model directory (the output of `lanecast train`), not a windows dataset",
+            expected="a directory from `lanecast windows`; a model goes to --model or --init",
+        )
     for name in DATASET_FILES:
         path = directory / name
         if path.is_file():
