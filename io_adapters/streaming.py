@@ -75,10 +75,16 @@ class Piece:
     def label(self) -> str:
         if self.spilled:
             return f"{self.paths[0]} recording {ngsim_stream.SpilledRecording.from_json(self.spilled).name}"
-        where = f" rows {self.offset}+{self.rows} of row groups {self.row_groups[0]}…{self.row_groups[-1]}"
-        if self.chunk is not None:
-            where += f" (tracks {self.chunk.targets[0]}…{self.chunk.targets[1]} of {self.chunk.recording})"
-        return ", ".join(self.paths) + (where if self.row_groups else "")
+        where = ""
+        if self.row_groups:
+            where = (
+                f" rows {self.offset}+{self.rows} of row groups {self.row_groups[0]}…{self.row_groups[-1]}"
+            )
+            if self.chunk is not None:
+                where += (
+                    f" (tracks {self.chunk.targets[0]}…{self.chunk.targets[1]} of {self.chunk.recording})"
+                )
+        return ", ".join(self.paths) + where
 
     def read(self) -> pa.Table:
         """The piece as a validated track table whose metadata names only its recordings."""

@@ -543,6 +543,7 @@ class PieceWindows:
     arrays: dict[str, np.ndarray] | None = None
     shard: str | None = None
     chunk_of: str = ""  # the recording a chunk piece is part of (its metadata is given once)
+    label: str = ""  # the piece's input, for errors (a dataset part, a file's row groups)
 
 
 class Buffers(Protocol):
@@ -616,6 +617,7 @@ def piece_shard(piece: Piece, options: WindowOptions, shard_root: str, number: i
     """A worker's task: read ``piece``, cut its windows, write their arrays as shard ``number``
     under ``shard_root`` (storage the driver names) and return the rest (small)."""
     result = piece_windows(piece.read_with_context(), options, chunk=piece.chunk)
+    result.label = piece.label
     assert result.arrays is not None
     shard = save_shard(Path(shard_root) / f"{number:06d}", result.arrays)
     result.arrays, result.shard = None, str(shard)
@@ -654,6 +656,7 @@ def write_windows(
         if ordered_map is None:
             for piece in pieces:  # gathered into the dataset files' staging memory: no copy
                 part = piece_windows(piece.read_with_context(), options, writer, piece.chunk)
+                part.label = piece.label
                 assert part.arrays is not None
                 writer.append(part.arrays)
                 part.arrays = None
@@ -680,10 +683,10 @@ def _index_and_manifest(
     """The index of all windows (splits need every piece) and the manifest builder."""
     # a recording cut in chunks gives its metadata once (another repeat is an input given twice)
     first_chunks = {p.chunk_of: id(p) for p in reversed(parts) if p.chunk_of}
+    given = [p for p in parts if not p.chunk_of or first_chunks[p.chunk_of] == id(p)]
     meta = track_table.merge_meta(
-        track_table.TableMeta.from_json(p.meta_json)
-        for p in parts
-        if not p.chunk_of or first_chunks[p.chunk_of] == id(p)
+        [track_table.TableMeta.from_json(p.meta_json) for p in given],
+        [p.label or "an input" for p in given],
     )
     max_track: dict[str, int] = {}
     for p in parts:  # chunks of one recording each saw part of its tracks

@@ -349,6 +349,28 @@ def test_a_streamed_file_shows_its_metadata_to_arrow_readers_and_survives_a_pyar
     assert main(["windows", str(tmp_path / "subset.parquet"), "--out", str(tmp_path / "w")]) == 0
 
 
+def test_a_dataset_directory_holding_a_part_twice_is_refused_naming_both_parts(
+    dataset: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """windows named the original highD CSVs of a part copied under another name, files the user
+    never gave it; convert and info named the parts."""
+    parts = tmp_path / "parts"
+    assert main(["convert", str(dataset), "--out", str(parts), "--partition"]) == 0
+    shutil.copy(parts / "part-00001.parquet", parts / "part-00009.parquet")
+    capsys.readouterr()
+    for argv in (
+        ["windows", str(parts), "--out", str(tmp_path / "w")],
+        ["convert", str(parts), "--out", str(tmp_path / "c.parquet")],
+    ):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert (
+            f"{parts / 'part-00009.parquet'}" in err and f"also in {parts / 'part-00001.parquet'}" in err
+        ), err
+        assert "occur in more than one input" in err and "_tracks.csv" not in err
+    assert not (tmp_path / "w").exists() and not (tmp_path / "c.parquet").exists()
+
+
 def test_convert_of_mixed_neighbour_columns_into_one_file_is_refused_clearly(
     dataset: Path, tmp_path: Path
 ) -> None:
