@@ -3,6 +3,9 @@ demo's --out, the --help examples in order, and errors that say what an example 
 
 from __future__ import annotations
 
+import argparse
+import errno
+import io
 import os
 import re
 import subprocess
@@ -274,3 +277,70 @@ def test_demo_in_a_directory_it_cannot_write_says_so(
         "(expected an --out in a directory you can write to)\n"
     )
     assert list(tmp_path.iterdir()) == []
+
+
+# ------------------------------------------------------------------- locales, disks, arguments
+
+
+def test_stderr_in_an_ascii_locale_spells_what_it_cannot_encode(monkeypatch: pytest.MonkeyPatch) -> None:
+    """stderr's own error handler (backslashreplace) printed an error's ellipsis as \\u2026 and a file
+    name's undecodable bytes as \\udce9 in a C locale; now they are spelled, and the bytes kept."""
+    stream = io.TextIOWrapper(io.BytesIO(), encoding="ascii", errors="backslashreplace")
+    monkeypatch.setattr(sys, "stderr", stream)
+    cli.printable_everywhere()
+    print("times 2.9 … 9.9 s in caf\udce9.mcap", file=sys.stderr)
+    stream.flush()
+    assert stream.buffer.getvalue() == b"times 2.9 ... 9.9 s in caf\xe9.mcap\n"  # type: ignore[attr-defined]
+
+
+def test_a_non_ascii_folder_in_an_ascii_locale_is_one_error(tmp_path: Path) -> None:
+    """In a C locale without UTF-8 mode, an output in a folder named 'été' ended in pyarrow's
+    traceback ('UnicodeEncodeError: … surrogates not allowed'); now one line names the folder."""
+    table = make_track_table(
+        {"track_id": [1, 1], "frame": [0, 1], "x": [0.0, 3.0], "y": [0.0, 0.0], "lane_id": [1, 1]}
+    )
+    track_table.write_parquet(table, tmp_path / "t.parquet")
+    (tmp_path / "été").mkdir()
+    env = {"LC_ALL": "C", "LANG": "C", "PYTHONUTF8": "0", "PYTHONCOERCECLOCALE": "0", "PYTHONIOENCODING": ""}
+    done = subprocess.run(
+        [sys.executable, "-m", "lanecast", "convert", "t.parquet", "--out", "été/t.parquet"],
+        env={**os.environ, "PYTHONPATH": str(REPO), **env},
+        cwd=tmp_path,
+        capture_output=True,
+        timeout=120,
+    )
+    assert done.returncode == 2, done.stderr
+    folder = str(tmp_path / "été").encode()
+    assert done.stderr == (
+        b"lanecast convert: error: " + folder + b": a name not in this locale's encoding (ascii), which "
+        b"pyarrow needs (expected a UTF-8 locale: run with LC_ALL=C.UTF-8 or PYTHONUTF8=1)\n"
+    )
+    assert list((tmp_path / "été").iterdir()) == []
+
+
+def test_a_full_disk_names_the_output(tmp_path: Path) -> None:
+    """A write onto a full disk raises OSError 28 without a file name: `lanecast demo --out` on a
+    full disk said 'error: No space left on device' (convert: pyarrow's 'Error writing bytes to
+    file. Detail: [errno 28] …'), naming no path; now it names --out."""
+    # as pyarrow raises it, and as a flush of Python's own file does (never written here: pyarrow
+    # deletes the file a failed write was to, /dev/full too)
+    arrow = OSError(errno.ENOSPC, "Error writing bytes to file. Detail: [errno 28] No space left on device")
+    flush = OSError(errno.ENOSPC, "No space left on device")
+    args = argparse.Namespace(out=Path("lanecast-demo"))
+    for error in (arrow, flush):
+        assert cli.environment_error(error, args) == (
+            "lanecast-demo: No space left on device (expected free space for --out, or another --out)"
+        )
+    assert cli.environment_error(arrow, argparse.Namespace()) == "No space left on device"
+    missing = OSError(errno.ENOENT, "No such file or directory", str(tmp_path / "gone"))
+    assert cli.environment_error(missing, args) == f"{tmp_path / 'gone'}: No such file or directory"
+
+
+def test_an_unknown_option_is_refused_with_the_commands_usage(capsys: pytest.CaptureFixture[str]) -> None:
+    """`lanecast demo --bogus` showed lanecast's top-level usage and 'lanecast: error:'."""
+    with pytest.raises(SystemExit) as done:
+        cli.main(["demo", "--bogus", "1"])
+    assert done.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith("usage: lanecast demo [-h] [--out OUT]")
+    assert err.endswith("\nlanecast demo: error: unrecognized arguments: --bogus 1\n")

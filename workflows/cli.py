@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import codecs
+import errno
 import importlib
 import io
 import os
@@ -46,13 +47,18 @@ ASCII_SPELLING = {
 }  # fmt: skip
 
 
+def escaped_byte(char: str) -> bool:
+    """A byte of a file name that the locale's encoding could not decode (Python's surrogate escape)."""
+    return "\udc80" <= char <= "\udcff"
+
+
 def _spell_in_ascii(error: UnicodeError) -> tuple[str | bytes, int]:
     """Codec error handler: the characters a stream cannot encode, spelled with ASCII_SPELLING; the
     undecodable bytes of a file name (surrogate escapes) written back as the bytes they were."""
     if not isinstance(error, UnicodeEncodeError):
         raise error
     bad = error.object[error.start : error.end]
-    if all("\udc80" <= c <= "\udcff" for c in bad):
+    if all(map(escaped_byte, bad)):
         return bytes(ord(c) - 0xDC00 for c in bad), error.end
     return "".join(ASCII_SPELLING.get(c, "?") for c in bad), error.end
 
@@ -64,9 +70,14 @@ def printable_everywhere() -> None:
     """stdout and stderr never fail on a character their encoding lacks: ``lanecast demo --help``
     on a terminal that is not UTF-8 printed a traceback at its first arrow."""
     for stream in (sys.stdout, sys.stderr):
-        # a C locale gives "surrogateescape", which still fails on an en dash; the handler keeps
-        # surrogate-escaped file-name bytes as they were
-        if isinstance(stream, io.TextIOWrapper) and stream.errors in ("strict", "surrogateescape"):
+        # a C locale gives "surrogateescape", which still fails on an en dash, and stderr's
+        # "backslashreplace" printed an error's en dash as \u2013 and a file name's bytes as \udcc3;
+        # the handler keeps surrogate-escaped file-name bytes as they were
+        if isinstance(stream, io.TextIOWrapper) and stream.errors in (
+            "strict",
+            "surrogateescape",
+            "backslashreplace",
+        ):
             stream.reconfigure(errors="lanecast-ascii")
 
 
@@ -100,6 +111,55 @@ def _stdout_closed() -> int:
     return 141  # 128 + SIGPIPE, what a shell reports for a tool killed by the closed pipe
 
 
+def subcommand(parser: argparse.ArgumentParser, name: str) -> argparse.ArgumentParser:
+    """The parser of command ``name``."""
+    command = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    return command.choices[name]
+
+
+def parse(parser: argparse.ArgumentParser, argv: Sequence[str] | None) -> argparse.Namespace:
+    """The arguments; one the command does not take is refused with the command's own usage and name
+    (``lanecast demo --bogus`` showed the top-level usage and 'lanecast: error:', as if the
+    command were wrong)."""
+    args, extra = parser.parse_known_args(argv)
+    if extra:
+        subcommand(parser, args.command).error(f"unrecognized arguments: {' '.join(extra)}")
+    return args
+
+
+#: what an OSError without a file name means about the output: the disk it is written to
+OUTPUT_ERRNOS = {errno.ENOSPC: "free space", errno.EDQUOT: "disk quota", errno.EFBIG: "a smaller file"}
+
+
+def environment_error(exc: OSError, args: argparse.Namespace) -> str:
+    """An OSError as one line naming the path. A write that fails for lack of space comes from a
+    library (pyarrow, a file's flush) without a file name, and pyarrow's text is its own ('Error
+    writing bytes to file. Detail: [errno 28] …'): the output is --out, the reason the errno's."""
+    reason = os.strerror(exc.errno) if exc.errno else (exc.strerror or str(exc))
+    if exc.filename:
+        return f"{exc.filename}: {reason}"
+    out = getattr(args, "out", None)
+    if exc.errno in OUTPUT_ERRNOS and out is not None:
+        return f"{out}: {reason} (expected {OUTPUT_ERRNOS[exc.errno]} for --out, or another --out)"
+    return reason
+
+
+def unencodable_path(exc: UnicodeEncodeError) -> str | None:
+    """A path holding bytes this locale cannot decode (surrogate escapes: a non-ASCII file or folder
+    name in a C locale without UTF-8 mode) cannot be handed to pyarrow, which takes UTF-8 text only:
+    one line naming the path and the way out, not a traceback. None for any other encode error."""
+    if not any(map(escaped_byte, exc.object[exc.start : exc.end])):
+        return None
+    path = Path(exc.object)  # named up to the first name with such bytes, not a temporary file in it
+    named = next((p for p in reversed((path, *path.parents)) if any(map(escaped_byte, p.name))), path)
+    encoding = sys.getfilesystemencoding()
+    if codecs.lookup(encoding).name == "utf-8":  # the name's bytes are not UTF-8: only renaming helps
+        expected = "a file or folder name in UTF-8: rename it"
+    else:
+        expected = "a UTF-8 locale: run with LC_ALL=C.UTF-8 or PYTHONUTF8=1"
+    return f"{named}: a name not in this locale's encoding ({encoding}), which pyarrow needs (expected {expected})"
+
+
 def what_is_needed(exc: LanecastError, parser: argparse.ArgumentParser, args: argparse.Namespace) -> str:
     """For an input named on the command line that does not exist (a --help example run before the
     one that makes its input, or one on a dataset not at hand): which argument it is and what that
@@ -110,8 +170,7 @@ def what_is_needed(exc: LanecastError, parser: argparse.ArgumentParser, args: ar
         or exc.reason != "no such file or directory"
     ):
         return ""
-    command = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
-    for action in command.choices[args.command]._actions:
+    for action in subcommand(parser, args.command)._actions:
         given = getattr(args, action.dest, None)
         values = given if isinstance(given, list) else [given]
         if not action.option_strings and action.help and exc.path in {str(Path(v)) for v in values if v}:
@@ -141,7 +200,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not (sys.argv[1:] if argv is None else argv):  # `lanecast` alone: what it can do, not a usage error
         parser.print_help()
         return 0
-    args = parser.parse_args(argv)
+    args = parse(parser, argv)
     try:
         previous = signal.signal(signal.SIGTERM, _on_sigterm(os.getpid()))
     except ValueError:  # not the main thread: no handler of ours
@@ -155,8 +214,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"lanecast {args.command}: error: {exc}{what_is_needed(exc, parser, args)}", file=sys.stderr)
         return 2
     except OSError as exc:  # the environment, not a bug: a full disk, a vanished or unwritable path
-        where = f"{exc.filename}: " if exc.filename else ""
-        print(f"lanecast {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        print(f"lanecast {args.command}: error: {environment_error(exc, args)}", file=sys.stderr)
+        return 2
+    except UnicodeEncodeError as exc:
+        message = unencodable_path(exc)
+        if message is None:
+            raise
+        print(f"lanecast {args.command}: error: {message}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as exc:
         terminated = isinstance(exc, Terminated)
