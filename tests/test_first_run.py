@@ -329,11 +329,37 @@ def test_a_full_disk_names_the_output(tmp_path: Path) -> None:
     args = argparse.Namespace(out=Path("lanecast-demo"))
     for error in (arrow, flush):
         assert cli.environment_error(error, args) == (
-            "lanecast-demo: No space left on device (expected free space for --out, or another --out)"
+            "lanecast-demo: No space left on device (expected free space on its disk for --out, or another --out)"
         )
     assert cli.environment_error(arrow, argparse.Namespace()) == "No space left on device"
     missing = OSError(errno.ENOENT, "No such file or directory", str(tmp_path / "gone"))
     assert cli.environment_error(missing, args) == f"{tmp_path / 'gone'}: No such file or directory"
+
+
+def test_a_file_size_limit_names_the_output(tmp_path: Path) -> None:
+    """A write the system refuses (here: `ulimit -f`, EFBIG; a full disk alike) named no path."""
+    import resource
+
+    table = make_track_table(
+        {"track_id": np.ones(500, int), "frame": np.arange(500), "x": np.arange(500.0),
+         "y": np.zeros(500), "lane_id": np.ones(500, int)}
+    )  # fmt: skip
+    track_table.write_parquet(table, tmp_path / "t.parquet")
+    done = subprocess.run(
+        [sys.executable, "-m", "lanecast", "convert", "t.parquet", "--out", "big.parquet"],
+        env={**os.environ, "PYTHONPATH": str(REPO), "PYTHONDONTWRITEBYTECODE": "1"},
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        preexec_fn=lambda: resource.setrlimit(resource.RLIMIT_FSIZE, (4096, resource.RLIM_INFINITY)),
+    )
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.splitlines()[-1] == (
+        "lanecast convert: error: big.parquet: File too large "
+        "(expected a file size the system allows (ulimit -f) for --out, or another --out)"
+    )
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["t.parquet"]
 
 
 def test_an_unknown_option_is_refused_with_the_commands_usage(capsys: pytest.CaptureFixture[str]) -> None:

@@ -128,7 +128,11 @@ def parse(parser: argparse.ArgumentParser, argv: Sequence[str] | None) -> argpar
 
 
 #: what an OSError without a file name means about the output: the disk it is written to
-OUTPUT_ERRNOS = {errno.ENOSPC: "free space", errno.EDQUOT: "disk quota", errno.EFBIG: "a smaller file"}
+OUTPUT_ERRNOS = {
+    errno.ENOSPC: "free space on its disk",
+    errno.EDQUOT: "room in your disk quota",
+    errno.EFBIG: "a file size the system allows (ulimit -f)",
+}
 
 
 def environment_error(exc: OSError, args: argparse.Namespace) -> str:
