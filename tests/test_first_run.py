@@ -293,9 +293,11 @@ def test_stderr_in_an_ascii_locale_spells_what_it_cannot_encode(monkeypatch: pyt
     assert stream.buffer.getvalue() == b"times 2.9 ... 9.9 s in caf\xe9.mcap\n"  # type: ignore[attr-defined]
 
 
-def test_a_non_ascii_folder_in_an_ascii_locale_is_one_error(tmp_path: Path) -> None:
-    """In a C locale without UTF-8 mode, an output in a folder named 'été' ended in pyarrow's
-    traceback ('UnicodeEncodeError: … surrogates not allowed'); now one line names the folder."""
+def test_a_non_ascii_name_in_an_ascii_locale_is_refused_up_front(tmp_path: Path) -> None:
+    """In a C locale without UTF-8 mode, the demo in a folder named 'été' simulated, then ended in
+    pyarrow's traceback ('UnicodeEncodeError: … surrogates not allowed'; in ISO-8859-1, 'No such
+    file or directory' for a folder that exists): pyarrow takes names in UTF-8 only. Now one line,
+    before any work, names the path."""
     table = make_track_table(
         {"track_id": [1, 1], "frame": [0, 1], "x": [0.0, 3.0], "y": [0.0, 0.0], "lane_id": [1, 1]}
     )
@@ -310,12 +312,28 @@ def test_a_non_ascii_folder_in_an_ascii_locale_is_one_error(tmp_path: Path) -> N
         timeout=120,
     )
     assert done.returncode == 2, done.stderr
-    folder = str(tmp_path / "été").encode()
-    assert done.stderr == (
-        b"lanecast convert: error: " + folder + b": a name not in this locale's encoding (ascii), which "
-        b"pyarrow needs (expected a UTF-8 locale: run with LC_ALL=C.UTF-8 or PYTHONUTF8=1)\n"
+    expected = (
+        "lanecast convert: error: été/t.parquet: a name beyond ASCII, which this locale encodes in "
+        "ascii but pyarrow in UTF-8 (expected a UTF-8 locale: run with LC_ALL=C.UTF-8 or PYTHONUTF8=1)\n"
     )
+    assert done.stderr == expected.encode()
     assert list((tmp_path / "été").iterdir()) == []
+
+
+def test_a_name_pyarrow_cannot_encode_is_named(tmp_path: Path) -> None:
+    """A file name whose bytes are not UTF-8 (in a UTF-8 locale, a surrogate escape) ended in
+    pyarrow's UnicodeEncodeError traceback; the error names its folder and says to rename it."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    folder = tmp_path / "caf\udce9"
+    with pytest.raises(UnicodeEncodeError) as refused:
+        pq.write_table(pa.table({"x": [1.0]}), str(folder / "t.parquet"))
+    assert cli.unencodable_path(refused.value) == (
+        f"{folder}: a name not in this locale's encoding (utf-8), which pyarrow needs "
+        "(expected a file or folder name in UTF-8: rename it)"
+    )
+    assert not folder.exists()
 
 
 def test_a_full_disk_names_the_output(tmp_path: Path) -> None:
@@ -331,7 +349,7 @@ def test_a_full_disk_names_the_output(tmp_path: Path) -> None:
         assert cli.environment_error(error, args) == (
             "lanecast-demo: No space left on device (expected free space on its disk for --out, or another --out)"
         )
-    assert cli.environment_error(arrow, argparse.Namespace()) == "No space left on device"
+    assert cli.environment_error(arrow, argparse.Namespace()) == arrow.strerror  # no --out: as raised
     missing = OSError(errno.ENOENT, "No such file or directory", str(tmp_path / "gone"))
     assert cli.environment_error(missing, args) == f"{tmp_path / 'gone'}: No such file or directory"
 

@@ -139,13 +139,43 @@ def environment_error(exc: OSError, args: argparse.Namespace) -> str:
     """An OSError as one line naming the path. A write that fails for lack of space comes from a
     library (pyarrow, a file's flush) without a file name, and pyarrow's text is its own ('Error
     writing bytes to file. Detail: [errno 28] …'): the output is --out, the reason the errno's."""
-    reason = os.strerror(exc.errno) if exc.errno else (exc.strerror or str(exc))
     if exc.filename:
-        return f"{exc.filename}: {reason}"
+        return f"{exc.filename}: {exc.strerror or exc}"
     out = getattr(args, "out", None)
     if exc.errno in OUTPUT_ERRNOS and out is not None:
+        reason = os.strerror(exc.errno)
         return f"{out}: {reason} (expected {OUTPUT_ERRNOS[exc.errno]} for --out, or another --out)"
-    return reason
+    return exc.strerror or str(exc)  # pyarrow's text names the file ('Failed to open local file …')
+
+
+def utf8_expected() -> str:
+    """How to make file names reach pyarrow as they are on disk."""
+    if codecs.lookup(sys.getfilesystemencoding()).name == "utf-8":  # the name's bytes are not UTF-8
+        return "a file or folder name in UTF-8: rename it"
+    return "a UTF-8 locale: run with LC_ALL=C.UTF-8 or PYTHONUTF8=1"
+
+
+def non_utf8_names(args: argparse.Namespace) -> str | None:
+    """pyarrow opens files by their names in UTF-8. In a locale whose file-name encoding is another
+    (C without UTF-8 mode: ASCII; ISO-8859-1), a non-ASCII name in a path given or in the working
+    directory reached it as other bytes: a traceback after the demo's simulation (ASCII), or 'No such
+    file or directory' for a folder that exists (Latin-1). Refused up front, naming the path."""
+    encoding = sys.getfilesystemencoding()
+    if codecs.lookup(encoding).name == "utf-8":
+        return None
+    given = [v for value in vars(args).values() for v in (value if isinstance(value, list) else [value])]
+    paths = [Path(v) for v in given if isinstance(v, Path) or (isinstance(v, str) and os.path.lexists(v))]
+    try:
+        paths.append(Path.cwd())
+    except OSError:  # a working directory removed since: every command says so itself
+        pass
+    named = next((path for path in paths if not str(path).isascii()), None)
+    if named is None:
+        return None
+    return (
+        f"{named}: a name beyond ASCII, which this locale encodes in {encoding} but pyarrow in UTF-8 "
+        f"(expected {utf8_expected()})"
+    )
 
 
 def unencodable_path(exc: UnicodeEncodeError) -> str | None:
@@ -157,11 +187,7 @@ def unencodable_path(exc: UnicodeEncodeError) -> str | None:
     path = Path(exc.object)  # named up to the first name with such bytes, not a temporary file in it
     named = next((p for p in reversed((path, *path.parents)) if any(map(escaped_byte, p.name))), path)
     encoding = sys.getfilesystemencoding()
-    if codecs.lookup(encoding).name == "utf-8":  # the name's bytes are not UTF-8: only renaming helps
-        expected = "a file or folder name in UTF-8: rename it"
-    else:
-        expected = "a UTF-8 locale: run with LC_ALL=C.UTF-8 or PYTHONUTF8=1"
-    return f"{named}: a name not in this locale's encoding ({encoding}), which pyarrow needs (expected {expected})"
+    return f"{named}: a name not in this locale's encoding ({encoding}), which pyarrow needs (expected {utf8_expected()})"
 
 
 def what_is_needed(exc: LanecastError, parser: argparse.ArgumentParser, args: argparse.Namespace) -> str:
@@ -205,6 +231,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 0
     args = parse(parser, argv)
+    if (refused := non_utf8_names(args)) is not None:
+        print(f"lanecast {args.command}: error: {refused}", file=sys.stderr)
+        return 2
     try:
         previous = signal.signal(signal.SIGTERM, _on_sigterm(os.getpid()))
     except ValueError:  # not the main thread: no handler of ours
