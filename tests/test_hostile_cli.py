@@ -1085,3 +1085,27 @@ def test_a_manifest_that_is_a_directory_is_named(tmp_path: Path, capsys: pytest.
         capsys,
         f"{out / 'manifest.jsonl'}: not a regular file",
     )
+
+
+def test_convert_never_replaces_a_file_of_another_kind(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`convert … --out notes` replaced a text file of the user's with Parquet bytes (exit 0); an
+    earlier run's output of the same format is still replaced, as a rerun expects."""
+    for name, notes in (("notes", b"my notes\n"), ("log.mcap", b"not a log"), ("old.bag", b"{}")):
+        out = tmp_path / name
+        out.write_bytes(notes)
+        to = ["--to", "ros1"] if name.endswith(".bag") else []
+        refused(
+            ["convert", str(HIGHD), "--out", str(out), *to],
+            capsys,
+            str(out),
+            "exists and is not",
+            "not replaced",
+        )
+        assert out.read_bytes() == notes
+    table = tmp_path / "sim.parquet"
+    for _ in range(2):  # the second run replaces the first one's Parquet
+        status, line = run(["convert", str(HIGHD), "--out", str(table)], capsys)
+        assert status == 0, line
+    assert pq.read_metadata(table).num_rows > 0

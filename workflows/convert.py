@@ -9,7 +9,7 @@ from pathlib import Path
 
 from lanecast.io_adapters import registry, streaming
 from lanecast.io_adapters.contracts import track_table
-from lanecast.io_adapters.errors import InputError, UsageError
+from lanecast.io_adapters.errors import InputError, OutputError, UsageError
 from lanecast.io_adapters.files import check_output, check_output_dir
 from lanecast.io_adapters.logs.log_conventions import BAG_FILES
 from lanecast.io_adapters.logs.rosbag_writer import STORAGES
@@ -18,6 +18,7 @@ from lanecast.workflows.vocabulary import HelpFormatter, add_location_option
 
 _SUFFIX_TO_FORMAT = {".parquet": "parquet", ".pq": "parquet", ".mcap": "mcap", ".bag": "ros1"}
 _FORMAT_SUFFIXES = {"parquet": (".parquet", ".pq"), "mcap": (".mcap",), "ros1": (".bag",)}
+_FORMAT_MAGIC = {fmt: registry.SUFFIX_MAGIC[suffixes[0]] for fmt, suffixes in _FORMAT_SUFFIXES.items()}
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -103,6 +104,23 @@ def output_format(out: Path, to: str | None) -> str:
     return fmt
 
 
+def check_replaceable(out: Path, fmt: str) -> None:
+    """An existing file at ``out`` is replaced only if it is a ``fmt`` file (an earlier run's
+    output) or empty: a file of the user's in another format under that name is refused, never
+    overwritten (``--out notes`` replaced a text file with Parquet bytes)."""
+    if not out.is_file():
+        return
+    kind, magic = _FORMAT_MAGIC[fmt]
+    with out.open("rb") as fh:
+        head = fh.read(len(magic))
+    if head and head != magic:
+        raise OutputError(
+            out,
+            f"exists and is not {kind}, so it is not replaced",
+            expected="a new --out path, or remove the file first",
+        )
+
+
 def run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     options: dict[str, object] = {}
@@ -118,6 +136,7 @@ def run(args: argparse.Namespace) -> int:
         check_output_dir(args.out, replaces=BAG_FILES if fmt == "ros2" else streaming.PARTS)
     else:
         check_output(args.out)
+        check_replaceable(args.out, fmt)
     if os.path.realpath(args.out) in {os.path.realpath(p) for p in args.inputs}:
         raise InputError(args.out, "the output would overwrite an input", expected="a new output path")
     engines.check(args.workers, args.engine)
