@@ -388,3 +388,30 @@ def test_an_unknown_option_is_refused_with_the_commands_usage(capsys: pytest.Cap
     err = capsys.readouterr().err
     assert err.startswith("usage: lanecast demo [-h] [--out OUT]")
     assert err.endswith("\nlanecast demo: error: unrecognized arguments: --bogus 1\n")
+
+
+def test_a_file_size_limit_in_a_bulk_annotate_names_the_output(tmp_path: Path) -> None:
+    """annotate on a full disk said 'OSError: [Errno 28] No space left on device', naming no path."""
+    import resource
+
+    table = make_track_table(
+        {"track_id": np.ones(500, int), "frame": np.arange(500), "x": np.arange(500.0),
+         "y": np.zeros(500), "lane_id": np.ones(500, int)}
+    )  # fmt: skip
+    track_table.write_parquet(table, tmp_path / "t.parquet")
+    assert cli.main(["convert", str(tmp_path / "t.parquet"), "--out", str(tmp_path / "log.mcap")]) == 0
+    done = subprocess.run(
+        [sys.executable, "-m", "lanecast", "annotate", "log.mcap", "--out", "out"],
+        env={**os.environ, "PYTHONPATH": str(REPO), "PYTHONDONTWRITEBYTECODE": "1"},
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        preexec_fn=lambda: resource.setrlimit(resource.RLIMIT_FSIZE, (4096, resource.RLIM_INFINITY)),
+    )
+    assert done.returncode == 2, done.stderr
+    named = f"{tmp_path / 'out' / 'log.mcap'}: File too large"
+    assert done.stderr.splitlines()[-1] == f"lanecast annotate: error: {named}"
+    assert f"FAILED {tmp_path / 'log.mcap'}: {named}" in done.stdout
+    assert "Traceback" not in done.stderr + done.stdout and "OSError" not in done.stderr + done.stdout
+    assert not (tmp_path / "out" / "log.mcap").exists()

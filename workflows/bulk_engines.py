@@ -62,6 +62,9 @@ def annotate_task(task: Task, options: AnnotateOptions, catch_all: bool = True) 
         entry.update(status="done", counts=counts, error=None)
     except LanecastError as exc:
         entry.update(status="failed", counts=None, error=str(exc))
+    except OSError as exc:  # the environment, not a bug: a full disk or a file-size limit names the output
+        reason = os.strerror(exc.errno) if exc.errno else str(exc)
+        entry.update(status="failed", counts=None, error=f"{exc.filename or task.output}: {reason}")
     except Exception as exc:
         if not catch_all:
             raise
