@@ -30,7 +30,7 @@ from rosbags.rosbag1 import Reader as Reader1
 from rosbags.rosbag2 import Reader as Reader2
 
 from lanecast.io_adapters import registry
-from lanecast.io_adapters.annotations import bag_copy, mcap_copy
+from lanecast.io_adapters.annotations import bag_copy, mcap_copy, mcap_salvage_copy
 from lanecast.io_adapters.annotations import forecast_messages as fm
 from lanecast.io_adapters.contracts.track_table import read_meta
 from lanecast.io_adapters.errors import InputError, LogError
@@ -333,7 +333,7 @@ def annotate_log(
     else:
         with atomic_path(out) as tmp, open(tmp, "wb") as f:
             if kind == "mcap" and options.salvage:
-                stats = mcap_copy.copy_mcap_salvaged(src, f, merge=merge(), info=info, digest=digest)
+                stats = mcap_salvage_copy.copy_mcap_salvaged(src, f, merge=merge(), info=info, digest=digest)
             elif kind == "mcap":
                 stats = mcap_copy.copy_mcap(src, f, merge=merge(), info=info, digest=digest)
             else:
