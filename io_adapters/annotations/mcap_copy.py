@@ -30,9 +30,11 @@ from mcap.writer import CompressionType, IndexType, Writer
 
 from lanecast.io_adapters.annotations.forecast_messages import ChannelSpec
 from lanecast.io_adapters.errors import LogError
-from lanecast.io_adapters.logs.mcap_walk import (
+from lanecast.io_adapters.logs.mcap_records import (
     OP_MESSAGE,
     REC_HEAD,
+)
+from lanecast.io_adapters.logs.mcap_walk import (
     ReadStats,
     walk,
 )

@@ -33,17 +33,19 @@ from lanecast.io_adapters.annotations.mcap_copy import (
     zstd_writer,
 )
 from lanecast.io_adapters.errors import LogError
-from lanecast.io_adapters.logs.mcap_walk import (
+from lanecast.io_adapters.logs.mcap_records import (
     MSG_HEAD,
     OP_CHANNEL,
     OP_MESSAGE,
     OP_SCHEMA,
     REC_HEAD,
-    LogDamage,
-    ReadStats,
     read_schema,
     read_string,
     read_string_map,
+)
+from lanecast.io_adapters.logs.mcap_walk import (
+    LogDamage,
+    ReadStats,
     walk,
 )
 

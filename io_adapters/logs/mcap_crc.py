@@ -15,16 +15,18 @@ from pathlib import Path
 from typing import Any
 
 from lanecast.io_adapters.errors import LogError
-from lanecast.io_adapters.logs.mcap_walk import (
+from lanecast.io_adapters.logs.mcap_records import (
     MAGIC,
     OP_CHUNK,
     OP_DATA_END,
     OP_FOOTER,
     OP_MESSAGE,
     REC_HEAD,
-    ReadStats,
     chunk_payload,
     crc32_of,
+)
+from lanecast.io_adapters.logs.mcap_walk import (
+    ReadStats,
     walk,
 )
 

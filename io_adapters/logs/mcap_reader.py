@@ -31,7 +31,8 @@ from lanecast.io_adapters.logs import frame_transforms, log_assembly, ros_types
 from lanecast.io_adapters.logs import log_conventions as conv
 from lanecast.io_adapters.logs import scene_update_wire as wire
 from lanecast.io_adapters.logs import tracked_objects as to
-from lanecast.io_adapters.logs.mcap_walk import (
+from lanecast.io_adapters.logs.mcap_index import verified_offsets
+from lanecast.io_adapters.logs.mcap_records import (
     LEN,
     MAGIC,
     MSG_HEAD,
@@ -40,16 +41,17 @@ from lanecast.io_adapters.logs.mcap_walk import (
     OP_SCHEMA,
     REC_HEAD,
     ChannelRecord,
-    LogDamage,
-    ReadStats,
     SchemaRecord,
     read_channel,
     read_ints,
     read_schema,
     read_string,
     read_string_map,
+)
+from lanecast.io_adapters.logs.mcap_walk import (
+    LogDamage,
+    ReadStats,
     redefined,
-    verified_offsets,
     walk,
 )
 

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from lanecast.io_adapters.errors import LogError
-from lanecast.io_adapters.logs.mcap_walk import (
+from lanecast.io_adapters.logs.mcap_records import (
     MAGIC,
     OP_CHANNEL,
     OP_DATA_END,
