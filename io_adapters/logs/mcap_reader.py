@@ -51,6 +51,7 @@ from lanecast.io_adapters.logs.mcap_records import (
 from lanecast.io_adapters.logs.mcap_walk import (
     LogDamage,
     ReadStats,
+    check_chunk_definitions,
     redefined,
     walk,
 )
@@ -270,7 +271,7 @@ class _LogDecoder:
             count = self._batched_chunk(buf, end, hint)
             if count is not None:
                 return count
-            self._check_chunk(buf, end)
+            check_chunk_definitions(buf, end, self.schemas, self.channels, self.offset)
         pos = start
         count = 0
         unpack_head, unpack_msg = REC_HEAD.unpack_from, MSG_HEAD.unpack_from
@@ -322,55 +323,6 @@ class _LogDecoder:
                 except (ValueError, IndexError) as exc:
                     raise self._undecodable(exc) from exc
         return count
-
-    def _check_chunk(self, buf: Any, end: int) -> None:
-        """Check the records of a chunk buf[:end] before any is decoded: with salvage a damaged chunk
-        is skipped whole, so none of its messages may reach the table before the damage is found.
-
-        ValueError for a record that does not fit; LogDamage for a message on a channel (or a
-        channel of a schema) defined neither before nor earlier in the chunk, or a Schema/Channel
-        record giving a known id other content.
-        """
-        schemas: dict[int, SchemaRecord] = dict(self.schemas)
-        channels: dict[int, ChannelRecord] = dict(self.channels)
-        pos = 0
-        while pos < end:
-            if pos + 9 > end:
-                raise ValueError(f"record header at {pos} runs past the end")
-            op, length = REC_HEAD.unpack_from(buf, pos)
-            body, nxt = pos + 9, pos + 9 + length
-            if nxt > end:
-                raise ValueError(f"record at {pos} declares {length} bytes, only {end - body} left")
-            if op == OP_MESSAGE:
-                if length < MSG_HEAD.size:
-                    raise ValueError(f"a Message record of {length} bytes, shorter than its header")
-                (cid,) = struct.unpack_from("<H", buf, body)
-                ch = channels.get(cid)
-                if ch is None:
-                    raise LogDamage(
-                        self.offset,
-                        f"message at byte {pos} of the chunk on channel {cid}, which was never defined",
-                        "a Channel record first",
-                        True,
-                    )
-                if ch.schema_id and ch.schema_id not in schemas:
-                    raise LogDamage(
-                        self.offset,
-                        f"topic {ch.topic!r} refers to schema {ch.schema_id}, which the file does not define",
-                        "a Schema record for every channel",
-                        True,
-                    )
-            elif op == OP_SCHEMA:
-                sid, schema = read_schema(buf, body, nxt)
-                if sid in schemas and schemas[sid] != schema:
-                    raise redefined(self.offset, "schema", sid, schemas[sid], schema)
-                schemas[sid] = schema
-            elif op == OP_CHANNEL:
-                cid, channel = read_channel(buf, body, nxt)
-                if cid in channels and channels[cid] != channel:
-                    raise redefined(self.offset, "channel", cid, channels[cid], channel)
-                channels[cid] = channel
-            pos = nxt
 
     def _batched_chunk(self, buf: Any, end: int, hint: np.ndarray | None) -> int | None:
         """The message count of a chunk buf[:end] holding only Message records on channels decoded

@@ -39,6 +39,7 @@ from lanecast.io_adapters.logs.mcap_records import (
     FIXED_SIZE,
     MAGIC,
     MAX_OP,
+    MSG_HEAD,
     OP_ATTACHMENT,
     OP_CHANNEL,
     OP_CHUNK,
@@ -52,9 +53,13 @@ from lanecast.io_adapters.logs.mcap_records import (
     OP_STATISTICS,
     OP_SUMMARY_OFFSET,
     REC_HEAD,
+    ChannelRecord,
+    SchemaRecord,
     check_attachment,
     chunk_payload,
     crc32_of,
+    read_channel,
+    read_schema,
 )
 
 
@@ -105,6 +110,58 @@ def redefined(offset: int, kind: str, ident: int, before: object, now: object) -
         f"one {kind} per id (a repeated {kind.capitalize()} record the same as the first)",
         False,
     )
+
+
+def check_chunk_definitions(
+    buf: Any, end: int, schemas: dict[int, SchemaRecord], channels: dict[int, ChannelRecord], offset: int
+) -> None:
+    """Check the records of a chunk buf[:end] (at file ``offset``), given the ``schemas`` and
+    ``channels`` defined before it, before any is decoded: with salvage a damaged chunk
+    is skipped whole, so none of its messages may reach the table before the damage is found.
+
+    ValueError for a record that does not fit; LogDamage for a message on a channel (or a
+    channel of a schema) defined neither before nor earlier in the chunk, or a Schema/Channel
+    record giving a known id other content.
+    """
+    schemas, channels = dict(schemas), dict(channels)  # the chunk's own definitions added to copies
+    pos = 0
+    while pos < end:
+        if pos + 9 > end:
+            raise ValueError(f"record header at {pos} runs past the end")
+        op, length = REC_HEAD.unpack_from(buf, pos)
+        body, nxt = pos + 9, pos + 9 + length
+        if nxt > end:
+            raise ValueError(f"record at {pos} declares {length} bytes, only {end - body} left")
+        if op == OP_MESSAGE:
+            if length < MSG_HEAD.size:
+                raise ValueError(f"a Message record of {length} bytes, shorter than its header")
+            (cid,) = struct.unpack_from("<H", buf, body)
+            ch = channels.get(cid)
+            if ch is None:
+                raise LogDamage(
+                    offset,
+                    f"message at byte {pos} of the chunk on channel {cid}, which was never defined",
+                    "a Channel record first",
+                    True,
+                )
+            if ch.schema_id and ch.schema_id not in schemas:
+                raise LogDamage(
+                    offset,
+                    f"topic {ch.topic!r} refers to schema {ch.schema_id}, which the file does not define",
+                    "a Schema record for every channel",
+                    True,
+                )
+        elif op == OP_SCHEMA:
+            sid, schema = read_schema(buf, body, nxt)
+            if sid in schemas and schemas[sid] != schema:
+                raise redefined(offset, "schema", sid, schemas[sid], schema)
+            schemas[sid] = schema
+        elif op == OP_CHANNEL:
+            cid, channel = read_channel(buf, body, nxt)
+            if cid in channels and channels[cid] != channel:
+                raise redefined(offset, "channel", cid, channels[cid], channel)
+            channels[cid] = channel
+        pos = nxt
 
 
 def _resync(buf: Any, start: int, size: int) -> int | None:
