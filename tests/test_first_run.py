@@ -354,24 +354,35 @@ def test_a_full_disk_names_the_output(tmp_path: Path) -> None:
     assert cli.environment_error(missing, args) == f"{tmp_path / 'gone'}: No such file or directory"
 
 
-def test_a_file_size_limit_names_the_output(tmp_path: Path) -> None:
-    """A write the system refuses (here: `ulimit -f`, EFBIG; a full disk alike) named no path."""
-    import resource
-
+def one_track_table(path: Path) -> None:
+    """A track table of one car driving 50 s at 10 Hz, written to ``path``."""
     table = make_track_table(
         {"track_id": np.ones(500, int), "frame": np.arange(500), "x": np.arange(500.0),
          "y": np.zeros(500), "lane_id": np.ones(500, int)}
     )  # fmt: skip
-    track_table.write_parquet(table, tmp_path / "t.parquet")
-    done = subprocess.run(
-        [sys.executable, "-m", "lanecast", "convert", "t.parquet", "--out", "big.parquet"],
+    track_table.write_parquet(table, path)
+
+
+def run_with_file_size_limit(args: list[str], cwd: Path) -> subprocess.CompletedProcess[str]:
+    """``lanecast ARGS`` in ``cwd`` where no file may grow past 4 KiB (``ulimit -f``: EFBIG, as a
+    full disk gives ENOSPC)."""
+    import resource
+
+    return subprocess.run(
+        [sys.executable, "-m", "lanecast", *args],
         env={**os.environ, "PYTHONPATH": str(REPO), "PYTHONDONTWRITEBYTECODE": "1"},
-        cwd=tmp_path,
+        cwd=cwd,
         capture_output=True,
         text=True,
         timeout=120,
         preexec_fn=lambda: resource.setrlimit(resource.RLIMIT_FSIZE, (4096, resource.RLIM_INFINITY)),
     )
+
+
+def test_a_file_size_limit_names_the_output(tmp_path: Path) -> None:
+    """A write the system refuses (here: `ulimit -f`, EFBIG; a full disk alike) named no path."""
+    one_track_table(tmp_path / "t.parquet")
+    done = run_with_file_size_limit(["convert", "t.parquet", "--out", "big.parquet"], tmp_path)
     assert done.returncode == 2, done.stderr
     assert done.stderr.splitlines()[-1] == (
         "lanecast convert: error: big.parquet: File too large "
@@ -392,23 +403,9 @@ def test_an_unknown_option_is_refused_with_the_commands_usage(capsys: pytest.Cap
 
 def test_a_file_size_limit_in_a_bulk_annotate_names_the_output(tmp_path: Path) -> None:
     """annotate on a full disk said 'OSError: [Errno 28] No space left on device', naming no path."""
-    import resource
-
-    table = make_track_table(
-        {"track_id": np.ones(500, int), "frame": np.arange(500), "x": np.arange(500.0),
-         "y": np.zeros(500), "lane_id": np.ones(500, int)}
-    )  # fmt: skip
-    track_table.write_parquet(table, tmp_path / "t.parquet")
+    one_track_table(tmp_path / "t.parquet")
     assert cli.main(["convert", str(tmp_path / "t.parquet"), "--out", str(tmp_path / "log.mcap")]) == 0
-    done = subprocess.run(
-        [sys.executable, "-m", "lanecast", "annotate", "log.mcap", "--out", "out"],
-        env={**os.environ, "PYTHONPATH": str(REPO), "PYTHONDONTWRITEBYTECODE": "1"},
-        cwd=tmp_path,
-        capture_output=True,
-        text=True,
-        timeout=120,
-        preexec_fn=lambda: resource.setrlimit(resource.RLIMIT_FSIZE, (4096, resource.RLIM_INFINITY)),
-    )
+    done = run_with_file_size_limit(["annotate", "log.mcap", "--out", "out"], tmp_path)
     assert done.returncode == 2, done.stderr
     named = f"{tmp_path / 'out' / 'log.mcap'}: File too large"
     assert done.stderr.splitlines()[-1] == f"lanecast annotate: error: {named}"

@@ -30,12 +30,8 @@ from mcap.writer import CompressionType, IndexType, Writer
 
 from lanecast.io_adapters.annotations.forecast_messages import ChannelSpec
 from lanecast.io_adapters.errors import LogError
-from lanecast.io_adapters.logs.mcap_records import (
-    OP_MESSAGE,
-    REC_HEAD,
-)
 from lanecast.io_adapters.logs.mcap_walk import (
-    ReadStats,
+    CountingSink,
     walk,
 )
 
@@ -141,27 +137,6 @@ class McapSummaryInfo:
     topics: frozenset[str] = frozenset()
 
 
-class _Unread:
-    """A record sink that decodes nothing: the walk alone checks every record; it counts the
-    messages, which the walk checks against the summary's Statistics."""
-
-    offset = 0
-
-    def __init__(self) -> None:
-        self.stats = ReadStats()
-
-    def records(self, buf: Any, start: int, end: int, in_chunk: bool, hint: Any = None) -> int:
-        count, pos = 0, start
-        while pos + 9 <= end:
-            op, length = REC_HEAD.unpack_from(buf, pos)
-            count += op == OP_MESSAGE
-            pos += 9 + length
-        return count
-
-    def metadata(self, buf: Any, pos: int, end: int) -> None:
-        pass
-
-
 def check_records(path: Path) -> None:
     """LogError naming the offset of the first damaged record of MCAP ``path`` (the reader's checked
     walk), or of the first index record that disagrees with the data section, for a copy the mcap
@@ -169,7 +144,7 @@ def check_records(path: Path) -> None:
     with open(path, "rb") as f:
         if os.fstat(f.fileno()).st_size == 0:
             raise LogError(path, "the file is empty", offset=0, expected="an MCAP file")
-        sink = _Unread()
+        sink = CountingSink()
         with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
             walk(mm, path, sink, False)
     for note in sink.stats.index:

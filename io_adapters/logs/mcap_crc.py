@@ -12,7 +12,6 @@ import mmap
 import re
 import struct
 from pathlib import Path
-from typing import Any
 
 from lanecast.io_adapters.errors import LogError
 from lanecast.io_adapters.logs.mcap_records import (
@@ -20,13 +19,12 @@ from lanecast.io_adapters.logs.mcap_records import (
     OP_CHUNK,
     OP_DATA_END,
     OP_FOOTER,
-    OP_MESSAGE,
     REC_HEAD,
     chunk_payload,
     crc32_of,
 )
 from lanecast.io_adapters.logs.mcap_walk import (
-    ReadStats,
+    CountingSink,
     walk,
 )
 
@@ -102,32 +100,12 @@ def _check(path: Path, stored: int, actual: int, offset: int, what: str) -> None
         )
 
 
-class _Counter:
-    """A record sink that decodes nothing and counts messages (for the walk's index checks)."""
-
-    offset = 0
-
-    def __init__(self) -> None:
-        self.stats = ReadStats()
-
-    def records(self, buf: Any, start: int, end: int, in_chunk: bool, hint: Any = None) -> int:
-        count, pos = 0, start
-        while pos + 9 <= end:
-            op, length = REC_HEAD.unpack_from(buf, pos)
-            count += op == OP_MESSAGE
-            pos += 9 + length
-        return count
-
-    def metadata(self, buf: Any, pos: int, end: int) -> None:
-        pass
-
-
 def verify_index(path: str | Path) -> None:
     """LogError naming the first index record of the MCAP at ``path`` that disagrees with its data
     section (chunk indexes, message indexes, summary offsets): rosbags reads a ROS 2 bag's MCAP
     through its chunk indexes, so it would skip or repeat chunks where they lie, without a word."""
     path = Path(path)
-    sink = _Counter()
+    sink = CountingSink()
     with open(path, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
         walk(mm, path, sink, False)
     if sink.stats.index:

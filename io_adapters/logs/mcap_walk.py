@@ -198,6 +198,27 @@ class RecordSink(Protocol):
         ...
 
 
+class CountingSink:
+    """A record sink that decodes nothing and counts messages: the walk alone checks every record
+    and the count against the summary's Statistics (a log checked, not read)."""
+
+    offset = 0
+
+    def __init__(self) -> None:
+        self.stats = ReadStats()
+
+    def records(self, buf: Any, start: int, end: int, in_chunk: bool, hint: Any = None) -> int:
+        count, pos = 0, start
+        while pos + 9 <= end:
+            op, length = REC_HEAD.unpack_from(buf, pos)
+            count += op == OP_MESSAGE
+            pos += 9 + length
+        return count
+
+    def metadata(self, buf: Any, pos: int, end: int) -> None:
+        pass
+
+
 def walk(buf: Any, path: Path, dec: RecordSink, salvage: bool) -> None:
     """Walk the top-level records of buf (the whole file), decoding into dec.
 
