@@ -1043,6 +1043,24 @@ def test_a_model_given_where_data_goes_is_named_as_a_model(
     assert not any((tmp_path / name).exists() for name in ("w", "e", "t"))
 
 
+def test_a_recording_of_highds_sister_datasets_is_named_as_one(tmp_path: Path) -> None:
+    """inD/rounD/exiD files (recordingId, trackId, xCenter; same file names as highD) were refused as
+    a highD recordingMeta without column 'id', as if one column were missing."""
+    (tmp_path / "00_tracks.csv").write_text(
+        "recordingId,trackId,frame,trackLifetime,xCenter,yCenter,heading,width,length,xVelocity,yVelocity\n"
+        "0,0,0,0,10.0,-5.0,90.0,1.8,4.5,0.0,2.0\n"
+    )
+    (tmp_path / "00_tracksMeta.csv").write_text(
+        "recordingId,trackId,initialFrame,finalFrame,numFrames,width,length,class\n0,0,0,0,1,1.8,4.5,car\n"
+    )
+    (tmp_path / "00_recordingMeta.csv").write_text(
+        "recordingId,locationId,frameRate,speedLimit,weekday,startTime,duration\n0,1,25,13.89,monday,8,1000\n"
+    )
+    with pytest.raises(InputError, match="highD's sister datasets \\(inD, rounD, exiD") as err:
+        registry.read_any([tmp_path])
+    assert err.value.path == str(tmp_path / "00_recordingMeta.csv") and err.value.line == 1
+
+
 # ------------------------------------------------------------------------------- wave 8: tables
 
 

@@ -280,6 +280,14 @@ def _read_csv(
     if len(names) == 1 and (";" in names[0] or "\t" in names[0]):
         sep = "';'" if ";" in names[0] else "tabs"
         raise InputError(path, f"the header is separated by {sep}", line=1, expected="comma-separated fields")
+    if "recordingId" in names and "id" not in names:
+        raise InputError(
+            path,
+            "a recording of highD's sister datasets (inD, rounD, exiD, uniD: columns recordingId, "
+            "trackId, xCenter), whose format and road geometry lanecast does not read",
+            line=1,
+            expected=f"a highD {what} CSV, whose vehicles and recordings are numbered in a column 'id'",
+        )
     for name in columns:
         if name not in names:
             close = difflib.get_close_matches(name, names, n=1)
