@@ -39,7 +39,7 @@ import pyarrow.compute as pc
 import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
-from lanecast.io_adapters.datasets import highd
+from lanecast.io_adapters.datasets.highd import reader as highd
 
 NEIGHBOUR_IDS = tuple(highd.NEIGHBOURS)  # highD's neighbour id columns
 IN_MEMORY_WINDOWS = (

@@ -19,10 +19,10 @@ import pyarrow as pa
 from lanecast.io_adapters.contracts.windows import Windows, labelled
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import atomic_path
-from lanecast.models.forecaster import Forecaster, Predictions
 from lanecast.models.metrics import accuracy, confusion_matrix, macro_f1, summary
 from lanecast.models.ood import target_speed
-from lanecast.models.report import Scene
+from lanecast.models.predictions import Forecaster, Predictions
+from lanecast.models.reports.document import Scene
 
 
 def vehicle_ids(index: pa.Table) -> np.ndarray:

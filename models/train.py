@@ -41,7 +41,7 @@ from lanecast.models.augment import Augmentation, augment
 from lanecast.models.baselines import CV_SPAN, RELATIVE_TO, reference_offsets
 from lanecast.models.card import check_architecture
 from lanecast.models.checkpoint import torch_device
-from lanecast.models.decision import choose_offsets, classifier_log_probs, fold_into_classifier
+from lanecast.models.decision_offsets import choose_offsets, classifier_log_probs, fold_into_classifier
 from lanecast.models.losses import (
     class_weights,
     classifier_loss,
@@ -118,7 +118,7 @@ class TrainConfig:
     #: forecast a standing car with no neighbour in sight 3 m ahead at 5 s. 0 = the paper.
     neighbour_dropout: float = 0.0
     #: after training, shift the classifier's decision by per-class logit offsets chosen for the best
-    #: validation macro-F1 (lanecast.models.decision); False = the paper's plain argmax
+    #: validation macro-F1 (lanecast.models.decision_offsets); False = the paper's plain argmax
     decision_offsets: bool = False
     model: STCNNConfig = field(default_factory=STCNNConfig)
 

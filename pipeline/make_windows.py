@@ -24,7 +24,6 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from lanecast.io_adapters.chunks import Chunk
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.contracts.track_runs import run_bounds
 from lanecast.io_adapters.contracts.windows import (
@@ -43,8 +42,9 @@ from lanecast.io_adapters.contracts.windows import (
     load_windows,
     save_shard,
 )
+from lanecast.io_adapters.datasets.parquet.pieces import Chunk
 from lanecast.io_adapters.errors import InputError
-from lanecast.io_adapters.streaming import Piece, uncut
+from lanecast.io_adapters.formats.streaming import Piece, uncut
 from lanecast.pipeline import labels as labels_mod
 from lanecast.pipeline import neighbours as nb_mod
 from lanecast.pipeline import window_tensors as wt

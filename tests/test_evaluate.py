@@ -19,8 +19,8 @@ from lanecast.models.evaluation import speed_band_note
 from lanecast.models.metrics import displacement_errors, per_speed_band, rmse
 from lanecast.models.predict import STCNNForecaster
 from lanecast.pipeline.make_windows import make_windows
+from lanecast.workflows.annotation.track_forecasts import forecast_table
 from lanecast.workflows.cli import main
-from lanecast.workflows.forecast import forecast_table
 
 MODEL_KEYS = {
     "rmse",

@@ -15,7 +15,7 @@ import pyarrow.csv as pacsv
 import pytest
 
 from lanecast.io_adapters.contracts import track_table
-from lanecast.io_adapters.datasets import highd
+from lanecast.io_adapters.datasets.highd import reader as highd
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.sim import recording, sumo_highway, to_highd
 from lanecast.workflows import cli

@@ -310,7 +310,7 @@ def write_highd(directory: Path) -> Path:
 
 
 def test_highd_directions_give_mirror_consistent_windows(tmp_path: Path) -> None:
-    from lanecast.io_adapters.datasets import highd
+    from lanecast.io_adapters.datasets.highd import reader as highd
 
     table = highd.read([write_highd(tmp_path)])
     w = make_windows(table, split="none", stride=1)

@@ -17,7 +17,7 @@ import numpy as np
 from lanecast.io_adapters.contracts.windows import labelled, load_windows, subset
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import check_output_dir, staged_files
-from lanecast.models.ablation_report import write_ablation_report
+from lanecast.models.reports.ablation import write_ablation_report
 from lanecast.workflows.arguments import integer
 from lanecast.workflows.vocabulary import HelpFormatter
 

@@ -1,7 +1,7 @@
 """`lanecast annotate`: write forecasts into drive logs (MCAP, ROS 2 bags, ROS 1 bags → MCAP).
 
-The command only parses its options: one log end to end is ``lanecast.workflows.annotate_log``, many
-logs (manifest, resume, local processes or Ray) are ``lanecast.workflows.bulk``.
+The command only parses its options: one log end to end is ``lanecast.workflows.annotation.annotate_log``, many
+logs (manifest, resume, local processes or Ray) are ``lanecast.workflows.bulk.runner``.
 """
 
 from __future__ import annotations
@@ -13,10 +13,10 @@ from pathlib import Path
 
 from lanecast.io_adapters.errors import UsageError
 from lanecast.io_adapters.files import check_output
-from lanecast.models.serving import check_model
-from lanecast.workflows import bulk
-from lanecast.workflows.annotate_log import AnnotateOptions, read_forecasts_table
+from lanecast.models.runtime import check_model
+from lanecast.workflows.annotation.annotate_log import AnnotateOptions, read_forecasts_table
 from lanecast.workflows.arguments import MANEUVER_SEQUENCES, MAX_WORKERS, integer, number
+from lanecast.workflows.bulk import runner as bulk
 from lanecast.workflows.vocabulary import HelpFormatter, add_model_option
 
 

@@ -7,13 +7,14 @@ import os
 import time
 from pathlib import Path
 
-from lanecast.io_adapters import registry, streaming
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.errors import InputError, OutputError, UsageError
 from lanecast.io_adapters.files import check_output, check_output_dir
-from lanecast.io_adapters.logs.log_conventions import BAG_FILES
-from lanecast.io_adapters.logs.rosbag_writer import STORAGES
-from lanecast.workflows import engines, heap
+from lanecast.io_adapters.formats import registry, streaming
+from lanecast.io_adapters.logs.conventions import BAG_FILES
+from lanecast.io_adapters.logs.rosbag.writer import STORAGES
+from lanecast.workflows.bulk import backends as engines
+from lanecast.workflows.bulk import freed_memory as heap
 from lanecast.workflows.vocabulary import HelpFormatter, add_location_option
 
 _SUFFIX_TO_FORMAT = {".parquet": "parquet", ".pq": "parquet", ".mcap": "mcap", ".bag": "ros1"}

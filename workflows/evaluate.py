@@ -24,8 +24,8 @@ from lanecast.models.evaluation import (
     speed_band_note,
     write_metrics,
 )
-from lanecast.models.forecaster import Forecaster
-from lanecast.models.report import write_report
+from lanecast.models.predictions import Forecaster
+from lanecast.models.reports.document import write_report
 from lanecast.workflows.arguments import MANEUVER_SEQUENCES, MAX_EXAMPLES, integer
 from lanecast.workflows.vocabulary import HelpFormatter, add_model_option
 

@@ -17,13 +17,13 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from lanecast.io_adapters import registry
 from lanecast.io_adapters.contracts.windows import DATASET_FILES, HISTORY, Windows, load_windows
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import check_output_dir, staged_files
+from lanecast.io_adapters.formats import registry
 from lanecast.models.explain import parse_removals, present_neighbours, what_if
-from lanecast.models.explain_report import write_explain
-from lanecast.models.serving import load_forecaster
+from lanecast.models.reports.explain import write_explain
+from lanecast.models.runtime import load_forecaster
 from lanecast.pipeline.make_windows import make_windows
 from lanecast.pipeline.neighbours import NEIGHBOUR_RANGE_M
 from lanecast.workflows.arguments import MANEUVER_SEQUENCES, MAX_TIME_S, integer, number

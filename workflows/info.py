@@ -5,10 +5,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from lanecast.io_adapters import registry
 from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.contracts.track_summary import summarise
+from lanecast.io_adapters.formats import registry
 from lanecast.pipeline.traffic import traffic_statistics
-from lanecast.workflows.table_summary import summarise
 from lanecast.workflows.vocabulary import HelpFormatter, add_location_option
 
 

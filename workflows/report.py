@@ -1,6 +1,6 @@
 """`lanecast report`: metrics of annotated logs, from the forecasts in them and the future they record.
 
-The scoring is ``lanecast.workflows.log_report`` (also used by ``lanecast demo``).
+The scoring is ``lanecast.workflows.annotation.log_scores`` (also used by ``lanecast demo``).
 """
 
 from __future__ import annotations
@@ -8,8 +8,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from lanecast.workflows.annotation.log_scores import report_logs
 from lanecast.workflows.arguments import MAX_EXAMPLES, integer
-from lanecast.workflows.log_report import report_logs
 from lanecast.workflows.vocabulary import HelpFormatter
 
 

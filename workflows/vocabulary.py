@@ -10,7 +10,7 @@ import argparse
 import copy
 from pathlib import Path
 
-# NGSIM's locations (lanecast.io_adapters.datasets.ngsim.FREEWAYS + ARTERIALS, which a test checks);
+# NGSIM's locations (lanecast.io_adapters.datasets.ngsim.reader.FREEWAYS + ARTERIALS, which a test checks);
 # spelled out here so that `--help` does not import the reader.
 NGSIM_LOCATIONS = ("us-101", "i-80", "lankershim", "peachtree")
 

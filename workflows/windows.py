@@ -6,12 +6,13 @@ import argparse
 import time
 from pathlib import Path
 
-from lanecast.io_adapters import registry, streaming
 from lanecast.io_adapters.contracts.windows import DATASET_FILES
 from lanecast.io_adapters.files import check_output_dir
+from lanecast.io_adapters.formats import registry, streaming
 from lanecast.pipeline.make_windows import WindowOptions, write_windows
-from lanecast.workflows import engines, heap
 from lanecast.workflows.arguments import MAX_SEED, integer, number
+from lanecast.workflows.bulk import backends as engines
+from lanecast.workflows.bulk import freed_memory as heap
 from lanecast.workflows.vocabulary import HelpFormatter, add_location_option
 
 

@@ -36,7 +36,7 @@ import pyarrow.parquet as pq
 
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import atomic_path, not_regular
-from lanecast.io_adapters.npy_append import SHARD_HEADER_BYTES, NpyAppender, save_npy
+from lanecast.io_adapters.windows_store.npy_append import SHARD_HEADER_BYTES, NpyAppender, save_npy
 
 #: Vehicle rows of the window tensor, in their fixed, spatially coherent order.
 ROWS: tuple[str, ...] = ("FL", "F", "FR", "L", "T", "R", "RL", "RR")
