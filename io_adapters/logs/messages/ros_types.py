@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typestore
 
-MSG_DIR = Path(__file__).parents[1] / "data" / "ros_msgs"
+MSG_DIR = Path(__file__).parents[2] / "data" / "ros_msgs"
 
 TRACKED_OBJECTS = "autoware_perception_msgs/msg/TrackedObjects"
 TRACKED_OBJECTS_AUTO = "autoware_auto_perception_msgs/msg/TrackedObjects"
