@@ -30,6 +30,7 @@ from typing import Any, TypeVar
 from tqdm.auto import tqdm
 
 from lanecast.io_adapters.errors import InputError, OutputError
+from lanecast.io_adapters.ownership import check_replaceable_output
 
 T = TypeVar("T")
 
@@ -154,17 +155,23 @@ def check_replaceable(target: Path, replaces: tuple[str, ...] = ()) -> None:
 
 
 def check_output_dir(
-    path: str | Path, *, files: tuple[str, ...] = (), replaces: tuple[str, ...] | None = None
+    path: str | Path,
+    *,
+    files: tuple[str, ...] = (),
+    replaces: tuple[str, ...] | None = None,
+    force: bool = False,
 ) -> Path:
     """What a command that writes the directory ``path`` checks before any work (an output it cannot
     write was refused only after minutes of training or cutting): :func:`check_output`, none of the
-    ``files`` it writes into the directory is a directory, and, for a directory replaced as a whole
-    (``replaces`` given, as for :func:`atomic_path`), nothing else is in it."""
+    ``files`` it writes into the directory is a directory or a file lanecast did not write (unless
+    ``force``), and, for a directory replaced as a whole (``replaces`` given, as for
+    :func:`atomic_path`), nothing else is in it."""
     path = check_output(path, directory=True)
     for name in files:
         final = path / name
         if final.is_dir() and not final.is_symlink():
             raise OutputError(final, "is a directory", expected="a file lanecast may replace")
+        check_replaceable_output(final, force=force)
     if replaces is not None:
         check_replaceable(path, replaces)
     return path
@@ -211,11 +218,11 @@ def atomic_path(
 
 
 @contextlib.contextmanager
-def staged_files(target: str | Path) -> Iterator[Path]:
+def staged_files(target: str | Path, *, force: bool = False) -> Iterator[Path]:
     """Yield a temporary directory beside the output directory ``target`` for a command's files
     (a report: metrics.json, report.html, pictures); on success move them into ``target`` (created
-    if missing; files of the same names replaced, others left alone), on any error or interruption
-    remove them: ``target`` gets all of a run's files or none, never some."""
+    if missing; files of the same names replaced if lanecast wrote them or ``force``, others left
+    alone), on any error or interruption remove them: ``target`` gets all of a run's files or none."""
     target = check_output(target, directory=True)
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
@@ -229,6 +236,7 @@ def staged_files(target: str | Path) -> Iterator[Path]:
             final = target / path.relative_to(stage)
             if final.is_dir() and not final.is_symlink():
                 raise OutputError(final, "is a directory", expected="a file lanecast may replace")
+            check_replaceable_output(final, force=force)
         for path in files:
             final = target / path.relative_to(stage)
             final.parent.mkdir(parents=True, exist_ok=True)

@@ -19,6 +19,7 @@ import pyarrow as pa
 from lanecast.io_adapters.contracts.windows import Windows, labelled
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import atomic_path
+from lanecast.io_adapters.ownership import GENERATOR
 from lanecast.models.metrics import accuracy, confusion_matrix, macro_f1, summary
 from lanecast.models.ood import target_speed
 from lanecast.models.predictions import Forecaster, Predictions
@@ -255,7 +256,9 @@ def write_metrics(path: Path, metrics: dict[str, Any], meta: dict[str, Any]) -> 
     """metrics.json: one key per model name plus ``meta``."""
     with atomic_path(path) as tmp:
         tmp.write_text(
-            json.dumps({**metrics, "meta": meta}, indent=2, allow_nan=False) + "\n", encoding="utf-8"
+            json.dumps({**metrics, "meta": {**meta, "generator": GENERATOR}}, indent=2, allow_nan=False)
+            + "\n",
+            encoding="utf-8",
         )
     return path
 

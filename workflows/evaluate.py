@@ -27,7 +27,7 @@ from lanecast.models.evaluation import (
 from lanecast.models.predictions import Forecaster
 from lanecast.models.reports.document import write_report
 from lanecast.workflows.arguments import MANEUVER_SEQUENCES, MAX_EXAMPLES, integer
-from lanecast.workflows.vocabulary import HelpFormatter, add_model_option
+from lanecast.workflows.vocabulary import HelpFormatter, add_force_option, add_model_option
 
 SPLITS = {"test": ("test",), "val": ("val",), "all": ("train", "val", "test", "none")}
 
@@ -64,6 +64,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--examples", type=integer(0, MAX_EXAMPLES), default=4, help="example scenes in the report"
     )
     p.add_argument("--batch-size", type=integer(1, 1 << 20), default=4096, help="windows per inference batch")
+    add_force_option(p)
     p.set_defaults(func=run)
 
 
@@ -72,7 +73,9 @@ def run(args: argparse.Namespace) -> int:
 
     from lanecast.models.predict import STCNNForecaster
 
-    check_output_dir(args.out, files=("metrics.json", "report.md", "report.html"))  # before the work
+    check_output_dir(
+        args.out, files=("metrics.json", "report.md", "report.html"), force=args.force
+    )  # before the work
     torch.set_num_threads(max(1, min(2, torch.get_num_threads())))
     windows = load_windows(args.windows, check_values=True)
     forecasters: list[Forecaster] = [
@@ -103,7 +106,9 @@ def run(args: argparse.Namespace) -> int:
     if ood_note is not None:
         meta["out_of_distribution"] = ood_note
     scenes = example_scenes(windows, idx, preds["stcnn"], args.examples)
-    with staged_files(args.out) as stage:  # an interrupted run leaves none of the report's files
+    with staged_files(
+        args.out, force=args.force
+    ) as stage:  # an interrupted run leaves none of the report's files
         write_metrics(stage / "metrics.json", metrics, meta)
         write_report(stage, metrics, meta, scenes)
     share = "" if args.split == "all" else f" of {len(windows):,}"

@@ -27,7 +27,7 @@ from lanecast.models.runtime import load_forecaster
 from lanecast.pipeline.make_windows import make_windows
 from lanecast.pipeline.neighbours import NEIGHBOUR_RANGE_M
 from lanecast.workflows.arguments import MANEUVER_SEQUENCES, MAX_TIME_S, integer, number
-from lanecast.workflows.vocabulary import HelpFormatter, add_model_option
+from lanecast.workflows.vocabulary import HelpFormatter, add_force_option, add_model_option
 
 STEP_NS = 100_000_000  # windows sit on the 10 Hz grid
 
@@ -78,6 +78,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--top-k", type=integer(1, MANEUVER_SEQUENCES), default=3, help="maneuver sequences drawn per scene"
     )
+    add_force_option(p)
     p.set_defaults(func=run)
 
 
@@ -201,7 +202,7 @@ def no_window_in_table(
 
 
 def run(args: argparse.Namespace) -> int:
-    check_output_dir(args.out, files=("explain.json", "explain.html"))  # before the work
+    check_output_dir(args.out, files=("explain.json", "explain.html"), force=args.force)  # before the work
     forecaster = load_forecaster(args.model)
     card: dict[str, Any] = getattr(forecaster, "card", None) or {}
     windows, i = window_of(args, card)
@@ -224,7 +225,7 @@ def run(args: argparse.Namespace) -> int:
         "neighbours": present_neighbours(present),
     }
     model = str(args.model) if args.model else "the shipped model"
-    with staged_files(args.out) as stage:  # an interrupted run leaves none of its files
+    with staged_files(args.out, force=args.force) as stage:  # an interrupted run leaves none of its files
         page = write_explain(stage, whatif, window, model, np.asarray(windows.future[i]))
     page = args.out / page.relative_to(stage)
     effects = {e["scenario"]: e for e in whatif.effects()}

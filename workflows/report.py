@@ -8,9 +8,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from lanecast.io_adapters.files import check_output_dir
 from lanecast.workflows.annotation.log_scores import report_logs
 from lanecast.workflows.arguments import MAX_EXAMPLES, integer
-from lanecast.workflows.vocabulary import HelpFormatter
+from lanecast.workflows.vocabulary import HelpFormatter, add_force_option
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -32,8 +33,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--examples", type=integer(0, MAX_EXAMPLES), default=4, help="example scenes in the overall report"
     )
+    add_force_option(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    return report_logs(args.paths, args.out, topic=args.topic, examples=args.examples)
+    check_output_dir(args.out, files=("metrics.json", "report.md", "report.html"), force=args.force)
+    return report_logs(args.paths, args.out, topic=args.topic, examples=args.examples, force=args.force)

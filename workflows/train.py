@@ -21,7 +21,7 @@ from lanecast.models.evaluation import evaluate
 if TYPE_CHECKING:
     from lanecast.models.train import TrainConfig
 
-from lanecast.workflows.vocabulary import HelpFormatter
+from lanecast.workflows.vocabulary import HelpFormatter, add_force_option
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -82,6 +82,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="M",
         help="augmentation: Gaussian noise (std, m) on the x, y inputs of training batches (default 0)",
     )
+    add_force_option(p)
     p.set_defaults(func=run)
 
 
@@ -196,7 +197,9 @@ def train_and_save(
 def run(args: argparse.Namespace) -> int:
     from lanecast.models.train import TrainConfig
 
-    check_output_dir(args.out, files=("stcnn.safetensors", "stcnn.json"))  # before minutes of training
+    check_output_dir(
+        args.out, files=("stcnn.safetensors", "stcnn.json"), force=args.force
+    )  # before minutes of training
     config = TrainConfig.from_file(args.config) if args.config else default_config()
     names = (
         "epochs",

@@ -52,3 +52,13 @@ def add_location_option(parser: argparse.ArgumentParser) -> None:
         help="NGSIM: the location of the .txt files (default: from the file or folder name; NGSIM's own "
         "trajectories-0750am-0805am.txt … are US-101, trajectories-0400-0415.txt … I-80)",
     )
+
+
+def add_force_option(parser: argparse.ArgumentParser) -> None:
+    """``--force``: replace existing outputs that lanecast did not write (refused by default)."""
+    parser.add_argument(
+        "--force",
+        action="store_true",
+        help="replace an existing output of the same name that lanecast did not write (by default such a "
+        "file is named and refused, never overwritten; lanecast's own earlier outputs are replaced)",
+    )

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from lanecast.io_adapters.files import atomic_path
+from lanecast.io_adapters.ownership import HTML_MARK, MARKDOWN_MARK
 from lanecast.models.reports.document import png_bytes, pyplot
 
 HORIZONS_S = (1, 2, 3, 4, 5)
@@ -156,7 +157,7 @@ def write_ablation_report(directory: Path, result: dict[str, Any]) -> Path:
     md += ["", "The paper's Table II (highD, RMSE in m):", "", *_md_table(header, paper_rows(result)), ""]
     md += [f"- {line}" for line in notes] + ["", "![RMSE by horizon](ablation.png)", ""]
     with atomic_path(directory / "report.md") as tmp:
-        tmp.write_text("\n".join(md), encoding="utf-8")
+        tmp.write_text("\n".join([MARKDOWN_MARK, *md]), encoding="utf-8")
 
     esc = html.escape
 
@@ -171,7 +172,7 @@ def write_ablation_report(directory: Path, result: dict[str, Any]) -> Path:
         return "".join(parts) + "</table>"
 
     page = [
-        "<!doctype html><html><head><meta charset='utf-8'><title>lanecast ablation</title><style>"
+        f"<!doctype html><html><head><meta charset='utf-8'>{HTML_MARK}<title>lanecast ablation</title><style>"
         "body{font-family:sans-serif;max-width:1150px;margin:2em auto;color:#222}"
         "table{border-collapse:collapse;margin:0.6em 0}td,th{border:1px solid #ccc;padding:3px 7px;"
         "text-align:right;font-size:13px}th{background:#f3f3f3}td:first-child,th:first-child{text-align:left}"

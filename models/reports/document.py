@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from lanecast.io_adapters.files import atomic_path
+from lanecast.io_adapters.ownership import HTML_MARK, MARKDOWN_MARK
 from lanecast.models.reports.plots import (
     MANEUVER_HEX,
     confusion_plot,
@@ -141,11 +142,11 @@ def write_report(
                 md += [f"### {caption}", "", f"![{caption}]({fname})", ""]
     md_path = directory / "report.md"
     with atomic_path(md_path) as tmp:
-        tmp.write_text("\n".join(md), encoding="utf-8")
+        tmp.write_text("\n".join([MARKDOWN_MARK, *md]), encoding="utf-8")
 
     esc = html.escape
     parts = [
-        f"<!doctype html><html><head><meta charset='utf-8'><title>{esc(title)}</title>",
+        f"<!doctype html><html><head><meta charset='utf-8'>{HTML_MARK}<title>{esc(title)}</title>",
         "<style>body{font-family:sans-serif;max-width:1200px;margin:2em auto;color:#222}"
         "table{border-collapse:collapse;margin:0.5em 0}td,th{border:1px solid #ccc;padding:3px 7px;"
         "text-align:right;font-size:13px}th{background:#f3f3f3}td:first-child,th:first-child{text-align:left}"

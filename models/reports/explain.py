@@ -16,6 +16,7 @@ import numpy as np
 
 from lanecast.io_adapters.contracts.windows import MANEUVERS, ROWS
 from lanecast.io_adapters.files import atomic_path
+from lanecast.io_adapters.ownership import GENERATOR, HTML_MARK
 from lanecast.models.explain import WhatIf
 from lanecast.models.reports.document import Scene, scene_plot
 
@@ -88,7 +89,9 @@ def write_explain(
     directory.mkdir(parents=True, exist_ok=True)
     doc = document(whatif, window, model)
     with atomic_path(directory / "explain.json") as tmp:
-        tmp.write_text(json.dumps(doc, indent=2, allow_nan=False) + "\n", encoding="utf-8")
+        tmp.write_text(
+            json.dumps({**doc, "generator": GENERATOR}, indent=2, allow_nan=False) + "\n", encoding="utf-8"
+        )
     title = f"{window['recording']} track {window['track_id']} at t0 = {window['t0_s']:.1f} s"
     images = []
     for i, scene in enumerate(scenes(whatif, title, future)):
@@ -131,7 +134,7 @@ def write_explain(
         else ""
     )
     page = [
-        "<!doctype html><html><head><meta charset='utf-8'><title>lanecast explain</title><style>"
+        f"<!doctype html><html><head><meta charset='utf-8'>{HTML_MARK}<title>lanecast explain</title><style>"
         "body{font-family:sans-serif;max-width:1200px;margin:2em auto;color:#222}table{border-collapse:collapse}"
         "td,th{border:1px solid #ccc;padding:3px 7px;font-size:13px;text-align:right}th{background:#f3f3f3}"
         "td:first-child,td:last-child{text-align:left}img{max-width:100%}p.note{font-size:13px;color:#444}"

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from lanecast.io_adapters.contracts.windows import MANEUVER_COLOURS, MANEUVERS
+from lanecast.io_adapters.ownership import PNG_METADATA
 from lanecast.models.reports.tables import model_name
 
 
@@ -37,7 +38,7 @@ def pyplot() -> Any:
 
 def png_bytes(fig: Any) -> bytes:
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
+    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight", metadata=PNG_METADATA)
     pyplot().close(fig)
     return buf.getvalue()
 

@@ -382,13 +382,15 @@ def per_log_names(logs: list[Path]) -> dict[Path, str]:
     return {p: (r.with_suffix("") if p.is_file() else r).as_posix() for p, r in rel.items()}
 
 
-def report_logs(paths: list[Path], out: Path, *, topic: str | None = None, examples: int = 4) -> int:
+def report_logs(
+    paths: list[Path], out: Path, *, topic: str | None = None, examples: int = 4, force: bool = False
+) -> int:
     """Score every annotated log in ``paths`` and write the reports into ``out``; print a summary.
 
     Returns 0, or 1 when some log could not be scored (it is named; the others are reported). The
     files appear in ``out`` all at once at the end: an interrupted run leaves none of them.
     """
-    with staged_files(out) as stage:
+    with staged_files(out, force=force) as stage:
         status, html = _write_reports(paths, stage, topic, examples)
     print(f"report: {out / html.relative_to(stage)}")
     return status
