@@ -348,6 +348,13 @@ def load_windows(directory: str | Path, mmap: bool = True, check_values: bool = 
             "a model directory (the output of `lanecast train`), not a windows dataset",
             expected="a directory from `lanecast windows`; a model goes to --model or --init",
         )
+    if not any((directory / name).exists() for name in DATASET_FILES):
+        raise InputError(
+            directory,
+            "not a windows dataset (none of inputs.npy, windows.parquet, manifest.json is in it)",
+            expected=f"a directory from `lanecast windows`: for a dataset or log, run `lanecast windows "
+            f"{directory} --out windows/{directory.resolve().name or 'data'}` first and pass its --out",
+        )
     for name in DATASET_FILES:
         path = directory / name
         if path.is_file():

@@ -109,6 +109,15 @@ def detect(path: str | Path) -> str:
                 f"the directory holds {first_of(storage)} but no metadata.yaml, which a ROS 2 bag needs",
                 expected="a ROS 2 bag with its metadata.yaml (ros2 bag reindex writes one), or the log files",
             )
+    if path.is_dir():  # a release folder (highD-dataset-v1.0/ holds data/): name the folder to pass
+        inner = [p for p in sorted(path.iterdir())[:64] if p.is_dir() and not p.name.startswith(".")]
+        readable = [p for p in inner if any(reader(fmt).sniff(p) for fmt in READERS)]
+        if readable:
+            raise FormatNotRecognisedError(
+                path,
+                f"format not recognised here, but its folder {readable[0].name}/ holds a dataset or log",
+                expected=f"the folder itself: {readable[0]}",
+            )
     raise FormatNotRecognisedError(path, "format not recognised", expected=expected)
 
 
