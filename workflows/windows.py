@@ -46,7 +46,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--format", choices=sorted(registry.READERS), help="input format (default: detected)")
     add_location_option(p)
     p.add_argument(
-        "--split", choices=("pip", "hash", "none"), default="pip", help="split by track (default: pip)"
+        "--split",
+        choices=("pip", "hash", "none"),
+        default="pip",
+        help="split by track into train/val/test, 70/10/20: pip = the PiP convention (Song et al., ECCV 2020; "
+        "by vehicle id within each recording: the lowest 70 %% of the id range train, the next 10 %% val, "
+        "the rest test), hash = a seeded hash of (recording, track), none = every track in split 'none' "
+        "(default: pip)",
     )
     p.add_argument("--seed", type=integer(0, MAX_SEED), default=0, help="seed of the hash split (default: 0)")
     p.add_argument(
@@ -103,10 +109,14 @@ def run(args: argparse.Namespace) -> int:
     m = windows.manifest
     counts = ", ".join(f"{k} {v:,}" for k, v in m["counts"].items() if v)
     labels = ", ".join(f"{k} {v:,}" for k, v in m["label_distribution"].items())
+    pieces_read = f"{len(pieces):,} piece" + ("s" if len(pieces) != 1 else "")
     print(
-        f"wrote {args.out}: {len(windows):,} windows ({counts}) from {len(pieces):,} piece(s) "
+        f"wrote {args.out}: {len(windows):,} windows ({counts}) from {pieces_read} "
         f"in {time.perf_counter() - started:.1f} s"
     )
+    skew = split_skew(m["counts"], args.split)
+    if skew:
+        print(f"  note: {skew}")
     print(f"  maneuver labels (all steps): {labels}")
     methods = sorted(
         {r["neighbour_method"] for r in m["sources"]["recordings"].values() if r["neighbour_method"]}
@@ -115,3 +125,21 @@ def run(args: argparse.Namespace) -> int:
     for name, why in m["skipped_recordings"].items():
         print(f"  skipped {name}: {why}")
     return 0
+
+
+def split_skew(counts: dict[str, int], method: str) -> str | None:
+    """A word when a 70/10/20 split came out far from it (the pip split follows vehicle ids, so one
+    outlier id, e.g. 9999 among ids up to 300, moves nearly every track into train)."""
+    total = sum(counts.get(s, 0) for s in ("train", "val", "test"))
+    if method == "none" or total < 50:
+        return None
+    shares = [counts.get(s, 0) / total for s in ("train", "val", "test")]
+    if all(abs(share - target) <= 0.1 for share, target in zip(shares, (0.7, 0.1, 0.2), strict=True)):
+        return None
+    percent = " / ".join(f"{100 * share:.0f}" for share in shares)
+    advice = (
+        " (pip follows vehicle ids: an outlier id stretches the range; --split hash does not)"
+        if method == "pip"
+        else ""
+    )
+    return f"the {method} split came out {percent} % train / val / test, not 70 / 10 / 20{advice}"
