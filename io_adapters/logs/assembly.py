@@ -150,6 +150,7 @@ def assemble(
         if dropped:
             _refuse_conflicting_repeats(path, tp, cols, classes.codes, frames, order, keep, rate)
             order = order[keep]
+        _check_lanes(path, tp, cols)
         piece = _derive(cols, frames, order, data.columns.velocity_in_body)
         pieces.append(piece)
         piece_classes.append(classes.take(order))
@@ -351,6 +352,28 @@ def _gather(column: np.ndarray, order: np.ndarray) -> np.ndarray:
     if column.dtype.kind == "f" and column.size and np.isnan(column[0]) and np.isnan(column).all():
         return np.full(order.size, np.nan)
     return column[order]
+
+
+#: The largest lane id the track table holds (int32).
+LANE_ID_MAX = 2**31 - 1
+
+
+def _check_lanes(path: Path, topic: str, cols: dict[str, np.ndarray]) -> None:
+    """LogError at the first lane id that is no int32 integer (1.5, 1e20): cast, it became 1 or
+    -2147483648 without a word."""
+    lane = cols["lane"]
+    known = ~np.isnan(lane)
+    with np.errstate(invalid="ignore"):
+        bad = known & ((np.abs(lane) > LANE_ID_MAX) | (lane != np.trunc(np.where(known, lane, 0.0))))
+    if bad.any():
+        r = int(np.flatnonzero(bad)[0])
+        raise LogError(
+            path,
+            f"topic {topic!r}: object of track {int(cols['track_id'][r])} stamped {int(cols['time_ns'][r])} ns "
+            f"has lane_id {float(lane[r]):g}",
+            column="lane_id",
+            expected=f"an integer lane id within ±{LANE_ID_MAX}",
+        )
 
 
 def _derive(

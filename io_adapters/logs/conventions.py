@@ -217,10 +217,18 @@ def parse_log_metadata(path: Path, text: str | bytes) -> dict[str, Any]:
         jf.get(doc, "source_files", "", "str_list", [])
         jf.get(doc, "payload_digest", "", "str", None)
         jf.get(doc, "payload_messages", "", "count", None)
+        recording_of_topic: dict[str, str] = {}
         for name, spec in jf.get(doc, "recordings", "", "object", {}).items():
             where = f"recordings.{name}"
             jf.check(spec, where, "object")
-            jf.get(spec, "topic", where, "str")
+            topic = jf.get(spec, "topic", where, "str")
+            if topic in recording_of_topic:  # its rows would be read twice, once per recording
+                raise jf.FieldError(
+                    f"{where}.topic",
+                    f"{topic!r}, the topic of recording {recording_of_topic[topic]!r} too",
+                    "one topic per recording",
+                )
+            recording_of_topic[topic] = name
             rate = jf.get(spec, "frame_rate", where, "positive")
             if rate > MAX_META_FRAME_RATE:
                 raise jf.FieldError(

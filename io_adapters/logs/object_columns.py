@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
+from lanecast.io_adapters import json_fields as jf
 from lanecast.io_adapters.logs.conventions import AUTOWARE_LABELS
 
 # Per-row numeric slots of ObjectColumns.floats, in order.
@@ -215,49 +216,78 @@ def message_stamps(stamps: np.ndarray, message: np.ndarray) -> np.ndarray:
 # --------------------------------------------------------------------------------------- decoders
 
 
-def add_scene_update_json(cols: ObjectColumns, doc: Mapping[str, Any], log_time: int) -> None:
+def add_scene_update_json(cols: ObjectColumns, doc: Any, log_time: int) -> None:
     """Append the cube entities of a JSON-encoded ``foxglove.SceneUpdate`` (message stamp: the
-    earliest entity stamp, see :func:`message_stamps`)."""
+    earliest entity stamp, see :func:`message_stamps`). A field of the wrong type or a metadata
+    value that is no number raises :class:`~lanecast.io_adapters.json_fields.FieldError` naming it
+    (``entities[2].metadata.vx``)."""
     ints, floats, classes, frames = cols.ints, cols.floats, cols.classes, cols.frame_ids
     cols.messages += 1
     first = len(ints)
-    for e in doc.get("entities", ()):
-        cubes = e.get("cubes")
+    jf.check(doc, "SceneUpdate", "object")
+    for i, e in enumerate(jf.get(doc, "entities", "", "list", [])):
+        where = f"entities[{i}]"
+        jf.check(e, where, "object")
+        cubes = jf.get(e, "cubes", where, "list", [])
         if not cubes:
             continue
-        c = cubes[0]
-        pose = c.get("pose", {})
-        p = pose.get("position", {})
-        q = pose.get("orientation", {})
-        s = c.get("size", {})
-        ts = e.get("timestamp") or {}
-        sec, nsec = int(ts.get("sec", 0)), int(ts.get("nsec", 0))
+        cube = jf.check(cubes[0], f"{where}.cubes[0]", "object")
+        pose = jf.get(cube, "pose", f"{where}.cubes[0]", "object", {})
+        p = jf.get(pose, "position", f"{where}.cubes[0].pose", "object", {})
+        q = jf.get(pose, "orientation", f"{where}.cubes[0].pose", "object", {})
+        s = jf.get(cube, "size", f"{where}.cubes[0]", "object", {})
+        ts = jf.get(e, "timestamp", where, "object|null", None) or {}
+        sec = jf.get(ts, "sec", f"{where}.timestamp", "int", 0)
+        nsec = jf.get(ts, "nsec", f"{where}.timestamp", "int", 0)
         if not (0 <= sec <= MAX_STAMP_SEC and 0 <= nsec <= 999_999_999):
-            raise ValueError(
-                f"entity timestamp sec={sec}, nsec={nsec} out of range "
-                f"(0 <= sec <= {MAX_STAMP_SEC}, 0 <= nsec <= 999999999 expected)"
+            raise jf.FieldError(
+                f"{where}.timestamp",
+                f"sec={sec}, nsec={nsec} out of range",
+                f"0 <= sec <= {MAX_STAMP_SEC}, 0 <= nsec <= 999999999",
             )
         t = sec * 1_000_000_000 + nsec or log_time
-        meta = {kv.get("key"): kv.get("value") for kv in e.get("metadata", ())}
-        ints += (t, log_time, track_id_of(str(e.get("id", ""))))
-        check_quaternion(
-            float(q.get("x", 0.0)), float(q.get("y", 0.0)), float(q.get("z", 0.0)), float(q.get("w", 1.0))
-        )
-        floats += (
-            float(p.get("x", 0.0)),
-            float(p.get("y", 0.0)),
-            float(q.get("x", 0.0)),
-            float(q.get("y", 0.0)),
-            float(q.get("z", 0.0)),
-            float(q.get("w", 1.0)),
-            float(s.get("x", 0.0)),
-            float(s.get("y", 0.0)),
-            *(float(meta[k]) if k in meta else NAN for k in ("vx", "vy", "ax", "ay", "lane_id")),
-        )
-        classes.append(str(meta.get("class", "unknown")))
-        frames.append(str(e.get("frame_id", "")))
+        meta = _entity_metadata(e, where)
+        entity_id = jf.get(e, "id", where, "str", "")
+        ints += (t, log_time, track_id_of(entity_id))
+        at = f"{where}.cubes[0]"
+        pos = [float(jf.get(p, k, f"{at}.pose.position", "number", 0.0)) for k in ("x", "y")]
+        quat = [
+            float(jf.get(q, k, f"{at}.pose.orientation", "number", 1.0 if k == "w" else 0.0))
+            for k in ("x", "y", "z", "w")
+        ]
+        size = [float(jf.get(s, k, f"{at}.size", "number", 0.0)) for k in ("x", "y")]
+        check_quaternion(*quat)
+        floats += (*pos, *quat, *size, *(_metadata_number(meta, k, where) for k in _NUMERIC_METADATA))
+        classes.append(meta.get("class", "unknown"))
+        frames.append(jf.get(e, "frame_id", where, "str", ""))
     if len(ints) > first:
         ints[first + 1 :: 3] = [min(ints[first::3])] * ((len(ints) - first) // 3)
+
+
+_NUMERIC_METADATA = ("vx", "vy", "ax", "ay", "lane_id")
+
+
+def _entity_metadata(entity: Mapping[str, Any], where: str) -> dict[str, str]:
+    """An entity's metadata list (``[{"key": …, "value": …}]``) as a dict of strings."""
+    meta: dict[str, str] = {}
+    for k, kv in enumerate(jf.get(entity, "metadata", where, "list", [])):
+        at = f"{where}.metadata[{k}]"
+        jf.check(kv, at, "object")
+        meta[jf.get(kv, "key", at, "str")] = jf.get(kv, "value", at, "str", "")
+    return meta
+
+
+def _metadata_number(meta: Mapping[str, str], key: str, where: str) -> float:
+    """A numeric metadata value (text, e.g. "12.5"); NaN where absent."""
+    if key not in meta:
+        return NAN
+    try:
+        value = float(meta[key])
+    except ValueError:
+        raise jf.FieldError(f"{where}.metadata.{key}", f"{meta[key]!r}", "a number as text") from None
+    if math.isinf(value):  # "nan" is unknown, as an absent value is
+        raise jf.FieldError(f"{where}.metadata.{key}", f"{meta[key]!r}", "a finite number as text")
+    return value
 
 
 def stamp_ns(header: Any) -> int:
