@@ -58,5 +58,8 @@ def test_train_help_shows_the_shipped_values_and_windows_help_says_what_pip_is(
             main([command, "--help"])
     out = " ".join(capsys.readouterr().out.split())
     epochs = shipped_defaults()["epochs"]
-    assert f"(default: {epochs}, the shipped model's)" in out and "see --config)" not in out.split("--lr")[1][:80]
+    assert (
+        f"(default: {epochs}, the shipped model's)" in out
+        and "see --config)" not in out.split("--lr")[1][:80]
+    )
     assert "pip = the PiP convention (Song et al., ECCV 2020; by vehicle id within each recording" in out

@@ -15,7 +15,7 @@ from lanecast.io_adapters.logs.conventions import parse_log_metadata
 
 
 def _entity(track: int, t_s: float, lane: Any = "2", **overrides: Any) -> dict[str, Any]:
-    sec, nsec = int(t_s), int(round((t_s % 1) * 1e9))
+    sec, nsec = int(t_s), round((t_s % 1) * 1e9)
     entity: dict[str, Any] = {
         "timestamp": {"sec": sec, "nsec": nsec},
         "frame_id": "map",
