@@ -21,6 +21,7 @@ import shutil
 import stat
 import sys
 import tempfile
+import threading
 import time
 from collections.abc import Iterable, Iterator
 from fnmatch import fnmatch
@@ -283,8 +284,18 @@ class ProgressLines(tqdm):
         super().close()
 
 
+def _terminal_columns() -> int:
+    """stderr's terminal width; 0 where the terminal does not say (``script -qc`` without a size)."""
+    try:
+        return os.get_terminal_size(sys.stderr.fileno()).columns
+    except (OSError, ValueError):
+        return 0
+
+
 def _bar_kwargs(total: int | float | None) -> dict[str, Any]:
     if sys.stderr.isatty():
+        if _terminal_columns() <= 0:  # tqdm would draw a bar of no width: nothing at all
+            return {"disable": None, "ncols": 80, "nrows": 24, "leave": False}
         return {"disable": None, "dynamic_ncols": True, "leave": False}
     return {
         "file": sys.stderr,
@@ -312,10 +323,43 @@ def progress(iterable: Iterable[T], *, desc: str, total: int | None = None, unit
             raise
 
 
-def bar(*, desc: str, total: int | float | None = None, unit: str = "it") -> tqdm:
+@contextlib.contextmanager
+def activity(desc: str) -> Iterator[None]:
+    """Life signs for a step that has no count to show (a model's export, a report's figures): on a
+    terminal a line with the elapsed time, otherwise a line when it starts and every few seconds
+    while it runs, so that no command stays silent for longer than that."""
+    tty = sys.stderr.isatty()
+    shown = bar(desc=desc, total=None, unit="s", bar_format="{desc} ({elapsed})")
+    done = threading.Event()
+    started = time.monotonic()
+
+    def tick() -> None:
+        while not done.wait(0.5 if tty else 1.0):
+            shown.update(int(time.monotonic() - started) - shown.n)
+
+    ticker = threading.Thread(target=tick, name=f"activity: {desc}", daemon=True)
+    ticker.start()
+    try:
+        yield
+    except BaseException:
+        if isinstance(shown, ProgressLines):
+            shown.final_line = False  # the error is the last line, not a count after it
+        raise
+    finally:
+        done.set()
+        ticker.join()
+        shown.close()
+
+
+def bar(
+    *, desc: str, total: int | float | None = None, unit: str = "it", bar_format: str | None = None
+) -> tqdm:
     """A manual progress bar (``update(n)``): a bar on a terminal, a line every few seconds otherwise."""
     cls = tqdm if sys.stderr.isatty() else ProgressLines
-    return cls(desc=desc, total=total, unit=unit, **_bar_kwargs(total))
+    kwargs = _bar_kwargs(total)
+    if bar_format is not None:
+        kwargs["bar_format"] = bar_format
+    return cls(desc=desc, total=total, unit=unit, **kwargs)
 
 
 def checksum(path: Path) -> str:

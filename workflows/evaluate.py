@@ -13,7 +13,7 @@ import numpy as np
 
 from lanecast.io_adapters.contracts.windows import load_windows
 from lanecast.io_adapters.errors import InputError
-from lanecast.io_adapters.files import check_output_dir, staged_files
+from lanecast.io_adapters.files import activity, check_output_dir, staged_files
 from lanecast.models.baselines import constant_acceleration, constant_velocity
 from lanecast.models.card import resolve
 from lanecast.models.evaluation import (
@@ -86,9 +86,10 @@ def run(args: argparse.Namespace) -> int:
     if args.regression_only is not None:
         forecasters.append(STCNNForecaster.load(args.regression_only, "stcnn_regression_only"))
     try:
-        metrics, preds, idx = evaluate(
-            windows, forecasters, splits=SPLITS[args.split], top_k=args.top_k, batch_size=args.batch_size
-        )
+        with activity(f"evaluate: {len(forecasters)} forecasters on the {args.split} windows"):
+            metrics, preds, idx = evaluate(
+                windows, forecasters, splits=SPLITS[args.split], top_k=args.top_k, batch_size=args.batch_size
+            )
     except InputError as exc:  # e.g. no labelled windows in the split: in the dataset given
         raise exc.naming(args.windows) from exc
     meta = {
@@ -109,8 +110,9 @@ def run(args: argparse.Namespace) -> int:
     with staged_files(
         args.out, force=args.force
     ) as stage:  # an interrupted run leaves none of the report's files
-        write_metrics(stage / "metrics.json", metrics, meta)
-        write_report(stage, metrics, meta, scenes)
+        with activity("evaluate: writing the report and its figures"):
+            write_metrics(stage / "metrics.json", metrics, meta)
+            write_report(stage, metrics, meta, scenes)
     share = "" if args.split == "all" else f" of {len(windows):,}"
     print(f"evaluated {len(idx):,}{share} windows ({args.split}); RMSE per window at 1-5 s (m):")
     for name, m in metrics.items():

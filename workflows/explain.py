@@ -19,7 +19,7 @@ import pyarrow.compute as pc
 
 from lanecast.io_adapters.contracts.windows import DATASET_FILES, HISTORY, Windows, load_windows
 from lanecast.io_adapters.errors import InputError
-from lanecast.io_adapters.files import check_output_dir, staged_files
+from lanecast.io_adapters.files import activity, check_output_dir, staged_files
 from lanecast.io_adapters.formats import registry
 from lanecast.models.explain import parse_removals, present_neighbours, what_if
 from lanecast.models.reports.explain import write_explain
@@ -215,7 +215,8 @@ def run(args: argparse.Namespace) -> int:
         removals += [(n,) for n in present_neighbours(present) if (n,) not in removals]
     if not removals:
         raise InputError(args.input, "the target has no neighbour in this window: nothing to remove")
-    whatif = what_if(forecaster, inputs, present, removals, top_k=args.top_k)
+    with activity(f"explain: forecasts with {len(removals)} neighbour removal(s)"):
+        whatif = what_if(forecaster, inputs, present, removals, top_k=args.top_k)
     row = windows.index.slice(i, 1).to_pylist()[0]
     window = {
         "source": str(args.input),
@@ -226,7 +227,8 @@ def run(args: argparse.Namespace) -> int:
     }
     model = str(args.model) if args.model else "the shipped model"
     with staged_files(args.out, force=args.force) as stage:  # an interrupted run leaves none of its files
-        page = write_explain(stage, whatif, window, model, np.asarray(windows.future[i]))
+        with activity("explain: drawing the scenes"):
+            page = write_explain(stage, whatif, window, model, np.asarray(windows.future[i]))
     page = args.out / page.relative_to(stage)
     effects = {e["scenario"]: e for e in whatif.effects()}
     print(

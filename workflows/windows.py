@@ -7,7 +7,7 @@ import time
 from pathlib import Path
 
 from lanecast.io_adapters.contracts.windows import DATASET_FILES
-from lanecast.io_adapters.files import check_output_dir
+from lanecast.io_adapters.files import activity, check_output_dir
 from lanecast.io_adapters.formats import registry, streaming
 from lanecast.pipeline.make_windows import WindowOptions, write_windows
 from lanecast.workflows.arguments import MAX_SEED, integer, number
@@ -92,20 +92,22 @@ def run(args: argparse.Namespace) -> int:
             args.table, fmt=args.format, spill_dir=spill.path, options=options, long="context"
         )
         ordered_map = engines.mapper_from_args(args, args.table, args.out)
-        windows = write_windows(
-            pieces,
-            args.out,
-            WindowOptions(
-                stride=args.stride,
-                require_future=not args.no_future,
-                split=args.split,
-                seed=args.seed,
-                neighbours=args.neighbours,
-                neighbour_range=args.neighbour_range,
-            ),
-            ordered_map=ordered_map,
-            sources={"inputs": [str(Path(p)) for p in args.table]},
-        )
+        count = f"{len(pieces):,} piece" + ("s" if len(pieces) != 1 else "")
+        with activity(f"windows: resampling, neighbours and tensors of {count}"):
+            windows = write_windows(
+                pieces,
+                args.out,
+                WindowOptions(
+                    stride=args.stride,
+                    require_future=not args.no_future,
+                    split=args.split,
+                    seed=args.seed,
+                    neighbours=args.neighbours,
+                    neighbour_range=args.neighbour_range,
+                ),
+                ordered_map=ordered_map,
+                sources={"inputs": [str(Path(p)) for p in args.table]},
+            )
     m = windows.manifest
     counts = ", ".join(f"{k} {v:,}" for k, v in m["counts"].items() if v)
     labels = ", ".join(f"{k} {v:,}" for k, v in m["label_distribution"].items())
