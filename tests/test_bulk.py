@@ -171,7 +171,7 @@ def _cli(*args: str) -> list[str]:
 _PAUSE_IN_THIRD_LOG = """
 import sys, time
 from pathlib import Path
-from lanecast.io_adapters.annotations import mcap_copy
+from lanecast.io_adapters.logs.mcap import copy as mcap_copy
 from lanecast.workflows.cli import main
 ready, copy_mcap, calls = Path(sys.argv[1]), mcap_copy.copy_mcap, []
 def pausing_copy(src, out, **kwargs):

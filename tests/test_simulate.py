@@ -306,7 +306,7 @@ def test_libsumo_imported_before_pyarrow_works(tmp_path: Path) -> None:
         "import libsumo, sys\n"
         "import pyarrow.parquet as pq\n"
         "from pathlib import Path\n"
-        "from lanecast.io_adapters.datasets import highd\n"
+        "from lanecast.io_adapters.datasets.highd import reader as highd\n"
         "from lanecast.io_adapters.sim import recording\n"
         "out = recording.simulate(Path(sys.argv[1]), minutes=0.05, seed=1, section_length_m=100.0,\n"
         "                            approach_length_m=150.0, show_progress=False)\n"
