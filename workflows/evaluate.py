@@ -15,7 +15,7 @@ from lanecast.io_adapters.contracts.windows import load_windows
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import activity, check_output_dir, staged_files
 from lanecast.models.baselines import constant_acceleration, constant_velocity
-from lanecast.models.card import resolve
+from lanecast.models.card import provenance, provenance_line, resolve
 from lanecast.models.evaluation import (
     always_straight,
     evaluate,
@@ -95,7 +95,9 @@ def run(args: argparse.Namespace) -> int:
     meta = {
         "windows": str(args.windows),
         "split": args.split,
-        "model": str(resolve(args.model)[1]),
+        "model": (prov := provenance(args.model))["model"],
+        "model_sha256": prov["sha256"],
+        "model_trained_on": prov["trained_on"],
         "regression_only_model": None
         if args.regression_only is None
         else str(resolve(args.regression_only)[1]),
@@ -114,7 +116,8 @@ def run(args: argparse.Namespace) -> int:
             write_metrics(stage / "metrics.json", metrics, meta)
             write_report(stage, metrics, meta, scenes)
     share = "" if args.split == "all" else f" of {len(windows):,}"
-    print(f"evaluated {len(idx):,}{share} windows ({args.split}); RMSE per window at 1-5 s (m):")
+    print(f"evaluated {len(idx):,}{share} windows ({args.split}); {provenance_line(prov)}")
+    print("RMSE per window at 1-5 s (m):")
     for name, m in metrics.items():
         rmse = " ".join("–" if v is None else f"{v:.2f}" for v in m["rmse"])
         f1, acc = m["maneuver_macro_f1"], m["maneuver_accuracy"]

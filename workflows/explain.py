@@ -21,6 +21,7 @@ from lanecast.io_adapters.contracts.windows import DATASET_FILES, HISTORY, Windo
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import activity, check_output_dir, staged_files
 from lanecast.io_adapters.formats import registry
+from lanecast.models.card import provenance, provenance_line
 from lanecast.models.explain import parse_removals, present_neighbours, what_if
 from lanecast.models.reports.explain import write_explain
 from lanecast.models.runtime import load_forecaster
@@ -225,7 +226,7 @@ def run(args: argparse.Namespace) -> int:
         "t0_s": row["t0_ns"] / 1e9,
         "neighbours": present_neighbours(present),
     }
-    model = str(args.model) if args.model else "the shipped model"
+    model = provenance_line(provenance(args.model)).removeprefix("model: ")
     with staged_files(args.out, force=args.force) as stage:  # an interrupted run leaves none of its files
         with activity("explain: drawing the scenes"):
             page = write_explain(stage, whatif, window, model, np.asarray(windows.future[i]))

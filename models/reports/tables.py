@@ -219,6 +219,8 @@ def meta_items(meta: dict[str, Any]) -> list[tuple[str, str]]:
         "windows": "windows dataset",
         "split": "split",
         "model": "model",
+        "model_sha256": "model's weights (sha256)",
+        "model_trained_on": "model trained on",
         "regression_only_model": "regression-only model",
         "top_k": "alternatives per forecast (K)",
         "always_straight": "always straight",
