@@ -110,6 +110,11 @@ def run(args: argparse.Namespace) -> int:
     result = run_ablation(windows, names, list(range(args.seeds)), config)
     result["windows"] = str(args.windows)
     result["max_train_windows"] = max_train
+    if args.quick:
+        result["quick_warning"] = (
+            f"{config.epochs} epochs on at most {max_train:,} training windows, a check that the ablation "
+            "runs: these figures do not compare the variants"
+        )
     with staged_files(args.out, force=args.force) as stage:  # all of the report's files or none
         (stage / "ablation.json").write_text(
             json.dumps(finite({**result, "generator": GENERATOR}), indent=2, allow_nan=False) + "\n",
@@ -121,11 +126,8 @@ def run(args: argparse.Namespace) -> int:
     for v in result["variants"].values():
         print(f"  {v['label']:<24}" + " ".join(f"{x:.2f}" for x in v["mean"]["rmse"]))
     if args.quick:
-        print(
-            f"  (--quick: {config.epochs} epochs on at most {max_train:,} training windows, a check that "
-            "the ablation runs: these figures do not compare the variants)"
-        )
-    print(f"wrote {args.out / 'ablation.json'}, {html}")
+        print(f"  (--quick: {result['quick_warning']})")
+    print(f"wrote {args.out / 'ablation.json'}, report.md, ablation.png and {html}")
     return 0
 
 

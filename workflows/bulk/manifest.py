@@ -80,7 +80,7 @@ def not_ours(path: Path, exc: OSError) -> InputError:
         return InputError(
             path,
             "is a symlink; lanecast does not follow symlinks in its output directory",
-            expected="remove it",
+            expected="a regular file there, not a link",
         )
     return InputError(path, f"cannot open: {exc.strerror or exc}")
 

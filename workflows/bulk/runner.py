@@ -236,7 +236,7 @@ def refuse_foreign_outputs(tasks: Sequence[Task], manifest: Manifest) -> None:
             foreign[0],
             f"exists and was not written by lanecast annotate for this input ({manifest.path} records no such "
             f"output of it): refusing to overwrite it{more}",
-            expected="remove it, or choose another --out",
+            expected="a new --out, or that file moved away",
         )
 
 
