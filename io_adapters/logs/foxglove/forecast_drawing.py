@@ -82,6 +82,10 @@ def drawing_of(batch: ForecastBatch) -> Drawing:
         ],
         axis=1,
     )
+    # An alternative on the main line's path (the top sequence is the main forecast's) would draw it
+    # twice, the fainter over the bolder: it is kept in the data but drawn transparent.
+    same = np.all(np.abs(batch.alt_points - batch.points[:, None]) < 1e-3, axis=(2, 3))  # [N, K]
+    rgba[:, 1:, 3] = np.where(same, 0.0, rgba[:, 1:, 3])
     ids = br.json_ints(batch.track_id)
     if batch.removed is not None:  # one entity per what-if: "<track id> without <slot>"
         suffix = np.array([f" without {slot}".encode() for slot in WHAT_IF_SLOTS], dtype="S")
