@@ -26,6 +26,7 @@ from lanecast.models.evaluation import (
 )
 from lanecast.models.predictions import Forecaster
 from lanecast.models.reports.document import write_report
+from lanecast.models.reports.tables import headline, model_name
 from lanecast.workflows.arguments import MANEUVER_SEQUENCES, MAX_EXAMPLES, integer
 from lanecast.workflows.vocabulary import HelpFormatter, add_force_option, add_model_option
 
@@ -116,22 +117,24 @@ def run(args: argparse.Namespace) -> int:
             write_metrics(stage / "metrics.json", metrics, meta)
             write_report(stage, metrics, meta, scenes)
     share = "" if args.split == "all" else f" of {len(windows):,}"
+    for line in headline(metrics):
+        print(line)
     print(f"evaluated {len(idx):,}{share} windows ({args.split}); {provenance_line(prov)}")
     print("RMSE per window at 1-5 s (m):")
     for name, m in metrics.items():
         rmse = " ".join("–" if v is None else f"{v:.2f}" for v in m["rmse"])
         f1, acc = m["maneuver_macro_f1"], m["maneuver_accuracy"]
         maneuvers = "" if f1 is None else f"   macro-F1 {f1:.3f}, accuracy {acc:.3f}"
-        print(f"  {name:<24}{rmse}{maneuvers}")
+        print(f"  {model_name(name):<28}{rmse}{maneuvers}")
     straight = meta["always_straight"]
     print(
-        f"  {'always straight':<24}{'':<24}   macro-F1 {straight['maneuver_macro_f1']:.3f}, "
+        f"  {'always straight':<28}{'':<24}   macro-F1 {straight['maneuver_macro_f1']:.3f}, "
         f"accuracy {straight['maneuver_accuracy']:.3f}"
     )
     print("  (macro-F1 over the maneuver classes present or predicted: a false lane change counts)")
     band_note = speed_band_note(metrics)
     if band_note is not None:
-        print(f"by target speed, stcnn: {band_note} (report: By target speed)")
+        print(f"by target speed, {model_name('stcnn')}: {band_note} (report: By target speed)")
     print(f"wrote {args.out / 'metrics.json'}, report.md, report.html")
     if args.split != "all" and len(idx) < len(windows):
         print(

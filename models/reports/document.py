@@ -29,6 +29,7 @@ from lanecast.models.reports.plots import (
 from lanecast.models.reports.scenes import Scene, scene_plot
 from lanecast.models.reports.tables import (
     MISS_NOTE,
+    headline,
     lane_change_rows,
     maneuver_rows,
     meta_items,
@@ -126,7 +127,8 @@ def write_report(
         tables.append(("By target speed", *by_speed, [SPEED_BAND_NOTE]))
     items = meta_items(meta)
 
-    md = [f"# {title}", ""]
+    answer = headline(metrics)
+    md = [f"# {title}", "", *(f"**{line}**" for line in answer), ""]
     md += [f"- {label}: {text}" for label, text in items]
     md += [f"- [{text}]({href})" for text, href in links]
     for heading, header, rows, notes in tables:
@@ -152,7 +154,9 @@ def write_report(
         "text-align:right;font-size:13px}th{background:#f3f3f3}td:first-child,th:first-child{text-align:left}"
         "dl{display:grid;grid-template-columns:max-content auto;gap:2px 12px}dt{font-weight:bold}dd{margin:0}"
         "p.note{font-size:13px;color:#444}img{max-width:100%}</style></head><body>",
-        f"<h1>{esc(title)}</h1><dl>",
+        f"<h1>{esc(title)}</h1>",
+        *(f"<p style='font-size:1.15em'><b>{esc(line)}</b></p>" for line in answer),
+        "<dl>",
         *(f"<dt>{esc(label)}</dt><dd>{esc(text)}</dd>" for label, text in items),
         "</dl>",
     ]

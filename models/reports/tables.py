@@ -38,6 +38,48 @@ def model_name(key: str) -> str:
     return MODEL_NAMES.get(key, key)
 
 
+def headline(metrics: dict[str, Any]) -> list[str]:
+    """The answer first: the main model's RMSE at 5 s with its interval beside constant velocity's,
+    on how many windows, and a flag for a classifier that never predicts a class the data holds or
+    is less accurate than always predicting straight."""
+    models = [k for k in metrics if k != "meta" and metrics[k]]
+    main = "stcnn" if "stcnn" in models else next((k for k in models if k not in ("cv", "ca")), None)
+    lines: list[str] = []
+    m, cv = metrics.get(main or "") or {}, metrics.get("cv") or {}
+    rmse5 = (m.get("rmse") or [None])[-1]
+    if main is not None and rmse5 is not None:
+        ci = m.get("rmse_ci") or {}
+        interval = (
+            f" (95 % interval {ci['low'][-1]:.2f}–{ci['high'][-1]:.2f})"
+            if ci.get("low") and ci["low"][-1] is not None
+            else ""
+        )
+        cv5 = (cv.get("rmse") or [None])[-1] if main != "cv" else None
+        versus = f", {rmse5 / cv5:.2f}× constant velocity's {cv5:.2f} m" if cv5 else ""
+        lines.append(
+            f"{model_name(main)}: RMSE at 5 s {rmse5:.2f} m{interval}{versus}, on {m.get('n_windows', 0):,} windows."
+        )
+    for key in models:
+        s = metrics[key]
+        if s.get("predicted") is None or s.get("support") is None:
+            continue
+        never = [
+            MANEUVERS[c]
+            for c, (n, p) in enumerate(zip(s["support"], s["predicted"], strict=True))
+            if n and not p
+        ]
+        if never:
+            lines.append(
+                f"{model_name(key)} never predicts {' or '.join(repr(c) for c in never)}, which the data holds."
+            )
+        acc, straight = s.get("maneuver_accuracy"), s.get("always_straight_accuracy")
+        if acc is not None and straight is not None and acc < straight:
+            lines.append(
+                f"{model_name(key)}'s maneuver accuracy {acc:.3f} is below always predicting straight ({straight:.3f})."
+            )
+    return lines
+
+
 def _ci(ci: dict[str, Any] | None, h: int) -> str:
     if not ci or ci["low"][h] is None:
         return ""
