@@ -22,14 +22,16 @@ from lanecast.models.reports.document import Scene, scene_plot
 
 
 def scenes(whatif: WhatIf, title: str, future: np.ndarray) -> list[Scene]:
-    """One Scene per scenario (full scene first); removed neighbours drawn dashed where they were at t0.
+    """One Scene per scenario: the full scene first, then the what-ifs in the ranking table's order
+    (most influential first); removed neighbours drawn dashed where they were at t0.
 
     future float [5, 2]: the ground truth (NaN where unknown: not drawn).
     """
     p = whatif.predictions
     full_inputs, full_present = whatif.inputs[0], whatif.present[0]
     out = []
-    for s, name in enumerate(whatif.names):
+    for s in [0, *whatif.rank()]:
+        name = whatif.names[s]
         rows = tuple(ROWS.index(n) for n in whatif.removed[s])
         at = {
             r: (float(full_inputs[0, r, -1]), float(full_inputs[1, r, -1]))
