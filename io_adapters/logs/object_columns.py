@@ -237,8 +237,7 @@ def add_scene_update_json(cols: ObjectColumns, doc: Any, log_time: int) -> None:
         q = jf.get(pose, "orientation", f"{where}.cubes[0].pose", "object", {})
         s = jf.get(cube, "size", f"{where}.cubes[0]", "object", {})
         ts = jf.get(e, "timestamp", where, "object|null", None) or {}
-        sec = jf.get(ts, "sec", f"{where}.timestamp", "int", 0)
-        nsec = jf.get(ts, "nsec", f"{where}.timestamp", "int", 0)
+        sec, nsec = (_whole_number(ts, key, f"{where}.timestamp") for key in ("sec", "nsec"))
         if not (0 <= sec <= MAX_STAMP_SEC and 0 <= nsec <= 999_999_999):
             raise jf.FieldError(
                 f"{where}.timestamp",
@@ -265,6 +264,14 @@ def add_scene_update_json(cols: ObjectColumns, doc: Any, log_time: int) -> None:
 
 
 _NUMERIC_METADATA = ("vx", "vy", "ax", "ay", "lane_id")
+
+
+def _whole_number(doc: Mapping[str, Any], key: str, where: str) -> int:
+    """An integer field of any size (its range is checked by the caller, which names the stamp)."""
+    value = doc.get(key, 0)
+    if not isinstance(value, int) or isinstance(value, bool):
+        raise jf.FieldError(f"{where}.{key}", repr(value), "an integer")
+    return value
 
 
 def _entity_metadata(entity: Mapping[str, Any], where: str) -> dict[str, str]:
