@@ -9,7 +9,8 @@ from __future__ import annotations
 import numpy as np
 import pyarrow as pa
 
-from lanecast.io_adapters.contracts.windows import HORIZON_S, to_source_frame
+from lanecast.io_adapters.contracts.window_frame import to_source_frame
+from lanecast.io_adapters.contracts.windows import HORIZON_S
 from lanecast.io_adapters.errors import InputError
 from lanecast.models.predictions import Predictions
 

@@ -21,7 +21,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from lanecast.io_adapters.contracts.windows import NormStats, normalise
+from lanecast.io_adapters.contracts.normalisation import NormStats, normalise
 from lanecast.models import ood
 from lanecast.models.baselines import kinematic_limits, reference_offsets
 from lanecast.models.checkpoint import load_checkpoint
