@@ -178,10 +178,7 @@ class TrackTableWriter:
         """Append one validated piece (its metadata names its recordings; ``source`` names the
         input in errors); ``continues``: more whole tracks of the previous piece's recording."""
         assert self._tmp is not None, "use TrackTableWriter as a context manager"
-        if not continues:
-            self._account(track_table.read_meta(table), source)
-        self.rows += table.num_rows
-        self.tracks += len(track_table.track_boundaries(table)) - 1
+        self._account(table, source, continues)
         if self.directory:
             if not continues:
                 self._close_part()
@@ -207,9 +204,7 @@ class TrackTableWriter:
         table = track_table.read_parquet(path)
         if self.directory and not (continues or continued):
             self._close_part()
-            self._account(track_table.read_meta(table), source)
-            self.rows += table.num_rows
-            self.tracks += len(track_table.track_boundaries(table)) - 1
+            self._account(table, source)
             path.replace(self.part_path(self._parts))
             self._parts += 1
         else:
@@ -221,7 +216,14 @@ class TrackTableWriter:
             self._writer.close()
             self._writer = None
 
-    def _account(self, meta: track_table.TableMeta, source: str) -> None:
+    def _account(self, table: pa.Table, source: str, continues: bool = False) -> None:
+        """Count the rows and tracks of a piece; a new recording's metadata is merged (raises on
+        a recording given twice)."""
+        self.rows += table.num_rows
+        self.tracks += len(track_table.track_boundaries(table)) - 1
+        if continues:
+            return
+        meta = track_table.read_meta(table)
         self._metas.append(meta)
         self._sources.append(source or ", ".join(meta.source_files))
         track_table.merge_meta(self._metas, self._sources)  # raises on a recording given twice

@@ -48,11 +48,18 @@ def save_windows(windows: Windows, directory: str | Path) -> Path:
     with atomic_path(directory, directory=True, replaces=DATASET_FILES) as tmp:
         for name in ARRAYS:
             np.save(tmp / f"{name}.npy", np.ascontiguousarray(getattr(windows, name)), allow_pickle=False)
-        pq.write_table(windows.index.cast(INDEX_SCHEMA), tmp / "windows.parquet", compression="zstd")
-        (tmp / "manifest.json").write_text(
-            json.dumps(_jsonable(manifest), indent=2, sort_keys=True), encoding="utf-8"
-        )
+        _write_index(tmp, windows.index)
+        _write_manifest(tmp, manifest)
     return directory
+
+
+def _write_index(directory: Path, index: pa.Table) -> None:
+    pq.write_table(index.cast(INDEX_SCHEMA), directory / "windows.parquet", compression="zstd")
+
+
+def _write_manifest(directory: Path, manifest: dict[str, Any]) -> None:
+    text = json.dumps(manifest, indent=2, sort_keys=True, default=_jsonable)
+    (directory / "manifest.json").write_text(text, encoding="utf-8")
 
 
 def save_shard(directory: Path, arrays: dict[str, np.ndarray]) -> Path:
@@ -134,14 +141,12 @@ class DatasetWriter:
         for appender in self._appenders.values():
             appender.close()
         shutil.rmtree(self.shard_root, ignore_errors=True)
-        pq.write_table(index.cast(INDEX_SCHEMA), self._tmp / "windows.parquet", compression="zstd")
+        _write_index(self._tmp, index)
         arrays = {name: np.load(self._tmp / f"{name}.npy", mmap_mode="r") for name in ARRAYS}
         windows = Windows(index=index, **arrays)
         windows.check()
         windows.manifest = manifest(windows)
-        (self._tmp / "manifest.json").write_text(
-            json.dumps(_jsonable(windows.manifest), indent=2, sort_keys=True), encoding="utf-8"
-        )
+        _write_manifest(self._tmp, windows.manifest)
         return windows
 
 
@@ -282,14 +287,9 @@ def _check_index(path: Path, index: pa.Table) -> None:
 
 
 def _jsonable(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return _jsonable(value.tolist())
-    if isinstance(value, np.generic):
-        return value.item()
+    """What ``json`` cannot write itself, as what it can (numpy arrays and numbers, paths)."""
+    if isinstance(value, np.ndarray | np.generic):
+        return value.tolist()
     if isinstance(value, Path):
         return str(value)
-    return value
+    raise TypeError(f"{type(value).__name__} is not JSON serialisable")
