@@ -9,22 +9,20 @@ from __future__ import annotations
 import numpy as np
 import pyarrow as pa
 
-from lanecast.io_adapters.contracts.windows import HORIZON_S, to_source_frame
+from lanecast.io_adapters.contracts import forecasts
+from lanecast.io_adapters.contracts.window_frame import to_source_frame
+from lanecast.io_adapters.contracts.windows import HORIZON_S
 from lanecast.io_adapters.errors import InputError
 from lanecast.models.predictions import Predictions
 
 
 def forecasts_table(index: pa.Table, preds: Predictions) -> pa.Table:
-    """Forecasts in the source frame, one row per window.
+    """Forecasts in the source frame, one row per window, in the forecasts contract's schema
+    (``lanecast.io_adapters.contracts.forecasts``).
 
     index: the windows' index (recording, track_id, t0_ns, origin_x, origin_y, origin_heading).
-    Columns: recording, track_id, t0_ns, horizon_s list[5], x, y list[5] (m, source frame),
-    maneuver_probs list[5] of list[3] (straight, left, right; null for baselines), maneuver list[5]
-    (null for baselines), the K alternatives: alt_probs list[K], alt_maneuvers list[K] of list[5],
-    alt_x, alt_y list[K] of list[5], and origin_x, origin_y (m, source frame): the target's centre
-    at t0, where the drawn line starts (kept from the window, never interpolated again), and
-    out_of_distribution (bool: the target's state lies outside the model's training distribution;
-    null where unknown, e.g. baselines).
+    ``origin_x``/``origin_y`` are kept from the window (the drawn line starts there, never
+    interpolated again).
     """
     n = index.num_rows
     ox, oy, heading = (index.column(c).to_numpy() for c in ("origin_x", "origin_y", "origin_heading"))
@@ -40,39 +38,24 @@ def forecasts_table(index: pa.Table, preds: Predictions) -> pa.Table:
             expected="positions and speeds the model's normalisation can represent",
         )
     horizon = np.broadcast_to(np.asarray(HORIZON_S, np.float32), (n, len(HORIZON_S)))
-    columns: dict[str, pa.Array] = {
-        "recording": index.column("recording").combine_chunks(),
-        "track_id": index.column("track_id").combine_chunks(),
-        "t0_ns": index.column("t0_ns").combine_chunks(),
-        "horizon_s": nested(horizon),
-        "x": nested(xy[..., 0]),
-        "y": nested(xy[..., 1]),
-        "maneuver_probs": nested(preds.probs, n, (5, 3), pa.float32()),
-        "maneuver": nested(preds.maneuver, n, (5,), pa.int8()),
-        "alt_probs": nested(preds.top_probs),
-        "alt_maneuvers": nested(preds.top_sequences, n, (preds.top_probs.shape[1], 5), pa.int8()),
-        "alt_x": nested(alt[..., 0]),
-        "alt_y": nested(alt[..., 1]),
-        "origin_x": pa.array(ox, pa.float64()),
-        "origin_y": pa.array(oy, pa.float64()),
-        "out_of_distribution": pa.array(preds.out_of_distribution, pa.bool_())
-        if preds.out_of_distribution is not None
-        else pa.nulls(n, pa.bool_()),
+    arrays: dict[str, np.ndarray | None] = {
+        "horizon_s": horizon,
+        "x": xy[..., 0],
+        "y": xy[..., 1],
+        "maneuver_probs": preds.probs,
+        "maneuver": preds.maneuver,
+        "alt_probs": preds.top_probs,
+        "alt_maneuvers": preds.top_sequences,
+        "alt_x": alt[..., 0],
+        "alt_y": alt[..., 1],
+        "origin_x": ox,
+        "origin_y": oy,
+        "out_of_distribution": preds.out_of_distribution,
     }
-    return pa.table(columns)
-
-
-def nested(
-    values: np.ndarray | None, n: int = 0, shape: tuple[int, ...] = (), dtype: pa.DataType | None = None
-) -> pa.Array:
-    """An [N, a, b, …] array as N rows of nested lists (all null when ``values`` is None)."""
-    if values is None:
-        inner: pa.DataType = dtype or pa.float32()
-        for _ in shape:
-            inner = pa.list_(inner)
-        return pa.nulls(n, inner)
-    flat: pa.Array = pa.array(np.ascontiguousarray(values).reshape(-1), type=dtype)
-    for size in reversed(values.shape[1:]):
-        count = len(flat) // size
-        flat = pa.ListArray.from_arrays(pa.array(np.arange(count + 1, dtype=np.int32) * size), flat)
-    return flat
+    columns = [
+        index.column(f.name).combine_chunks().cast(f.type)
+        if f.name in ("recording", "track_id", "t0_ns")
+        else forecasts.list_column(arrays[f.name], n, f.type)
+        for f in forecasts.SCHEMA
+    ]
+    return pa.Table.from_arrays(columns, schema=forecasts.SCHEMA)

@@ -21,12 +21,11 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from lanecast.io_adapters.contracts.windows import NormStats, normalise
+from lanecast.io_adapters.contracts.normalisation import NormStats, normalise
 from lanecast.models import ood
 from lanecast.models.baselines import kinematic_limits, reference_offsets
 from lanecast.models.checkpoint import load_checkpoint
 from lanecast.models.forecasts_from_predictions import forecasts_table as forecasts_table
-from lanecast.models.forecasts_from_predictions import nested as nested
 from lanecast.models.predictions import Predictions
 from lanecast.models.stcnn import STCNN
 

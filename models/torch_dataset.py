@@ -31,16 +31,10 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from lanecast.io_adapters.contracts.windows import (
-    SPLITS,
-    NormStats,
-    Windows,
-    compute_stats,
-    labelled,
-    load_windows,
-    normalise,
-)
+from lanecast.io_adapters.contracts.normalisation import NormStats, compute_stats, normalise
+from lanecast.io_adapters.contracts.windows import SPLITS, Windows, labelled
 from lanecast.io_adapters.errors import UsageError
+from lanecast.io_adapters.windows_store.dataset import load_windows
 
 Sample = dict[str, torch.Tensor]
 

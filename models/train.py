@@ -11,7 +11,7 @@ network keeps its best epoch on the validation split (regressor: RMSE; classifie
 ``select_classifier="macro_f1"`` the per-step macro-F1, which rewards lane-change recall that the
 NLL, dominated by the ~97 % straight steps, does not).
 
-Inputs are normalised with statistics from the training split (``lanecast.io_adapters.contracts.windows``). Future
+Inputs are normalised with statistics from the training split (``lanecast.io_adapters.contracts.normalisation``). Future
 offsets are normalised per model as (offset − mean[step, axis]) / std, one std for all steps and both
 axes, so the regressor's loss stays proportional to the RMSE in metres (the paper's criterion);
 both are stored in the card.
@@ -33,7 +33,8 @@ import numpy as np
 import torch
 
 from lanecast.io_adapters import json_fields as jf
-from lanecast.io_adapters.contracts.windows import NormStats, Windows, compute_stats, labelled, normalise
+from lanecast.io_adapters.contracts.normalisation import NormStats, compute_stats, normalise
+from lanecast.io_adapters.contracts.windows import Windows, labelled
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import bar, check_input
 from lanecast.models import ood

@@ -17,7 +17,7 @@ import pytest
 from conftest import make_track_table, synthetic_windows
 
 from lanecast.io_adapters.contracts import track_table
-from lanecast.io_adapters.contracts.windows import save_windows
+from lanecast.io_adapters.windows_store.dataset import save_windows
 from lanecast.workflows import cli, demo
 
 REPO = Path(__file__).resolve().parents[1]

@@ -18,10 +18,10 @@ import pytest
 from conftest import synthetic_windows
 
 from lanecast.io_adapters.contracts import track_table
-from lanecast.io_adapters.contracts.windows import load_windows, save_windows
 from lanecast.io_adapters.errors import InputError, LanecastError, LogError, TrackTableError
 from lanecast.io_adapters.formats import registry
 from lanecast.io_adapters.logs.mcap import reader as mcap_reader
+from lanecast.io_adapters.windows_store.dataset import load_windows, save_windows
 from lanecast.workflows.cli import main
 
 REPO = Path(__file__).resolve().parents[1]

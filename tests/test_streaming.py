@@ -15,12 +15,15 @@ import pyarrow.parquet as pq
 import pytest
 
 from lanecast.io_adapters.contracts import track_table
-from lanecast.io_adapters.contracts.windows import NpyAppender, Windows, compute_stats, load_windows
+from lanecast.io_adapters.contracts.normalisation import compute_stats
+from lanecast.io_adapters.contracts.windows import Windows
 from lanecast.io_adapters.datasets.highd import reader as highd
 from lanecast.io_adapters.datasets.ngsim import reader as ngsim
 from lanecast.io_adapters.datasets.ngsim import stream as ngsim_stream
 from lanecast.io_adapters.errors import InputError, TrackTableError
 from lanecast.io_adapters.formats import registry, streaming
+from lanecast.io_adapters.windows_store.dataset import load_windows
+from lanecast.io_adapters.windows_store.npy_append import NpyAppender
 from lanecast.pipeline.make_windows import WindowOptions, make_windows, write_windows
 from lanecast.workflows.cli import main
 

@@ -14,10 +14,11 @@ from pathlib import Path
 
 import numpy as np
 
-from lanecast.io_adapters.contracts.windows import labelled, load_windows, subset
+from lanecast.io_adapters.contracts.windows import labelled, subset
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import check_output_dir, staged_files
 from lanecast.io_adapters.ownership import GENERATOR
+from lanecast.io_adapters.windows_store.dataset import load_windows
 from lanecast.models.reports.ablation import write_ablation_report
 from lanecast.workflows.arguments import integer
 from lanecast.workflows.vocabulary import HelpFormatter, add_force_option

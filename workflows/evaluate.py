@@ -11,9 +11,9 @@ from pathlib import Path
 
 import numpy as np
 
-from lanecast.io_adapters.contracts.windows import load_windows
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import activity, check_output_dir, staged_files
+from lanecast.io_adapters.windows_store.dataset import load_windows
 from lanecast.models.baselines import constant_acceleration, constant_velocity
 from lanecast.models.card import provenance, provenance_line, resolve
 from lanecast.models.evaluation import (

@@ -17,10 +17,11 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from lanecast.io_adapters.contracts.windows import DATASET_FILES, HISTORY, Windows, load_windows
+from lanecast.io_adapters.contracts.windows import DATASET_FILES, HISTORY, Windows
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import activity, check_output_dir, staged_files
 from lanecast.io_adapters.formats import registry
+from lanecast.io_adapters.windows_store.dataset import load_windows
 from lanecast.models.card import provenance, provenance_line
 from lanecast.models.explain import parse_removals, present_neighbours, what_if
 from lanecast.models.reports.explain import write_explain

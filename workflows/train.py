@@ -12,9 +12,9 @@ import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from lanecast.io_adapters.contracts.windows import load_windows
 from lanecast.io_adapters.errors import InputError, UsageError
 from lanecast.io_adapters.files import check_output_dir
+from lanecast.io_adapters.windows_store.dataset import load_windows
 from lanecast.models.baselines import constant_velocity
 from lanecast.models.card import read_card, resolve
 from lanecast.models.evaluation import evaluate

@@ -1,11 +1,7 @@
 """Forecasts grouped by log time: the frames and batches every forecast encoder renders.
 
-A forecasts table (``lanecast.workflows.annotation.track_forecasts.forecast_table``: one row per target and forecast
-time t0: ``recording``, ``track_id``, ``t0_ns``, ``x``, ``y`` (5 predicted positions, source frame,
-m), ``maneuver_probs`` (5×3, null for baselines), ``maneuver`` (5, null for baselines), optionally
-``horizon_s`` (5), ``origin_x``/``origin_y`` (the target's centre at t0; else interpolated from the
-tracks) and the top-K alternatives ``alt_x``/``alt_y`` (K×5), ``alt_probs`` (K), ``alt_maneuvers``
-(K×5)) is grouped by (t0, recording) into :class:`ForecastFrame` s, or kept column-wise as one
+A forecasts table (``lanecast.io_adapters.contracts.forecasts``; without ``origin_x``/``origin_y``
+the origins are interpolated from the tracks) is grouped by (t0, recording) into :class:`ForecastFrame` s, or kept column-wise as one
 :class:`ForecastBatch` of many frames (what the bulk encoders take). Malformed columns raise
 :class:`~lanecast.io_adapters.errors.InputError` naming the column.
 """
@@ -20,6 +16,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
+from lanecast.io_adapters.contracts import forecasts as contract
+from lanecast.io_adapters.contracts.forecasts import N_CLASSES, N_STEPS
 from lanecast.io_adapters.contracts.windows import NEIGHBOUR_ROWS
 from lanecast.io_adapters.errors import InputError
 
@@ -35,9 +33,6 @@ EXPLAIN_TOPIC = "/lanecast/explain"
 
 #: The neighbour slots a what-if removes, by index.
 WHAT_IF_SLOTS: tuple[str, ...] = NEIGHBOUR_ROWS
-
-
-N_STEPS = 5
 
 
 @dataclass(frozen=True)
@@ -258,9 +253,7 @@ def batch_from_table(
     Origins come from ``origin_x``/``origin_y`` when present, else from ``tracks`` (interpolated at
     t0), else they are NaN and the line starts at the first predicted point.
     """
-    for name in ("recording", "track_id", "t0_ns", "x", "y", "maneuver_probs", "maneuver"):
-        if name not in forecasts.column_names:
-            raise InputError(None, "forecasts table lacks a column", column=name)
+    contract.check_columns(forecasts)
     n = forecasts.num_rows
     if n == 0:
         return ForecastBatch.empty(lifetime_ns=round(lifetime_s * 1e9))
@@ -279,7 +272,7 @@ def batch_from_table(
         axis=-1,
     )
     # baselines give no maneuvers: NaN probabilities and maneuver -1 (drawn grey, "unknown")
-    probs = _fixed_lists(forecasts, "maneuver_probs", (N_STEPS, 3), np.float64, fill=np.nan)
+    probs = _fixed_lists(forecasts, "maneuver_probs", (N_STEPS, N_CLASSES), np.float64, fill=np.nan)
     maneuver = _fixed_lists(forecasts, "maneuver", (N_STEPS,), np.int64, fill=-1)
     if "horizon_s" in forecasts.column_names:
         horizon = _fixed_lists(forecasts, "horizon_s", (N_STEPS,), np.float64)[0]
@@ -321,8 +314,8 @@ def batch_from_table(
         alt_points = np.zeros((n, 0, N_STEPS, 2))
         alt_maneuver = np.zeros((n, 0, N_STEPS), dtype=np.int64)
     removed = None
-    if "removed_slot" in forecasts.column_names:  # what-if forecasts (lanecast annotate --explain)
-        removed = forecasts.column("removed_slot").to_numpy(zero_copy_only=False).astype(np.int64)
+    if contract.REMOVED_SLOT in forecasts.column_names:  # what-if forecasts (lanecast annotate --explain)
+        removed = forecasts.column(contract.REMOVED_SLOT).to_numpy(zero_copy_only=False).astype(np.int64)
     ood = None
     if "out_of_distribution" in forecasts.column_names:
         column = forecasts.column("out_of_distribution")

@@ -6,7 +6,7 @@ later. Through the page cache, every written page is fresh memory for the kernel
 fault in; on a virtual machine that returns freed memory to its host (this project's machines)
 that costs about 2 s of system time per GB, more than cutting the windows. Written directly, the
 same bytes go from one reused 8 MB buffer to the disk (0.1 s of system time per GB measured
-here, BENCHMARKS.md, issue 14). The bytes in the file are the same either way.
+here, BENCHMARKS.md). The bytes in the file are the same either way.
 
 A direct write makes the caller wait for the disk (0.5 s per GB here, with almost no CPU), so
 :meth:`DirectWriter.commit` hands the filled staging buffer to a writer thread and goes on in a

@@ -11,8 +11,10 @@ import torch
 from conftest import synthetic_windows
 from torch.utils.data import DataLoader
 
-from lanecast.io_adapters.contracts.windows import NormStats, compute_stats, labelled, normalise, save_windows
+from lanecast.io_adapters.contracts.normalisation import NormStats, compute_stats, normalise
+from lanecast.io_adapters.contracts.windows import labelled
 from lanecast.io_adapters.errors import UsageError
+from lanecast.io_adapters.windows_store.dataset import save_windows
 from lanecast.models.torch_dataset import WindowsDataset
 
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 from conftest import synthetic_windows
 
-from lanecast.io_adapters.contracts.windows import save_windows
+from lanecast.io_adapters.windows_store.dataset import save_windows
 from lanecast.workflows.cli import main
 
 

@@ -11,8 +11,8 @@ import pytest
 from conftest import synthetic_windows
 from mcap.writer import Writer
 
-from lanecast.io_adapters.contracts.windows import save_windows
 from lanecast.io_adapters.ownership import lanecast_wrote
+from lanecast.io_adapters.windows_store.dataset import save_windows
 from lanecast.workflows.cli import main
 
 HIGHD = Path(__file__).resolve().parents[1] / "data" / "highd"

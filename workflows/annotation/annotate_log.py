@@ -24,11 +24,11 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.compute as pc
 import pyarrow.parquet as pq
 from rosbags.rosbag1 import Reader as Reader1
 from rosbags.rosbag2 import Reader as Reader2
 
+from lanecast.io_adapters.contracts import forecasts as forecasts_contract
 from lanecast.io_adapters.contracts.track_table import read_meta
 from lanecast.io_adapters.errors import InputError, LogError
 from lanecast.io_adapters.files import atomic_path, check_input, checksum
@@ -198,42 +198,17 @@ def precomputed_forecasts(src: Path, source: Path) -> pa.Table:
     return read_forecasts_table(path)
 
 
-#: Columns a forecasts table must have (see forecast_batch.batch_from_table); the points must be finite.
-FORECAST_COLUMNS = ("recording", "track_id", "t0_ns", "x", "y", "maneuver_probs", "maneuver")
-
-
 def read_forecasts_table(path: Path) -> pa.Table:
-    """A precomputed forecasts table, checked: InputError naming ``path`` for a file that is not
-    Parquet, a missing column, or a forecast point (``x``, ``y``) that is null, NaN or infinite
-    (written into the log, a NaN point drew nothing and said nothing), giving its row."""
+    """A precomputed forecasts table, checked (``contracts.forecasts.validate``): InputError naming
+    ``path`` for a file that is not Parquet, a missing column, or a forecast point (``x``, ``y``)
+    that is null, NaN or infinite, giving its row."""
     try:
         table = pq.read_table(path)
     except (pa.ArrowException, OSError) as exc:
         raise InputError(
             path, f"unreadable forecasts table: {exc}", expected="a Parquet table of forecasts"
         ) from exc
-    for name in FORECAST_COLUMNS:
-        if name not in table.column_names:
-            raise InputError(path, "forecasts table lacks a column", column=name)
-    for name in ("x", "y"):
-        column = table.column(name)
-        if not (pa.types.is_list(column.type) or pa.types.is_fixed_size_list(column.type)):
-            raise InputError(path, f"a {column.type} column", column=name, expected="lists of 5 numbers")
-        values = pc.list_flatten(column)
-        lengths = pc.list_value_length(column).fill_null(0).to_numpy(zero_copy_only=False)
-        numbers = values.cast(pa.float64()).fill_null(np.nan).to_numpy(zero_copy_only=False)
-        bad = ~np.isfinite(numbers)
-        null_rows = np.asarray(column.is_null())
-        if bad.any() or null_rows.any():
-            row_of = np.repeat(np.arange(table.num_rows), lengths)
-            rows = np.concatenate([row_of[bad], np.flatnonzero(null_rows)])
-            row = int(rows.min())
-            raise InputError(
-                path,
-                f"row {row}: forecast point {column[row].as_py()}",
-                column=name,
-                expected="finite coordinates in metres",
-            )
+    forecasts_contract.validate(table, path)
     return table
 
 

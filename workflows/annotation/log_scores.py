@@ -23,7 +23,8 @@ import pyarrow as pa
 from mcap.reader import NonSeekingReader
 from rosbags.highlevel import AnyReader
 
-from lanecast.io_adapters.contracts.windows import MANEUVERS, to_window_frame
+from lanecast.io_adapters.contracts.window_frame import to_window_frame
+from lanecast.io_adapters.contracts.windows import MANEUVERS
 from lanecast.io_adapters.errors import InputError, LanecastError, LogError
 from lanecast.io_adapters.files import progress, staged_files
 from lanecast.io_adapters.formats import registry

@@ -114,11 +114,17 @@ def _groups_of(
     return np.unique(np.repeat(g_first, spans) + within)
 
 
+def group_starts(pf: pq.ParquetFile) -> np.ndarray:
+    """int64 [G + 1]: the first row of each row group of ``pf``, and its row count at the end."""
+    rows = [pf.metadata.row_group(i).num_rows for i in range(pf.num_row_groups)]
+    return np.r_[0, np.cumsum(rows)].astype(np.int64)
+
+
 def read_chunk(pf: pq.ParquetFile, chunk: Chunk) -> pa.Table:
     """A chunk's target tracks with the rows of every other track of its recording within the
     chunk's context times, one row group in memory at a time, sorted by track as in the file
     (without the table metadata)."""
-    starts = np.r_[0, np.cumsum([pf.metadata.row_group(i).num_rows for i in range(pf.num_row_groups)])]
+    starts = group_starts(pf)
     kept = []
     for g in chunk.context_groups:
         lo = max(chunk.rows[0] - int(starts[g]), 0)  # the recording's rows of the group
