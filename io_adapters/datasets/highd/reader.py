@@ -15,13 +15,7 @@ from typing import Any
 import pyarrow as pa
 
 from lanecast.io_adapters.contracts import track_table
-from lanecast.io_adapters.datasets.highd.columns import (
-    KINDS,
-    NEIGHBOURS,
-    RECORDING_META_COLUMNS,
-    TRACKS_COLUMNS,
-    TRACKS_META_COLUMNS,
-)
+from lanecast.io_adapters.datasets.highd.columns import NEIGHBOURS, TRACKS_COLUMNS, TRACKS_META_COLUMNS
 from lanecast.io_adapters.datasets.highd.convert import concat, convert_tracks
 from lanecast.io_adapters.datasets.highd.meta import Meta, read_recording_meta
 from lanecast.io_adapters.datasets.highd.parse import read_csv
@@ -29,20 +23,7 @@ from lanecast.io_adapters.datasets.highd.sniff import Recording, check_present, 
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import progress
 
-__all__ = [
-    "FORMAT",
-    "KINDS",
-    "NEIGHBOURS",
-    "RECORDING_META_COLUMNS",
-    "TRACKS_COLUMNS",
-    "TRACKS_META_COLUMNS",
-    "Recording",
-    "convert_tracks",
-    "read",
-    "read_companions",
-    "recordings",
-    "sniff",
-]
+__all__ = ["FORMAT", "NEIGHBOURS", "TRACKS_COLUMNS", "Recording", "read", "recordings", "sniff"]
 
 FORMAT = "highd"
 

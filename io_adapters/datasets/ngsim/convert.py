@@ -48,7 +48,7 @@ def assemble(files: list[Parsed], split_periods: bool) -> pa.Table:
             loc_keys = np.unique(key[parsed.location_code == loc_index])
             for rank, k in enumerate(loc_keys, start=1):
                 rows = key == k
-                name = f"ngsim-{loc}-{parsed.path.stem}" + (f"-p{rank}" if loc_keys.size > 1 else "")
+                name = recording_name(loc, parsed.path, rank, loc_keys.size)
                 if name in metas:
                     raise InputError(
                         parsed.path,
@@ -56,19 +56,9 @@ def assemble(files: list[Parsed], split_periods: bool) -> pa.Table:
                         expected="input files with distinct names per location",
                     )
                 origin[name] = parsed.path
-                gt = cols["global_time"][rows]
-                metas[name] = track_table.RecordingMeta(
-                    frame_rate=FRAME_RATE,
-                    coordinate_frame="road" if is_freeway(loc) else "local",
-                    source_files=[str(parsed.path)],
-                    extra=recording_extra(
-                        loc,
-                        parsed.location_source,
-                        int(epochs[k % len(epochs)]),
-                        int(gt.min()),
-                        rank,
-                        loc_keys.size,
-                    ),
+                epoch, start = int(epochs[k % len(epochs)]), int(cols["global_time"][rows].min())
+                metas[name] = recording_meta(
+                    parsed.path, loc, parsed.location_source, epoch, start, rank, loc_keys.size
                 )
                 code[rows] = len(names)
                 names.append(name)
@@ -78,11 +68,18 @@ def assemble(files: list[Parsed], split_periods: bool) -> pa.Table:
     return to_track_table(merged, names, metas, [str(p.path) for p in files])
 
 
-def recording_extra(
-    location: str, source: str, epoch: int, start: int, period: int, n_periods: int
-) -> dict[str, Any]:
+def recording_name(location: str, path: Path, period: int, n_periods: int) -> str:
+    """``ngsim-<location>-<file stem>``, with ``-p<period>`` where the file has several periods."""
+    return f"ngsim-{location}-{path.stem}" + (f"-p{period}" if n_periods > 1 else "")
+
+
+def recording_meta(
+    path: Path, location: str, source: str, epoch: int, start: int, period: int, n_periods: int
+) -> track_table.RecordingMeta:
+    """The metadata of one recording of file ``path``: its location (found from ``source``), the
+    epoch and first Global_Time of its period, and how each column was converted."""
     freeway = is_freeway(location)
-    return {
+    extra = {
         "location": location,
         "location_source": source,
         "road_type": "freeway" if freeway else "arterial",
@@ -105,6 +102,8 @@ def recording_extra(
         ),
         "lane_id": "NGSIM Lane_ID as given (arterials: 0 and >= 10 are intersections, turn bays)",
     }
+    frame = "road" if freeway else "local"
+    return track_table.RecordingMeta(FRAME_RATE, frame, [str(path)], extra)
 
 
 def to_track_table(

@@ -35,21 +35,10 @@ def periods(columns: dict[str, np.ndarray], split: bool) -> tuple[np.ndarray, np
     return cluster[np.searchsorted(unique, epoch)], starts
 
 
-def _small(sizes: np.ndarray) -> int | None:
-    """The index of a count of at most MAX_STRAY_ROWS among several ``sizes``, or None."""
+def few_rows(sizes: np.ndarray) -> int | None:
+    """The index of a count of at most MAX_STRAY_ROWS among several ``sizes`` (rows per period or per
+    location of a file): a phantom recording made of a bad cell or two; None if there is none."""
     return int(np.argmin(sizes)) if sizes.size > 1 and sizes.min() <= MAX_STRAY_ROWS else None
-
-
-def small_period(period: np.ndarray) -> int | None:
-    """The period of at most MAX_STRAY_ROWS rows when a file has more than one: a phantom recording
-    period made of a bad cell or two; None if there is none. ``period`` [n] per row."""
-    return _small(np.bincount(period))
-
-
-def small_location(rows_per_location: np.ndarray) -> int | None:
-    """The location (index) of at most MAX_STRAY_ROWS rows in a file of several: a Location cell
-    gone bad (a phantom recording of a row or two); None if there is none."""
-    return _small(rows_per_location)
 
 
 def stray_pair(
@@ -80,7 +69,7 @@ def stray_pair(
 def check_small_location(parsed: Parsed) -> None:
     """Refuse a Location that only a row or two of a file with other locations have."""
     sizes = np.bincount(parsed.location_code, minlength=len(parsed.locations))
-    small = small_location(sizes)
+    small = few_rows(sizes)
     if small is None:
         return
     others = [loc for i, loc in enumerate(parsed.locations) if i != small]
@@ -98,7 +87,7 @@ def check_period_continuity(parsed: Parsed, period: np.ndarray) -> None:
     """Refuse a Global_Time that puts one frame of a vehicle in another recording period than the
     frame before it (a phantom recording made of one bad cell); ``period`` [n] per row of ``parsed``."""
     cols = parsed.columns
-    small = small_period(period)
+    small = few_rows(np.bincount(period))
     if small is not None:
         odd = int(np.flatnonzero(period == small)[0])
         raise InputError(

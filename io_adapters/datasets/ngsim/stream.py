@@ -24,15 +24,14 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.csv as pacsv
 
-from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.datasets import csv_errors
 from lanecast.io_adapters.datasets.ngsim import reader
 from lanecast.io_adapters.datasets.ngsim.checks import checked_ranges
-from lanecast.io_adapters.datasets.ngsim.columns import FRAME_RATE, GLOBAL_TIME_PER_FRAME, USED_COLUMNS
-from lanecast.io_adapters.datasets.ngsim.convert import recording_extra, to_track_table
+from lanecast.io_adapters.datasets.ngsim.columns import GLOBAL_TIME_PER_FRAME, USED_COLUMNS
+from lanecast.io_adapters.datasets.ngsim.convert import recording_meta, recording_name, to_track_table
 from lanecast.io_adapters.datasets.ngsim.locations import is_freeway, location_codes, normalise_location
 from lanecast.io_adapters.datasets.ngsim.parse import csv_columns
-from lanecast.io_adapters.datasets.ngsim.periods import MAX_STRAY_ROWS, clusters, small_location, stray_pair
+from lanecast.io_adapters.datasets.ngsim.periods import MAX_STRAY_ROWS, clusters, few_rows, stray_pair
 from lanecast.io_adapters.datasets.ngsim.sniff import header_names
 from lanecast.io_adapters.datasets.ngsim.wrong_way import wrong_way
 from lanecast.io_adapters.errors import InputError
@@ -147,19 +146,17 @@ def _split(path: Path, spill_dir: Path, location: str | None, split_periods: boo
             )
         # as reader.read: the periods of the rows kept only
         epochs_of, counts_of = {location: epochs_of[location]}, {location: counts_of[location]}
-    if small_location(np.array([int(c.sum()) for c in counts_of.values()])) is not None:
+    if few_rows(np.array([int(c.sum()) for c in counts_of.values()])) is not None:
         raise ValueError("a location of a row or two")  # reader.read names its line
     all_epochs = np.unique(np.concatenate(list(epochs_of.values())))
-    if split_periods:
-        cluster, period_start = clusters(all_epochs)
-    else:
-        cluster = np.zeros(all_epochs.size, dtype=np.int64)
-        period_start = all_epochs[:1]
-    if split_periods:  # a period of a row or two is a bad cell: reader.read names its line
+    cluster, period_start = clusters(all_epochs)
+    if not split_periods:
+        cluster, period_start = np.zeros_like(cluster), all_epochs[:1]
+    else:  # a period of a row or two is a bad cell: reader.read names its line
         per_period = np.zeros(int(cluster[-1]) + 1, dtype=np.int64)
         for loc, seen in epochs_of.items():
             np.add.at(per_period, cluster[np.searchsorted(all_epochs, seen)], counts_of[loc])
-        if per_period.size > 1 and per_period.min() <= MAX_STRAY_ROWS:
+        if few_rows(per_period) is not None:
             raise ValueError("a recording period of a row or two")
     # recordings: (location, period) in location order, periods ranked in time
     locations = sorted(epochs_of) if location is None else [location]
@@ -167,7 +164,7 @@ def _split(path: Path, spill_dir: Path, location: str | None, split_periods: boo
     for loc in locations:
         periods = np.unique(cluster[np.searchsorted(all_epochs, epochs_of[loc])])
         for rank, p in enumerate(periods.tolist(), start=1):
-            name = f"ngsim-{loc}-{path.stem}" + (f"-p{rank}" if periods.size > 1 else "")
+            name = recording_name(loc, path, rank, periods.size)
             spill = spill_dir / f"{path.stem}-{len(recordings):04d}.arrow"
             recordings[(loc, p)] = SpilledRecording(
                 name, str(path), str(spill), loc, int(period_start[p]), 0, rank, int(periods.size)
@@ -214,10 +211,11 @@ def _split(path: Path, spill_dir: Path, location: str | None, split_periods: boo
     return sorted(spilled, key=lambda rec: rec.name)  # reader.read's order (location "us" after "us-101")
 
 
-def _spilled_columns(rec: SpilledRecording, names: list[str]) -> dict[str, np.ndarray]:
+def _spilled_columns(rec: SpilledRecording, names: list[str] | None = None) -> dict[str, np.ndarray]:
+    """The columns ``names`` (default: all) of a spilled recording [n]."""
     with pa.memory_map(rec.spill) as source:
-        table = pa.ipc.open_file(source).read_all().select(names)
-    return {n: table.column(n).to_numpy() for n in names}
+        table = pa.ipc.open_file(source).read_all()
+    return {n: table.column(n).to_numpy() for n in (table.column_names if names is None else names)}
 
 
 def _check_spills(spilled: list[SpilledRecording]) -> None:
@@ -254,18 +252,10 @@ def _check_spills(spilled: list[SpilledRecording]) -> None:
 
 def read_spilled(rec: SpilledRecording) -> pa.Table:
     """One spilled recording as a validated track table, as reader.read gives that recording."""
-    with pa.memory_map(rec.spill) as source:
-        table = pa.ipc.open_file(source).read_all()
-    columns = {n: table.column(n).to_numpy() for n in table.column_names}
-    n = table.num_rows
+    columns = _spilled_columns(rec)
+    n = columns["vehicle_id"].size
     columns.setdefault("direction", np.full(n, np.nan))
     columns["recording"] = np.zeros(n, dtype=np.int64)
-    meta = track_table.RecordingMeta(
-        frame_rate=FRAME_RATE,
-        coordinate_frame="road" if is_freeway(rec.location) else "local",
-        source_files=[rec.source],
-        extra=recording_extra(rec.location, "column", rec.epoch, rec.start, rec.period, rec.n_periods),
-    )
-    out = to_track_table(columns, [rec.name], {rec.name: meta}, [rec.source])
-    track_table.validate(out, source=rec.source)
-    return out
+    path = Path(rec.source)
+    meta = recording_meta(path, rec.location, "column", rec.epoch, rec.start, rec.period, rec.n_periods)
+    return to_track_table(columns, [rec.name], {rec.name: meta}, [rec.source])  # validated there
