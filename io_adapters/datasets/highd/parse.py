@@ -16,17 +16,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.csv as pacsv
 
-from lanecast.io_adapters.datasets.csv_errors import (
-    REPEATED_HEADER,
-    check_field_counts,
-    check_one_line_per_row,
-    check_parseable,
-    check_text,
-    is_header,
-    record_lines,
-    row_line,
-    shown,
-)
+from lanecast.io_adapters.datasets import csv_errors
 from lanecast.io_adapters.datasets.highd.sniff import header_names
 from lanecast.io_adapters.errors import InputError
 
@@ -55,7 +45,7 @@ def checked_header(path: Path, columns: Mapping[str, str], what: str) -> list[st
         raise InputError(path, "empty file", line=1, expected=f"a {what} header line")
     try:
         with path.open("rb") as fh:
-            check_text(path, fh.read(4096), f"a highD {what} CSV")
+            csv_errors.check_text(path, fh.read(4096), f"a highD {what} CSV")
         names = header_names(path)
     except OSError as exc:
         raise InputError(path, f"cannot read: {exc}") from exc
@@ -100,14 +90,14 @@ def read_csv(
         table = pacsv.read_csv(path, read_options=read_options, convert_options=convert_options(columns))
     except pa.ArrowInvalid as exc:
         _diagnose(path, names, columns)
-        if record_lines(path.read_bytes())[0].size <= 1:  # a header with no line end
+        if csv_errors.record_lines(path.read_bytes())[0].size <= 1:  # a header with no line end
             raise InputError(path, "no data rows", line=2, expected=f"at least one {what} row") from exc
         raise InputError(path, f"cannot parse as CSV: {exc}", expected=f"a highD {what} file") from exc
     except OSError as exc:
         raise InputError(path, f"cannot read: {exc}") from exc
     if table.num_rows == 0:
         raise InputError(path, "no data rows", line=2, expected=f"at least one {what} row")
-    check_one_line_per_row(path, table)
+    csv_errors.check_one_line_per_row(path, table)
     check_cells(path, table, names, {k: v for k, v in columns.items() if k not in may_be_empty})
     return table
 
@@ -115,7 +105,7 @@ def read_csv(
 def _diagnose(path: Path, names: list[str], columns: Mapping[str, str]) -> None:
     """After a failed fast parse: find the first bad line (field count or cell) and raise there."""
     data = path.read_bytes()
-    check_field_counts(path, data, names)
+    csv_errors.check_field_counts(path, data, names)
     try:
         table = pacsv.read_csv(
             path,
@@ -128,7 +118,7 @@ def _diagnose(path: Path, names: list[str], columns: Mapping[str, str]) -> None:
             ),
         )
     except pa.ArrowInvalid:
-        check_parseable(path, data)
+        csv_errors.check_parseable(path, data)
         return  # not a cell problem: the caller reports pyarrow's own message
     first_bad: tuple[int, str] | None = None
     for name in names:
@@ -149,13 +139,13 @@ def _diagnose(path: Path, names: list[str], columns: Mapping[str, str]) -> None:
         return
     row, name = first_bad
     kind = columns[name]
-    line = int(record_lines(data)[0][row + 1])
-    if is_header([table.column(n)[row].as_py() for n in columns], list(columns)):
-        raise InputError(path, REPEATED_HEADER, line=line, expected="one header line, at line 1")
+    line = int(csv_errors.record_lines(data)[0][row + 1])
+    if csv_errors.is_header([table.column(n)[row].as_py() for n in columns], list(columns)):
+        raise InputError(path, csv_errors.REPEATED_HEADER, line=line, expected="one header line, at line 1")
     value = table.column(name)[row].as_py()
     raise InputError(
         path,
-        f"cell {shown(value)} is not {_EXPECTED[kind]}",
+        f"cell {csv_errors.shown(value)} is not {_EXPECTED[kind]}",
         line=line,
         column=name,
         expected=_EXPECTED[kind],
@@ -182,4 +172,4 @@ def check_cells(path: Path, table: pa.Table, names: list[str], columns: Mapping[
     if first_bad is not None:
         row, name, message = first_bad
         expected = "a finite number" if columns[name] == "float" else _EXPECTED[columns[name]]
-        raise InputError(path, message, line=row_line(path, row), column=name, expected=expected)
+        raise InputError(path, message, line=csv_errors.row_line(path, row), column=name, expected=expected)

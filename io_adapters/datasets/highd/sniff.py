@@ -105,14 +105,6 @@ def recordings(paths: Sequence[str | Path]) -> list[Recording]:
     return list(found.values())
 
 
-def _loops(path: Path) -> bool:
-    try:
-        os.stat(path)
-    except OSError as exc:
-        return exc.errno == errno.ELOOP
-    return False
-
-
 def not_a_file(path: Path) -> str:
     """Why ``path``, which is no regular file, cannot be read: missing (and, where a compressed copy
     lies beside it, which), a directory, or a FIFO, socket or device (which nothing may open)."""
@@ -121,7 +113,10 @@ def not_a_file(path: Path) -> str:
     if path.exists():
         return NOT_REGULAR
     if path.is_symlink():
-        return "a symbolic link loop" if _loops(path) else "a symbolic link to a missing file"
+        try:
+            os.stat(path)
+        except OSError as exc:
+            return "a symbolic link loop" if exc.errno == errno.ELOOP else "a symbolic link to a missing file"
     packed = [path.with_name(path.name + s) for s in COMPRESSED_SUFFIXES]
     found = [p.name for p in packed if p.is_file()]
     return f"no such file ({found[0]} beside it is compressed: decompress it)" if found else "no such file"

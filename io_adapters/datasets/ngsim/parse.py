@@ -17,14 +17,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.csv as pacsv
 
-from lanecast.io_adapters.datasets.csv_errors import (
-    check_field_counts,
-    check_one_line_per_row,
-    check_parseable,
-    first_line,
-    record_lines,
-    row_line,
-)
+from lanecast.io_adapters.datasets import csv_errors
 from lanecast.io_adapters.datasets.ngsim.checks import NAN_LITERALS, check_values, checked_ranges, integral
 from lanecast.io_adapters.datasets.ngsim.columns import INTEGER_COLUMNS, TXT_COLUMNS, USED_COLUMNS
 from lanecast.io_adapters.datasets.ngsim.locations import location_codes, location_from_path
@@ -49,7 +42,7 @@ class Parsed:
 
     def line(self, row: int) -> int:
         """The 1-based line of data row ``row`` (error path only: reads the file)."""
-        return row_line(self.path, row, header=self.header, whitespace=not self.header)
+        return csv_errors.row_line(self.path, row, header=self.header, whitespace=not self.header)
 
 
 def parse_file(path: Path, location: str | None) -> Parsed:
@@ -61,7 +54,7 @@ def parse_file(path: Path, location: str | None) -> Parsed:
         head = fh.read(1 << 16)
     if not head.strip() and path.stat().st_size <= len(head):
         raise InputError(path, "empty file", line=1, expected="NGSIM trajectory rows")
-    first = first_line(head).decode("utf-8", errors="replace")
+    first = csv_errors.first_line(head).decode("utf-8", errors="replace")
     if "," in first:
         return _parse_csv(path, first, location)
     sep = other_separator(first)
@@ -101,12 +94,12 @@ def _parse_txt(path: Path, location: str | None) -> Parsed:
     except (ValueError, pd.errors.ParserError) as exc:
         ok, error = False, str(exc)
     if not ok:
-        check_field_counts(path, path.read_bytes(), TXT_COLUMNS, whitespace=True)
+        csv_errors.check_field_counts(path, path.read_bytes(), TXT_COLUMNS, whitespace=True)
         try:
             frame = pd.read_csv(path, sep=r"\s+", header=None, dtype=str, engine="c", keep_default_na=False)
         except (ValueError, pd.errors.ParserError) as exc:
             # the parser's message names no line (a byte that is not UTF-8 "in position 4" of a block)
-            check_parseable(path, path.read_bytes())
+            csv_errors.check_parseable(path, path.read_bytes())
             raise InputError(path, f"cannot parse: {exc}", expected="18 numbers a line") from exc
         columns = {
             name.lower(): _coerce(frame[i], allow_missing=name.lower() not in USED_COLUMNS)
@@ -118,7 +111,7 @@ def _parse_txt(path: Path, location: str | None) -> Parsed:
     columns = {name: columns[name] for name in USED_COLUMNS}
     short_line = bool(frame.isna().to_numpy().any())  # the parser pads short lines with NaN
     if short_line or not all(np.isfinite(v).all() for v in columns.values()) or not integral(columns):
-        check_field_counts(path, path.read_bytes(), TXT_COLUMNS, whitespace=True)
+        csv_errors.check_field_counts(path, path.read_bytes(), TXT_COLUMNS, whitespace=True)
         check_values(path, columns, TXT_COLUMNS, header=False)
     columns = checked_ranges(path, columns, TXT_COLUMNS, header=False)
     loc, source = (location, "option") if location else location_from_path(path)
@@ -177,10 +170,10 @@ def _parse_csv(path: Path, first: str, location: str | None) -> Parsed:
         table = _parse_csv_slowly(path, by_lower, wanted, types, header)
     if table.num_rows == 0:
         raise InputError(path, "the file has a header but no rows", line=2, expected="NGSIM rows")
-    check_one_line_per_row(path, table)
+    csv_errors.check_one_line_per_row(path, table)
     columns = {n: table.column(by_lower[n]).to_numpy() for n in USED_COLUMNS}
     if not all(np.isfinite(v).all() for v in columns.values()) or not integral(columns):
-        check_field_counts(path, path.read_bytes(), header)
+        csv_errors.check_field_counts(path, path.read_bytes(), header)
         check_values(path, columns, header, header=True)
     columns = checked_ranges(path, columns, header, header=True)
     direction = table.column(by_lower["direction"]).to_numpy() if "direction" in by_lower else None
@@ -194,7 +187,7 @@ def _parse_csv(path: Path, first: str, location: str | None) -> Parsed:
         raise InputError(
             path,
             "empty Location",
-            line=row_line(path, int(empty[0])),
+            line=csv_errors.row_line(path, int(empty[0])),
             column=by_lower["location"].strip(),
             expected="a location name such as peachtree or us-101",
         )
@@ -218,11 +211,11 @@ def _parse_csv_slowly(
         )
     except pa.ArrowInvalid as exc:
         failure = exc
-    if record_lines(path.read_bytes())[0].size < 2:
+    if csv_errors.record_lines(path.read_bytes())[0].size < 2:
         raise InputError(
             path, "the file has a header but no rows", line=2, expected="NGSIM rows"
         ) from failure
-    check_field_counts(path, path.read_bytes(), header)
+    csv_errors.check_field_counts(path, path.read_bytes(), header)
     try:
         strings = pacsv.read_csv(
             path,
@@ -231,7 +224,7 @@ def _parse_csv_slowly(
             ),
         )
     except pa.ArrowInvalid:
-        check_parseable(path, path.read_bytes())
+        csv_errors.check_parseable(path, path.read_bytes())
         raise InputError(path, f"cannot parse: {failure}", expected="NGSIM CSV rows") from failure
     checked = [n for n in (*USED_COLUMNS, "direction") if n in by_lower]
     columns = {
