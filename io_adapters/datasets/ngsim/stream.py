@@ -3,12 +3,12 @@
 The export mixes four locations and several recording periods in one file of 11.8 M rows. Read
 at once it needs about 10 GB; here it is read twice with pyarrow's streaming CSV reader, a block
 at a time: first the Location, Global_Time and Frame_ID columns (the periods are clusters of the
-epoch Global_Time - 100 * Frame_ID over the whole file, as in ngsim.py), then every used column,
+epoch Global_Time - 100 * Frame_ID over the whole file, as in periods.py), then every used column,
 each block's rows appended to a spill file (Arrow IPC) per recording. Each spill is then one piece
-of the dataset, converted on its own (possibly in another process) exactly as ngsim.read converts
+of the dataset, converted on its own (possibly in another process) exactly as reader.read converts
 that recording: the same names, metadata, duplicate handling and kinematics.
 
-A block that does not parse or check cleanly sends the whole file through ngsim.read's own
+A block that does not parse or check cleanly sends the whole file through reader.read's own
 parser, which names the line and column of the problem (an error path, not bounded in memory).
 """
 
@@ -24,9 +24,16 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.csv as pacsv
 
-from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.datasets import csv_errors
-from lanecast.io_adapters.datasets.ngsim import reader as ngsim
+from lanecast.io_adapters.datasets.ngsim import reader
+from lanecast.io_adapters.datasets.ngsim.checks import checked_ranges
+from lanecast.io_adapters.datasets.ngsim.columns import GLOBAL_TIME_PER_FRAME, USED_COLUMNS
+from lanecast.io_adapters.datasets.ngsim.convert import recording_meta, recording_name, to_track_table
+from lanecast.io_adapters.datasets.ngsim.locations import is_freeway, location_codes, normalise_location
+from lanecast.io_adapters.datasets.ngsim.parse import csv_columns
+from lanecast.io_adapters.datasets.ngsim.periods import MAX_STRAY_ROWS, clusters, few_rows, stray_pair
+from lanecast.io_adapters.datasets.ngsim.sniff import header_names
+from lanecast.io_adapters.datasets.ngsim.wrong_way import wrong_way
 from lanecast.io_adapters.errors import InputError
 
 BLOCK_BYTES = 16 << 20  # bytes of CSV per block: memory per block is a few times this
@@ -58,16 +65,15 @@ def streamable(path: Path) -> bool:
     first = csv_errors.read_first_line(path).decode("utf-8", errors="replace")
     if "," not in first:
         return False
-    return "location" in {name.strip().lower() for name in ngsim.header_names(first)}
+    return "location" in {name.strip().lower() for name in header_names(first)}
 
 
 def _layout(path: Path) -> tuple[str, dict[str, str], list[str], dict[str, pa.DataType]]:
-    """(first line, lower-case name -> CSV name, columns to read, their types) as ngsim.read reads them."""
+    """(first line, lower-case name -> CSV name, columns to read, their types) as reader.read reads them."""
     first = csv_errors.read_first_line(path).decode("utf-8", errors="replace")
-    by_lower, wanted, types = ngsim.csv_columns(path, first)  # InputError: ngsim.read names it
+    by_lower, wanted, types = csv_columns(path, first)  # InputError: reader.read names it
     if "location" not in by_lower:
         raise ValueError("not a CSV export with a Location column")
-    types.update({by_lower[n]: pa.int64() for n in ngsim.INTEGER_COLUMNS})
     return first, by_lower, wanted, types
 
 
@@ -84,17 +90,13 @@ def _blocks(path: Path, columns: list[str], types: dict[str, pa.DataType]) -> An
 
 
 def _locations(column: pa.Array) -> tuple[np.ndarray, list[str]]:
-    """Per-row location names (normalised as ngsim.read does) as codes into the returned names."""
+    """Per-row location names (normalised as reader.read does) as codes into the returned names."""
     raw = pc.utf8_trim_whitespace(column)
     if np.asarray(pc.equal(raw, "")).any():
         raise ValueError("empty Location")
     if csv_errors.holds_line_ends(raw):
         raise ValueError("a quoted Location runs over line ends")  # the whole-file reader names the line
-    encoded = raw.dictionary_encode()
-    names = [ngsim._normalise_location(str(v)) for v in encoded.dictionary.to_pylist()]
-    unique = sorted(set(names))
-    remap = np.array([unique.index(v) for v in names], dtype=np.int64)
-    return remap[np.asarray(encoded.indices)], unique
+    return location_codes(raw)
 
 
 def split_csv(
@@ -112,7 +114,7 @@ def split_csv(
         options: dict[str, Any] = {"split_periods": split_periods}
         if location is not None:
             options["location"] = location
-        ngsim.read([path], **options)  # raises, naming the line and column, if the file is bad
+        reader.read([path], **options)  # raises, naming the line and column, if the file is bad
         return None
 
 
@@ -124,9 +126,7 @@ def _split(path: Path, spill_dir: Path, location: str | None, split_periods: boo
     counts_of: dict[str, np.ndarray] = {}
     for batch in _blocks(path, [loc_col, gt_col, frame_col], types):
         codes, names = _locations(batch.column(loc_col))
-        epoch = (
-            batch.column(gt_col).to_numpy() - ngsim.GLOBAL_TIME_PER_FRAME * batch.column(frame_col).to_numpy()
-        )
+        epoch = batch.column(gt_col).to_numpy() - GLOBAL_TIME_PER_FRAME * batch.column(frame_col).to_numpy()
         for i, name in enumerate(names):
             seen, count = np.unique(epoch[codes == i], return_counts=True)
             if name in epochs_of:
@@ -136,7 +136,7 @@ def _split(path: Path, spill_dir: Path, location: str | None, split_periods: boo
     if not epochs_of:
         raise ValueError("no rows")
     if location is not None:
-        location = ngsim._normalise_location(location)
+        location = normalise_location(location)
         if location not in epochs_of:
             raise InputError(
                 path,
@@ -144,22 +144,19 @@ def _split(path: Path, spill_dir: Path, location: str | None, split_periods: boo
                 column="Location",
                 expected=f"one of {sorted(epochs_of)}",
             )
-        # as ngsim.read: the periods of the rows kept only
+        # as reader.read: the periods of the rows kept only
         epochs_of, counts_of = {location: epochs_of[location]}, {location: counts_of[location]}
-    if ngsim.small_location(np.array([int(c.sum()) for c in counts_of.values()])) is not None:
-        raise ValueError("a location of a row or two")  # ngsim.read names its line
+    if few_rows(np.array([int(c.sum()) for c in counts_of.values()])) is not None:
+        raise ValueError("a location of a row or two")  # reader.read names its line
     all_epochs = np.unique(np.concatenate(list(epochs_of.values())))
-    if split_periods:
-        cluster = np.concatenate([[0], np.cumsum(np.diff(all_epochs) > ngsim.PERIOD_GAP)])
-        period_start = all_epochs[np.flatnonzero(np.concatenate([[True], np.diff(cluster) > 0]))]
-    else:
-        cluster = np.zeros(all_epochs.size, dtype=np.int64)
-        period_start = all_epochs[:1]
-    if split_periods:  # a period of a row or two is a bad cell: ngsim.read names its line
+    cluster, period_start = clusters(all_epochs)
+    if not split_periods:
+        cluster, period_start = np.zeros_like(cluster), all_epochs[:1]
+    else:  # a period of a row or two is a bad cell: reader.read names its line
         per_period = np.zeros(int(cluster[-1]) + 1, dtype=np.int64)
         for loc, seen in epochs_of.items():
             np.add.at(per_period, cluster[np.searchsorted(all_epochs, seen)], counts_of[loc])
-        if per_period.size > 1 and per_period.min() <= ngsim.MAX_STRAY_ROWS:
+        if few_rows(per_period) is not None:
             raise ValueError("a recording period of a row or two")
     # recordings: (location, period) in location order, periods ranked in time
     locations = sorted(epochs_of) if location is None else [location]
@@ -167,7 +164,7 @@ def _split(path: Path, spill_dir: Path, location: str | None, split_periods: boo
     for loc in locations:
         periods = np.unique(cluster[np.searchsorted(all_epochs, epochs_of[loc])])
         for rank, p in enumerate(periods.tolist(), start=1):
-            name = f"ngsim-{loc}-{path.stem}" + (f"-p{rank}" if periods.size > 1 else "")
+            name = recording_name(loc, path, rank, periods.size)
             spill = spill_dir / f"{path.stem}-{len(recordings):04d}.arrow"
             recordings[(loc, p)] = SpilledRecording(
                 name, str(path), str(spill), loc, int(period_start[p]), 0, rank, int(periods.size)
@@ -176,18 +173,18 @@ def _split(path: Path, spill_dir: Path, location: str | None, split_periods: boo
     spill_dir.mkdir(parents=True, exist_ok=True)
     writers: dict[tuple[str, int], pa.ipc.RecordBatchFileWriter] = {}
     start: dict[tuple[str, int], int] = {}
-    used = [n for n in (*ngsim.USED_COLUMNS, "direction") if n in by_lower]
+    used = [n for n in (*USED_COLUMNS, "direction") if n in by_lower]
     header = [c.strip() for c in first.lstrip("\ufeff").rstrip("\r").split(",")]
     try:
         for batch in _blocks(path, wanted, types):
             codes, names = _locations(batch.column(loc_col))
-            columns = {n: batch.column(by_lower[n]).to_numpy() for n in ngsim.USED_COLUMNS}
+            columns = {n: batch.column(by_lower[n]).to_numpy() for n in USED_COLUMNS}
             if not all(np.isfinite(v).all() for v in columns.values()):
                 raise ValueError("a value that is not a finite number")
-            columns = ngsim._checked_ranges(path, columns, header, header=True)
+            columns = checked_ranges(path, columns, header, header=True)
             if "direction" in by_lower:
                 columns["direction"] = batch.column(by_lower["direction"]).to_numpy(zero_copy_only=False)
-            epoch = columns["global_time"] - ngsim.GLOBAL_TIME_PER_FRAME * columns["frame_id"]
+            epoch = columns["global_time"] - GLOBAL_TIME_PER_FRAME * columns["frame_id"]
             period = cluster[np.searchsorted(all_epochs, epoch)]
             for i, loc in enumerate(names):
                 if location is not None and loc != location:
@@ -211,24 +208,25 @@ def _split(path: Path, spill_dir: Path, location: str | None, split_periods: boo
         for key, rec in recordings.items()
         if key in start
     ]
-    return sorted(spilled, key=lambda rec: rec.name)  # ngsim.read's order (location "us" after "us-101")
+    return sorted(spilled, key=lambda rec: rec.name)  # reader.read's order (location "us" after "us-101")
 
 
-def _spilled_columns(rec: SpilledRecording, names: list[str]) -> dict[str, np.ndarray]:
+def _spilled_columns(rec: SpilledRecording, names: list[str] | None = None) -> dict[str, np.ndarray]:
+    """The columns ``names`` (default: all) of a spilled recording [n]."""
     with pa.memory_map(rec.spill) as source:
-        table = pa.ipc.open_file(source).read_all().select(names)
-    return {n: table.column(n).to_numpy() for n in names}
+        table = pa.ipc.open_file(source).read_all()
+    return {n: table.column(n).to_numpy() for n in (table.column_names if names is None else names)}
 
 
 def _check_spills(spilled: list[SpilledRecording]) -> None:
-    """ValueError (ngsim.read then names the line) where the spills, one or two at a time, break
-    what ngsim.read checks across a whole file: a freeway vehicle driving backwards, a row or two
+    """ValueError (reader.read then names the line) where the spills, one or two at a time, break
+    what reader.read checks across a whole file: a freeway vehicle driving backwards, a row or two
     of a vehicle put by its Global_Time in another period than its neighbouring frame."""
     for rec in spilled:
-        if ngsim._is_freeway(rec.location):
+        if is_freeway(rec.location):
             c = _spilled_columns(rec, ["vehicle_id", "frame_id", "local_y"])
             zeros = np.zeros(c["frame_id"].size, dtype=np.int64)
-            if ngsim.wrong_way(zeros, zeros, c["vehicle_id"], c["frame_id"], c["local_y"]) is not None:
+            if wrong_way(zeros, zeros, c["vehicle_id"], c["frame_id"], c["local_y"]) is not None:
                 raise ValueError("a vehicle driving backwards on a one-way freeway")
     for loc in sorted({rec.location for rec in spilled}):
         periods = [rec for rec in spilled if rec.location == loc]
@@ -238,7 +236,7 @@ def _check_spills(spilled: list[SpilledRecording]) -> None:
         few: list[np.ndarray] = []
         for rec in periods:
             ids, count = np.unique(_spilled_columns(rec, ["vehicle_id"])["vehicle_id"], return_counts=True)
-            few.append(ids[count <= ngsim.MAX_STRAY_ROWS])
+            few.append(ids[count <= MAX_STRAY_ROWS])
         suspects = np.unique(np.concatenate(few))
         if not suspects.size:
             continue
@@ -248,24 +246,16 @@ def _check_spills(spilled: list[SpilledRecording]) -> None:
             keep = np.isin(c["vehicle_id"], suspects)
             parts.append((c["vehicle_id"][keep], c["frame_id"][keep], np.full(int(keep.sum()), p)))
         vehicle, frame, period = (np.concatenate(x) for x in zip(*parts, strict=True))
-        if ngsim.stray_pair(np.zeros(vehicle.size, dtype=np.int64), vehicle, frame, period) is not None:
+        if stray_pair(np.zeros(vehicle.size, dtype=np.int64), vehicle, frame, period) is not None:
             raise ValueError("a row of a vehicle in another period than its neighbouring frame")
 
 
 def read_spilled(rec: SpilledRecording) -> pa.Table:
-    """One spilled recording as a validated track table, as ngsim.read gives that recording."""
-    with pa.memory_map(rec.spill) as source:
-        table = pa.ipc.open_file(source).read_all()
-    columns = {n: table.column(n).to_numpy() for n in table.column_names}
-    n = table.num_rows
+    """One spilled recording as a validated track table, as reader.read gives that recording."""
+    columns = _spilled_columns(rec)
+    n = columns["vehicle_id"].size
     columns.setdefault("direction", np.full(n, np.nan))
     columns["recording"] = np.zeros(n, dtype=np.int64)
-    meta = track_table.RecordingMeta(
-        frame_rate=ngsim.FRAME_RATE,
-        coordinate_frame="road" if ngsim._is_freeway(rec.location) else "local",
-        source_files=[rec.source],
-        extra=ngsim._recording_extra(rec.location, "column", rec.epoch, rec.start, rec.period, rec.n_periods),
-    )
-    out = ngsim._to_track_table(columns, [rec.name], {rec.name: meta}, [rec.source])
-    track_table.validate(out, source=rec.source)
-    return out
+    path = Path(rec.source)
+    meta = recording_meta(path, rec.location, "column", rec.epoch, rec.start, rec.period, rec.n_periods)
+    return to_track_table(columns, [rec.name], {rec.name: meta}, [rec.source])  # validated there
