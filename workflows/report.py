@@ -10,6 +10,7 @@ from pathlib import Path
 
 from lanecast.io_adapters.files import check_output_dir
 from lanecast.workflows.annotation.log_scores import report_logs
+from lanecast.workflows.annotation.predictor_report import report_predictors
 from lanecast.workflows.arguments import MAX_EXAMPLES, integer
 from lanecast.workflows.vocabulary import HelpFormatter, add_force_option
 
@@ -34,9 +35,22 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--examples", type=integer(0, MAX_EXAMPLES), default=4, help="example scenes in the overall report"
     )
     add_force_option(p)
+    p.add_argument(
+        "--predictions",
+        action="append",
+        nargs="?",
+        const="",
+        metavar="TOPIC",
+        help="score the predictor recorded on TOPIC (repeatable; without TOPIC: every topic of Autoware's "
+        "PredictedObjects) against the log's own future, beside lanecast's ST-CNN and constant velocity",
+    )
+    p.add_argument("--model", type=Path, help="the model lanecast forecasts with (default: the shipped one)")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     check_output_dir(args.out, files=("metrics.json", "report.md", "report.html"), force=args.force)
+    if args.predictions is not None:
+        topics = [t for t in args.predictions if t]
+        return report_predictors(args.paths, args.out, predictions=topics, topic=args.topic, model=args.model)
     return report_logs(args.paths, args.out, topic=args.topic, examples=args.examples, force=args.force)
