@@ -32,7 +32,13 @@ from lanecast.workflows.annotation.predictor_scores import (
 from lanecast.workflows.annotation.recorded_predictions import read_predictions
 
 RECORDED = "recorded"
-NAMES = {RECORDED: "recorded predictor", "stcnn": "lanecast ST-CNN", "cv": "constant velocity"}
+ALL_MATCHED = "recorded_all_matched"
+NAMES = {
+    RECORDED: "recorded predictor",
+    "stcnn": "lanecast ST-CNN",
+    "cv": "constant velocity",
+    ALL_MATCHED: "recorded predictor, every matched prediction (lanecast's too short ones too)",
+}
 
 
 def predictor_metrics(parts: list[Scored], boots: int = 1000) -> dict[str, Any]:
@@ -42,6 +48,16 @@ def predictor_metrics(parts: list[Scored], boots: int = 1000) -> dict[str, Any]:
     metrics = {RECORDED: predictor_summary(data["candidates"], data["confidence"], data["true"], **common)}
     for name, fc in data["lanecast"].items():
         metrics[name] = predictor_summary(fc["candidates"], fc["confidence"], fc["true"], **common)
+    every = data["all_matched"]
+    if every["true"].shape[0] > data["true"].shape[0]:  # rows lanecast could not forecast
+        metrics[ALL_MATCHED] = predictor_summary(
+            every["candidates"],
+            every["confidence"],
+            every["true"],
+            object_class=every["object_class"],
+            speed=every["speed"],
+            boots=boots,
+        )
     unmatched: dict[str, int] = {}
     refused: dict[str, int] = {}
     for p in parts:
@@ -114,7 +130,13 @@ def sections(topic: str, entry: dict[str, Any]) -> list[tuple[str, list[str], li
         for band, row in m[n]["per_speed_band"].items()
     ]
     return [
-        (f"{topic}: side by side on the same {entry['scored']} predictions (m)", header, side),
+        (
+            f"{topic}: side by side on the same {entry['scored']} predictions (m; the last row: n = {m[names[-1]]['n']})"
+            if ALL_MATCHED in m
+            else f"{topic}: side by side on the same {entry['scored']} predictions (m)",
+            header,
+            side,
+        ),
         (f"{topic}: predictions not scored, and why", ["reason", "count"], matching),
         (f"{topic}: by object class", ["predictor", "class", "n", "RMSE@5 s"], by_class),
         (f"{topic}: by speed at the stamp", ["predictor", "band", "n", "RMSE@5 s"], by_speed),

@@ -61,6 +61,8 @@ class Scored:
     confidence: np.ndarray  # float64 [N, K], NaN where no path
     true: np.ndarray  # float64 [N, 5, 2]
     lanecast: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)  # on the common rows
+    #: the recorded predictor on every matched row, before the rows lanecast cannot forecast are left out
+    all_matched: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 class Tracks:
@@ -201,6 +203,7 @@ def add_lanecast(scored: Scored, tracks: pa.Table, forecasters: list[Forecaster]
     pairs = {(int(a), int(b)): i for i, (a, b) in enumerate(zip(*key_w, strict=True)) if w_reason[i] == ""}
     window = np.array([pairs.get((int(a), int(b)), -1) for a, b in zip(*key_s, strict=True)], dtype=np.int64)
     keep = window >= 0
+    scored.all_matched = {name: getattr(scored, name) for name in _ROWS}
     _subset(scored, keep)
     window = window[keep]
     for model in models:
@@ -227,8 +230,11 @@ def _lists(table: pa.Table, name: str) -> np.ndarray:
     return np.asarray(col.to_numpy(zero_copy_only=False), dtype=np.float64).reshape(shape)
 
 
+_ROWS = ("track_id", "t0_ns", "object_class", "speed", "candidates", "confidence", "true")
+
+
 def _subset(scored: Scored, keep: np.ndarray) -> None:
-    for name in ("track_id", "t0_ns", "object_class", "speed", "candidates", "confidence", "true"):
+    for name in _ROWS:
         setattr(scored, name, getattr(scored, name)[keep])
 
 
@@ -249,6 +255,11 @@ def pooled(parts: list[Scored]) -> dict[str, Any]:
     }
     out["candidates"] = np.concatenate([pad(p.candidates, k) for p in parts])
     out["confidence"] = np.concatenate([pad(p.confidence, k) for p in parts])
+    every = [p.all_matched or {n: getattr(p, n) for n in _ROWS} for p in parts]
+    k_all = max((e["candidates"].shape[1] for e in every), default=0)
+    out["all_matched"] = {n: np.concatenate([e[n] for e in every]) for n in ("object_class", "speed", "true")}
+    for n in ("candidates", "confidence"):
+        out["all_matched"][n] = np.concatenate([pad(e[n], k_all) for e in every])
     names = parts[0].lanecast.keys() if parts else []
     out["lanecast"] = {
         n: {

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pyarrow.compute as pc
 import pytest
 from predictor_drive_log import (
     CARS,
@@ -20,6 +21,10 @@ from predictor_drive_log import (
     write_mcap,
 )
 
+from lanecast.io_adapters.formats import registry
+from lanecast.workflows.annotation.predictor_report import predictor_metrics
+from lanecast.workflows.annotation.predictor_scores import add_lanecast, score_predictor
+from lanecast.workflows.annotation.recorded_predictions import read_predictions
 from lanecast.workflows.cli import main
 
 H = np.arange(1.0, 6.0)
@@ -146,3 +151,23 @@ def test_predictions_stamped_after_their_tracked_objects_are_aligned_and_the_off
         "horizon past the end of the log": 15,
         "object gone before the last horizon": 3,
     }
+
+
+def test_predictions_lanecast_cannot_forecast_are_counted_and_kept_for_the_recorded_predictor(
+    tmp_path: Path,
+) -> None:
+    """Tracks from 2 s on: at 4 s no car has lanecast's 3 s of history; the recorded predictor is
+    still scored there (its every-matched row), and the side by side leaves those 3 out."""
+    log = write_mcap(tmp_path / "drive.mcap")
+    tracks = registry.read_any([log])
+    tracks = tracks.filter(pc.greater_equal(tracks["time_ns"], 2_000_000_000))
+    (pred,) = read_predictions(log)
+    scored = score_predictor(pred, tracks)
+    assert add_lanecast(scored, tracks, []) == 3
+    entry = predictor_metrics([scored], boots=0)
+    assert entry["scored"] == 9
+    assert entry["metrics"]["recorded"]["n"] == entry["metrics"]["cv"]["n"] == 9
+    every = entry["metrics"]["recorded_all_matched"]
+    err, _ = hand_errors()
+    assert every["n"] == 12
+    np.testing.assert_allclose(every["rmse"], np.sqrt((err[:, 0] ** 2).mean(axis=0)), rtol=1e-9)
