@@ -194,7 +194,7 @@ def report_predictors(
             try:
                 tracks = registry.read_any([log], topic=topic) if topic else registry.read_any([log])
                 per_log: dict[str, list[Scored]] = {}
-                for pred in read_predictions(log, predictions):
+                for pred in read_predictions(log, predictions, checked=True):
                     scored = score_predictor(pred, tracks)
                     no_window = add_lanecast(scored, tracks, [forecaster])
                     if no_window:

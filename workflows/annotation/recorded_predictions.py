@@ -23,6 +23,7 @@ from lanecast.io_adapters.logs.autoware.predicted_objects import (
     PredictionColumns,
     RecordedPredictions,
 )
+from lanecast.io_adapters.logs.autoware.predicted_objects_cdr import CdrLayoutError, add_predicted_objects_cdr
 from lanecast.io_adapters.logs.forecast_messages import PREDICTION_TOPIC
 from lanecast.io_adapters.logs.messages import ros_types
 from lanecast.workflows.annotation.log_scores import (
@@ -34,8 +35,14 @@ from lanecast.workflows.annotation.log_scores import (
 SUPPORTED = f"{' or '.join(PREDICTED_OBJECT_TYPES)} (cdr), or {PREDICTION_TOPIC}"
 
 
-def read_predictions(log: Path, topics: Sequence[str] = ()) -> list[RecordedPredictions]:
+def read_predictions(
+    log: Path, topics: Sequence[str] = (), *, checked: bool = False
+) -> list[RecordedPredictions]:
     """The recorded predictors of ``log``: the named ``topics``, else every topic of a supported type.
+
+    ``checked``: the log's CRCs were checked already (lanecast's track reader checks every one and
+    names the offset of a damage), so an MCAP's are not computed again (most of the time the read
+    took, on a log of camera frames).
 
     LogError naming the log when a named topic is missing or of another type, when no topic holds
     predictions, or when a message cannot be decoded (with its topic and log time).
@@ -60,7 +67,7 @@ def read_predictions(log: Path, topics: Sequence[str] = ()) -> list[RecordedPred
     if not wanted:
         raise LogError(log, "no topic holds recorded predictions", expected=SUPPORTED)
     autoware = [t for t in wanted if t != PREDICTION_TOPIC]
-    out = _autoware_predictions(log, autoware) if autoware else {}
+    out = _autoware_predictions(log, autoware, checked) if autoware else {}
     if PREDICTION_TOPIC in wanted:
         out[PREDICTION_TOPIC] = lanecast_predictions(log)
     return [out[t] for t in wanted]
@@ -92,12 +99,20 @@ def _bag_topics(log: Path) -> dict[str, str]:
         return {c.topic: c.msgtype for c in reader.connections}
 
 
-def _autoware_predictions(log: Path, topics: list[str]) -> dict[str, RecordedPredictions]:
+def _autoware_predictions(log: Path, topics: list[str], checked: bool) -> dict[str, RecordedPredictions]:
     cols = {t: PredictionColumns(t) for t in topics}
     count = dict.fromkeys(topics, 0)
 
-    def add(topic: str, log_time: int, decode: Any) -> None:
+    def add(topic: str, log_time: int, decode: Any, raw: bytes | None = None) -> None:
+        """Append one message: straight from its bytes where ``raw`` (the shipped layout), else
+        (or where those bytes do not follow it) through rosbags' ``decode``."""
         count[topic] += 1
+        if raw is not None:
+            try:
+                add_predicted_objects_cdr(cols[topic], raw, log_time)
+                return
+            except CdrLayoutError:
+                pass  # rosbags decodes it, or names what is wrong
         try:
             msg = decode()
             cols[topic].add_message(msg, log_time)
@@ -113,19 +128,33 @@ def _autoware_predictions(log: Path, topics: list[str]) -> dict[str, RecordedPre
     if log.is_dir():
         with AnyReader([log], default_typestore=ros_types.typestore(2)) as reader:
             conns = [c for c in reader.connections if c.topic in cols]
+            fast = {c.topic: _shipped_layout(reader.typestore, c.msgtype) for c in conns}
             for conn, log_time, raw in reader.messages(connections=conns):
-                add(conn.topic, log_time, lambda: reader.deserialize(raw, conn.msgtype))  # noqa: B023
+                decode = lambda: reader.deserialize(raw, conn.msgtype)  # noqa: B023, E731
+                add(conn.topic, log_time, decode, raw if fast[conn.topic] else None)
     else:
         with log.open("rb") as fh:
-            for schema, channel, message in NonSeekingReader(fh, validate_crcs=True).iter_messages(
+            for schema, channel, message in NonSeekingReader(fh, validate_crcs=not checked).iter_messages(
                 topics=topics, log_time_order=False
             ):
                 name = schema.name if schema is not None else ""
                 text = schema.data.decode("utf-8", "replace") if schema is not None else ""
                 store = ros_types.store_for(name, text, 2)
                 data = message.data
-                add(channel.topic, message.log_time, lambda: store.deserialize_cdr(data, name))  # noqa: B023
+                decode = lambda: store.deserialize_cdr(data, name)  # noqa: B023, E731
+                add(
+                    channel.topic, message.log_time, decode, data if store is ros_types.typestore(2) else None
+                )
     return {t: c.finish() for t, c in cols.items()}
+
+
+def _shipped_layout(store: Any, msgtype: str) -> bool:
+    """Whether ``store`` (a bag's own) defines ``msgtype`` as the shipped definitions do."""
+    ours = ros_types.typestore(2)
+    try:
+        return bool(store.generate_msgdef(msgtype)[0] == ours.generate_msgdef(msgtype)[0])
+    except Exception:  # rosbags' own error types: a type the store cannot expand
+        return False
 
 
 def lanecast_predictions(log: Path) -> RecordedPredictions:

@@ -18,6 +18,7 @@ from lanecast.io_adapters.logs.autoware.predicted_objects import (
     PredictionColumns,
     resample,
 )
+from lanecast.io_adapters.logs.autoware.predicted_objects_cdr import CdrLayoutError, add_predicted_objects_cdr
 from lanecast.io_adapters.logs.messages import ros_types
 from lanecast.workflows.annotation.recorded_predictions import read_predictions
 
@@ -134,3 +135,70 @@ def test_paths_are_resampled_to_the_horizons_or_refused_with_the_reason() -> Non
     assert reason[1] == "11 poses every 0.4 s cover 0–4 s, not 1–5 s"
     assert reason[2] == "time step 0 s is not a positive duration"
     assert np.isnan(points[1:3]).all()
+
+
+def varied_message(store: Any, msgtype: str, rng: np.random.Generator) -> Any:
+    """Objects with 0–3 classifications, 0–3 paths of 0–7 poses and footprints of 0–4 points."""
+    m = ros_types.make
+    pkg = msgtype.split("/")[0]
+    objects = []
+    for _ in range(5):
+        paths = [
+            m(
+                store,
+                f"{pkg}/msg/PredictedPath",
+                path=[
+                    m(store, "geometry_msgs/msg/Pose", position=m(store, "geometry_msgs/msg/Point", x=x, y=y))
+                    for x, y in rng.normal(size=(int(rng.integers(0, 8)), 2))
+                ],
+                time_step=m(
+                    store, "builtin_interfaces/msg/Duration", sec=0, nanosec=int(rng.integers(1, 10**9))
+                ),
+                confidence=float(rng.random()),
+            )
+            for _ in range(int(rng.integers(0, 4)))
+        ]
+        footprint = m(
+            store,
+            "geometry_msgs/msg/Polygon",
+            points=[
+                m(store, "geometry_msgs/msg/Point32", x=1.0, y=2.0) for _ in range(int(rng.integers(0, 5)))
+            ],
+        )
+        objects.append(
+            m(
+                store,
+                f"{pkg}/msg/PredictedObject",
+                object_id=m(
+                    store, "unique_identifier_msgs/msg/UUID", uuid=rng.integers(0, 256, 16).astype(np.uint8)
+                ),
+                classification=[
+                    m(store, f"{pkg}/msg/ObjectClassification", label=int(rng.integers(0, 8)), probability=p)
+                    for p in rng.random(int(rng.integers(0, 4)))
+                ],
+                kinematics=m(store, f"{pkg}/msg/PredictedObjectKinematics", predicted_paths=paths),
+                shape=m(store, f"{pkg}/msg/Shape", footprint=footprint),
+            )
+        )
+    stamp = m(store, "builtin_interfaces/msg/Time", sec=3, nanosec=7)
+    header = m(store, "std_msgs/msg/Header", stamp=stamp, frame_id="odom" * int(rng.integers(0, 3)))
+    return m(store, msgtype, header=header, objects=objects)
+
+
+@pytest.mark.parametrize("msgtype", [PREDICTED_OBJECTS, PREDICTED_OBJECTS_AUTO])
+def test_the_direct_cdr_reader_agrees_with_rosbags(msgtype: str) -> None:
+    store = ros_types.typestore(2)
+    rng = np.random.default_rng(4)
+    direct, reference = PredictionColumns("/p"), PredictionColumns("/p")
+    for _ in range(20):
+        msg = varied_message(store, msgtype, rng)
+        data = bytes(store.serialize_cdr(msg, msgtype))
+        add_predicted_objects_cdr(direct, data, 1)
+        reference.add_message(store.deserialize_cdr(data, msgtype), 1)
+        with pytest.raises(CdrLayoutError):
+            add_predicted_objects_cdr(PredictionColumns("/p"), data[: len(data) // 2], 1)
+    a, b = direct.finish(), reference.finish()
+    for name in ("stamp_ns", "track_id", "object_class", "path_bounds", "n_poses"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    for name in ("confidence", "first_s", "time_step_s", "points"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
