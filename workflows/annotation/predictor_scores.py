@@ -37,7 +37,7 @@ REFUSED = "every path refused"
 NO_TRACK = "no tracked object with its id (an id switch, or never tracked)"
 NOT_AT_STAMP = "not tracked at its stamp"
 PAST_END = "horizon past the end of the log"
-LEFT = "object gone before the last horizon"
+LEFT = "object gone before the last horizon (it left, or its id switched)"
 GAP = f"a gap over {MAX_GAP_S:g} s in its track"
 NO_WINDOW = "no lanecast window (under 3 s of history at the stamp)"
 REASONS = (NO_PATH, REFUSED, NO_TRACK, NOT_AT_STAMP, PAST_END, LEFT, GAP)
@@ -80,22 +80,25 @@ class Tracks:
         self.ids, self.first = np.unique(self.track, return_index=True)
         self.last = np.append(self.first[1:], self.track.size) - 1
         self.log_end = int(self.time.max()) if self.time.size else 0
-        self.t_min = int(self.time.min()) if self.time.size else 0
-        span = self.log_end - self.t_min + 1
-        self.span = span
-        self.key = np.searchsorted(self.ids, self.track).astype(np.int64) * span + (self.time - self.t_min)
+        # one increasing key over all rows: each track's times shifted past the previous track's end
+        # (sums of track durations, never ids × the log's span: no int64 overflow on long logs)
+        span = self.time[self.last] - self.time[self.first] + 1
+        self.base = np.concatenate([[0], np.cumsum(span)[:-1]]).astype(np.int64)
+        rank = np.repeat(np.arange(self.ids.size), self.last - self.first + 1)
+        self.key = self.base[rank] + (self.time - self.time[self.first][rank])
 
     def locate(self, track_id: np.ndarray, t_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """For each track id [N] at times [N, T]: (rank of the track [N], -1 if unknown; the sample at or
-        before each time [N, T]; the interpolation fraction to the next one [N, T])."""
+        before each time [N, T], clipped to the track; the interpolation fraction to the next one [N, T])."""
         rank = np.searchsorted(self.ids, track_id)
         known = (rank < self.ids.size) & (self.ids[np.minimum(rank, self.ids.size - 1)] == track_id)
         rank = np.where(known, rank, -1)
         r = np.maximum(rank, 0)[:, None]
-        rel = np.clip(t_ns - self.t_min, 0, self.span - 1)
-        row = np.searchsorted(self.key, r * self.span + rel, side="right") - 1
-        row = np.clip(row, self.first[r], self.last[r])
-        nxt = np.minimum(row + 1, self.last[r])
+        first, last = self.first[r], self.last[r]
+        rel = np.clip(t_ns - self.time[first], 0, self.time[last] - self.time[first])
+        row = np.searchsorted(self.key, self.base[r] + rel, side="right") - 1
+        row = np.clip(row, first, last)
+        nxt = np.minimum(row + 1, last)
         dt = (self.time[nxt] - self.time[row]).astype(np.float64)
         frac = np.where(dt > 0, (t_ns - self.time[row]) / np.where(dt > 0, dt, 1.0), 0.0)
         return rank, row, np.clip(frac, 0.0, 1.0)

@@ -90,7 +90,7 @@ def test_unmatched_predictions_are_counted_exactly(mcap_report: dict[str, Any]) 
     assert entry["unmatched"] == {
         "no tracked object with its id (an id switch, or never tracked)": n_stamps,
         "horizon past the end of the log": 3 * 5,
-        "object gone before the last horizon": 4,
+        "object gone before the last horizon (it left, or its id switched)": 4,
     }
     assert entry["objects_predicted"] == n_stamps + 3 * n_stamps + 4
     assert entry["refused_paths"] == {}
@@ -149,7 +149,7 @@ def test_predictions_stamped_after_their_tracked_objects_are_aligned_and_the_off
         "no tracked object with its id (an id switch, or never tracked)": 9,
         "not tracked at its stamp": 1,  # car 4 stamped 7.05 s, tracked until 7 s
         "horizon past the end of the log": 15,
-        "object gone before the last horizon": 3,
+        "object gone before the last horizon (it left, or its id switched)": 3,
     }
 
 
