@@ -89,7 +89,9 @@ def predictor_summary(
     brier, nll, n_confidence_rows, per_class {class: {n, rmse}}, per_speed_band.
     """
     n = true.shape[0]
-    pred = candidates[np.arange(n), best_path(confidence)] if n else true
+    if n == 0:  # nothing matched: every figure null, the shapes kept
+        candidates, confidence = np.zeros((0, 1, *true.shape[1:])), np.zeros((0, 1))
+    pred = candidates[np.arange(n), best_path(confidence)]
     err = displacement_errors(pred, true)
     # minADE/minFDE over the paths it gave (NaN paddings never the minimum)
     all_err = np.linalg.norm(candidates - true[:, None], axis=-1)

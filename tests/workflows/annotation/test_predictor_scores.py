@@ -171,3 +171,21 @@ def test_predictions_lanecast_cannot_forecast_are_counted_and_kept_for_the_recor
     err, _ = hand_errors()
     assert every["n"] == 12
     np.testing.assert_allclose(every["rmse"], np.sqrt((err[:, 0] ** 2).mean(axis=0)), rtol=1e-9)
+
+
+def test_a_predictor_with_nothing_to_score_is_reported_as_such(tmp_path: Path) -> None:
+    """Tracks that end at 3 s: every prediction (from 4 s on) is counted, none is scored."""
+    log = write_mcap(tmp_path / "drive.mcap")
+    tracks = registry.read_any([log])
+    tracks = tracks.filter(pc.less(tracks["time_ns"], 3_000_000_000))
+    (pred,) = read_predictions(log)
+    scored = score_predictor(pred, tracks)
+    assert add_lanecast(scored, tracks, []) == 0
+    entry = predictor_metrics([scored], boots=10)
+    assert entry["scored"] == 0
+    assert entry["unmatched"] == {
+        "no tracked object with its id (an id switch, or never tracked)": 9,
+        "not tracked at its stamp": 31,
+    }
+    assert entry["metrics"]["recorded"]["rmse"] == [None] * 5
+    json.dumps(entry, allow_nan=False)
