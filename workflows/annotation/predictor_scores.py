@@ -60,6 +60,7 @@ class Scored:
     candidates: np.ndarray  # float64 [N, K, 5, 2]
     confidence: np.ndarray  # float64 [N, K], NaN where no path
     true: np.ndarray  # float64 [N, 5, 2]
+    log: str = ""  # the log's name in the report
     lanecast: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)  # on the common rows
     #: the recorded predictor on every matched row, before the rows lanecast cannot forecast are left out
     all_matched: dict[str, np.ndarray] = field(default_factory=dict)

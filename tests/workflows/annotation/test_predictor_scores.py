@@ -189,3 +189,20 @@ def test_a_predictor_with_nothing_to_score_is_reported_as_such(tmp_path: Path) -
     }
     assert entry["metrics"]["recorded"]["rmse"] == [None] * 5
     json.dumps(entry, allow_nan=False)
+
+
+def test_a_folder_of_logs_is_reported_per_log_and_pooled(tmp_path: Path, mcap_report: dict[str, Any]) -> None:
+    logs = tmp_path / "logs"
+    (logs / "day1").mkdir(parents=True)
+    (logs / "day2").mkdir()
+    write_mcap(logs / "day1" / "drive.mcap")
+    write_bag(logs / "day2" / "drive")
+    pooled = report(tmp_path, logs, "--predictions")[PREDICTIONS_TOPIC]
+    one = mcap_report[PREDICTIONS_TOPIC]
+    assert pooled["scored"] == 2 * one["scored"]
+    assert pooled["unmatched"] == {reason: 2 * n for reason, n in one["unmatched"].items()}
+    np.testing.assert_allclose(pooled["metrics"]["recorded"]["rmse"], one["metrics"]["recorded"]["rmse"])
+    for name in ("day1/drive", "day2/drive"):
+        page = json.loads((tmp_path / "report" / "logs" / name / "metrics.json").read_text())
+        assert page[PREDICTIONS_TOPIC]["scored"] == one["scored"]
+        assert pooled["stamp_offset_ms"][name] == {"median": 0.0, "min": 0.0, "max": 0.0}
