@@ -52,5 +52,7 @@ def run(args: argparse.Namespace) -> int:
     check_output_dir(args.out, files=("metrics.json", "report.md", "report.html"), force=args.force)
     if args.predictions is not None:
         topics = [t for t in args.predictions if t]
-        return report_predictors(args.paths, args.out, predictions=topics, topic=args.topic, model=args.model)
+        return report_predictors(
+            args.paths, args.out, predictions=topics, topic=args.topic, model=args.model, force=args.force
+        )
     return report_logs(args.paths, args.out, topic=args.topic, examples=args.examples, force=args.force)

@@ -180,17 +180,19 @@ def report_predictors(
     topic: str | None = None,
     model: Path | None = None,
     boots: int = 1000,
+    force: bool = False,
 ) -> int:
     """Score the predictors recorded in the logs of ``paths`` (topics ``predictions``, else every
     topic found by schema) and write the report into ``out``, overall and per log; print the answer.
-    Returns 0, or 1 when some log could not be scored (named; the others are reported)."""
+    Returns 0, or 1 when some log could not be scored (named; the others are reported). ``force``:
+    replace files of the report's names that lanecast did not write."""
     logs = annotated_logs(paths)
     names = per_log_names(logs)
     forecaster = load_forecaster(model, quiet=True)
     pooled_parts: dict[str, list[Scored]] = {}
     failed: list[str] = []
     scored_logs, last = 0, {}
-    with staged_files(out) as stage:
+    with staged_files(out, force=force) as stage:
         for log in progress(logs, desc="report", total=len(logs), unit="log"):
             try:
                 tracks = registry.read_any([log], topic=topic) if topic else registry.read_any([log])
