@@ -12,7 +12,7 @@ from lanecast.io_adapters.files import check_output_dir
 from lanecast.workflows.annotation.log_scores import report_logs
 from lanecast.workflows.annotation.predictor_report import report_predictors
 from lanecast.workflows.arguments import MAX_EXAMPLES, integer
-from lanecast.workflows.vocabulary import HelpFormatter, add_force_option
+from lanecast.workflows.vocabulary import HelpFormatter, add_force_option, add_model_option
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -25,7 +25,8 @@ def register(sub: argparse._SubParsersAction) -> None:
             "constant-velocity and constant-acceleration baselines. Writes metrics.json, report.md and "
             "report.html into --out, overall and per log (logs/<name>/)."
         ),
-        epilog="example:\n  lanecast annotate logs/ --out annotated/\n  lanecast report annotated/ --out report/",
+        epilog="example:\n  lanecast annotate logs/ --out annotated/\n  lanecast report annotated/ --out report/\n"
+        "  lanecast report annotated/ --out report-predictors/ --predictions",
         formatter_class=HelpFormatter,
     )
     p.add_argument("paths", nargs="+", type=Path, metavar="ANNOTATED", help="annotated logs or directories")
@@ -44,7 +45,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="score the predictor recorded on TOPIC (repeatable; without TOPIC: every topic of Autoware's "
         "PredictedObjects) against the log's own future, beside lanecast's ST-CNN and constant velocity",
     )
-    p.add_argument("--model", type=Path, help="the model lanecast forecasts with (default: the shipped one)")
+    add_model_option(p)  # the model lanecast forecasts with, beside a recorded predictor
     p.set_defaults(func=run)
 
 
