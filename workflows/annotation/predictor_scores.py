@@ -202,11 +202,9 @@ def add_lanecast(scored: Scored, tracks: pa.Table, forecasters: list[Forecaster]
     index = windows.index
     w_track, w_t0 = index.column("track_id").to_numpy(), index.column("t0_ns").to_numpy()
     w_true, w_reason = tr.truth(w_track, w_t0)
-    key_w = w_track.astype(np.int64), (w_t0 + STEP_NS // 2) // STEP_NS
-    key_s = scored.track_id, (scored.t0_ns + STEP_NS // 2) // STEP_NS
-    pairs = {(int(a), int(b)): i for i, (a, b) in enumerate(zip(*key_w, strict=True)) if w_reason[i] == ""}
-    window = np.array([pairs.get((int(a), int(b)), -1) for a, b in zip(*key_s, strict=True)], dtype=np.int64)
+    window = _same_frame(scored.track_id, scored.t0_ns, w_track, w_t0)
     keep = window >= 0
+    keep[keep] = w_reason[window[keep]] == ""
     scored.all_matched = {name: getattr(scored, name) for name in _ROWS}
     _subset(scored, keep)
     window = window[keep]
@@ -220,6 +218,17 @@ def add_lanecast(scored: Scored, tracks: pa.Table, forecasters: list[Forecaster]
             "true": w_true[window],
         }
     return int((~keep).sum())
+
+
+def _same_frame(track: np.ndarray, t0: np.ndarray, w_track: np.ndarray, w_t0: np.ndarray) -> np.ndarray:
+    """int64 [N]: the window of the same track at the same 10 Hz frame as each (track, t0), or -1."""
+    a = np.stack([track, (t0 + STEP_NS // 2) // STEP_NS], axis=1).astype(np.int64)
+    b = np.stack([w_track, (w_t0 + STEP_NS // 2) // STEP_NS], axis=1).astype(np.int64)
+    _, inverse = np.unique(np.concatenate([a, b]), axis=0, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    window_of = np.full(int(inverse.max()) + 1 if inverse.size else 0, -1, dtype=np.int64)
+    window_of[inverse[len(a) :]] = np.arange(len(b))
+    return window_of[inverse[: len(a)]]
 
 
 def _lists(table: pa.Table, name: str) -> np.ndarray:
