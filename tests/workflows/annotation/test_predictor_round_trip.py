@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 import pytest
 from mcap.reader import make_reader
-from predictor_drive_log import write_bag, write_mcap
+from predictor_drive_log import PREDICTIONS_TOPIC, write_bag, write_mcap
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
@@ -84,10 +84,13 @@ def test_scoring_the_recorded_topic_gives_lanecasts_own_rmse(tmp_path: Path, kin
         with AnyReader([log], default_typestore=ros_types.typestore(2)) as reader:
             assert {c.topic: c.msgtype for c in reader.connections}[AUTOWARE_TOPIC] == PREDICTED_OBJECTS
     out = tmp_path / "report"
-    assert main(["report", str(log), "--out", str(out), "--predictions", AUTOWARE_TOPIC]) == 0
-    entry = json.loads((out / "metrics.json").read_text())[AUTOWARE_TOPIC]
-    m = entry["metrics"]
-    assert m["recorded"]["n"] == m["stcnn"]["n"] == 12
-    np.testing.assert_allclose(m["recorded"]["rmse"], m["stcnn"]["rmse"], rtol=1e-5)
-    np.testing.assert_allclose(m["recorded"]["min_ade"], m["stcnn"]["min_ade"], rtol=1e-5)
-    np.testing.assert_allclose(m["recorded"]["brier"], m["stcnn"]["brier"], rtol=1e-5)
+    assert main(["report", str(log), "--out", str(out), "--predictions"]) == 0
+    report = json.loads((out / "metrics.json").read_text())
+    # found by schema (both PredictedObjects topics) and by name (lanecast's JSON)
+    assert report["predictor_topics"] == sorted([AUTOWARE_TOPIC, PREDICTION_TOPIC, PREDICTIONS_TOPIC])
+    for topic, rtol in ((AUTOWARE_TOPIC, 1e-5), (PREDICTION_TOPIC, 1e-3)):  # the JSON holds rounded numbers
+        m = report[topic]["metrics"]
+        assert m["recorded"]["n"] == m["stcnn"]["n"] == 12
+        np.testing.assert_allclose(m["recorded"]["rmse"], m["stcnn"]["rmse"], rtol=rtol)
+        np.testing.assert_allclose(m["recorded"]["min_ade"], m["stcnn"]["min_ade"], rtol=rtol)
+        np.testing.assert_allclose(m["recorded"]["brier"], m["stcnn"]["brier"], rtol=rtol)
