@@ -186,7 +186,14 @@ def report_predictors(
     topic found by schema) and write the report into ``out``, overall and per log; print the answer.
     Returns 0, or 1 when some log could not be scored (named; the others are reported). ``force``:
     replace files of the report's names that lanecast did not write."""
-    logs = annotated_logs(paths)
+    try:
+        logs = annotated_logs(paths)
+    except InputError as exc:  # its words are for annotated logs; any drive log may hold a predictor
+        if exc.reason != "no annotated logs found":
+            raise
+        raise InputError(
+            paths[0], "no drive logs found", expected="MCAP files, ROS 2 bags or folders of them"
+        ) from exc
     names = per_log_names(logs)
     forecaster = load_forecaster(model, quiet=True)
     pooled_parts: dict[str, list[Scored]] = {}

@@ -21,8 +21,9 @@ from predictor_drive_log import (
     write_mcap,
 )
 
+from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.formats import registry
-from lanecast.workflows.annotation.predictor_report import predictor_metrics
+from lanecast.workflows.annotation.predictor_report import predictor_metrics, report_predictors
 from lanecast.workflows.annotation.predictor_scores import add_lanecast, score_predictor
 from lanecast.workflows.annotation.recorded_predictions import read_predictions
 from lanecast.workflows.cli import main
@@ -206,3 +207,8 @@ def test_a_folder_of_logs_is_reported_per_log_and_pooled(tmp_path: Path, mcap_re
         page = json.loads((tmp_path / "report" / "logs" / name / "metrics.json").read_text())
         assert page[PREDICTIONS_TOPIC]["scored"] == one["scored"]
         assert pooled["stamp_offset_ms"][name] == {"median": 0.0, "min": 0.0, "max": 0.0}
+
+
+def test_a_folder_without_logs_is_named(tmp_path: Path) -> None:
+    with pytest.raises(InputError, match="no drive logs found"):
+        report_predictors([tmp_path], tmp_path / "report", predictions=[])
