@@ -65,9 +65,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--encoding",
-        choices=("auto", "protobuf", "json"),
+        choices=("auto", "protobuf", "json", "autoware"),
         default="auto",
-        help="SceneUpdate encoding in plain MCAP (default: JSON for all-JSON logs, else protobuf; ROS 2: CDR)",
+        help="SceneUpdate encoding in plain MCAP (default: JSON for all-JSON logs, else protobuf; ROS 2: CDR); "
+        "autoware: as auto, and the forecasts as Autoware PredictedObjects on /lanecast/predicted_objects",
     )
     p.add_argument(
         "--forecasts",

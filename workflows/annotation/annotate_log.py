@@ -34,6 +34,7 @@ from lanecast.io_adapters.errors import InputError, LogError
 from lanecast.io_adapters.files import atomic_path, check_input, checksum
 from lanecast.io_adapters.formats import registry
 from lanecast.io_adapters.logs import forecast_messages as fm
+from lanecast.io_adapters.logs.autoware import predicted_objects_encode as autoware_encode
 from lanecast.io_adapters.logs.conventions import BAG_FILES
 from lanecast.io_adapters.logs.mcap import copy as mcap_copy
 from lanecast.io_adapters.logs.mcap import salvage_copy as mcap_salvage_copy
@@ -60,11 +61,15 @@ class AnnotateOptions:
     topic: str | None = None
     every_s: float = 1.0
     top_k: int = 3
-    encoding: str = "auto"  # auto | protobuf | json (plain MCAP; ROS 2 logs are always CDR)
+    encoding: str = "auto"  # auto | protobuf | json (plain MCAP; ROS 2 logs are always CDR) | autoware
     forecasts: Path | None = None  # precomputed forecasts: a Parquet file, or a directory of <log>.parquet
     frame_id: str = "map"  # used only when the tracks are not read (precomputed forecasts with origins)
     explain: bool = False  # also /lanecast/explain: each target's forecast with each neighbour removed
     salvage: bool = False  # a damaged MCAP: annotate its intact chunks, the loss reported
+
+
+#: ``--encoding``: the SceneUpdates ``auto`` picks, and Autoware PredictedObjects besides
+AUTOWARE = "autoware"
 
 
 def log_kind(path: Path) -> str:
@@ -272,8 +277,10 @@ def annotate_log(
     frame_ids: str | dict[str, str] = options.frame_id
     if tracks is not None:
         frame_ids = {name: rec.coordinate_frame for name, rec in read_meta(tracks).recordings.items()}
-    encoding = choose_encoding(kind, src, options.encoding, info=info)
+    autoware = options.encoding == AUTOWARE  # the SceneUpdates as auto picks them, and PredictedObjects
+    encoding = choose_encoding(kind, src, "auto" if autoware else options.encoding, info=info)
     specs = fm.channel_specs(encoding) + ([fm.explain_channel_spec(encoding)] if what_ifs is not None else [])
+    specs += [autoware_encode.channel_spec()] if autoware else []
     n_frames = 0
 
     def forecast_messages() -> Iterator[mcap_copy.ExtraMessage]:
@@ -292,9 +299,18 @@ def annotate_log(
         for t0_ns, scene, _ in fm.encode_batch(batch, encoding):
             yield t0_ns, 2, scene
 
+    def autoware_messages() -> Iterator[mcap_copy.ExtraMessage]:
+        if not autoware:
+            return
+        assert forecasts is not None
+        batch = fm.batch_from_table(forecasts, frame_id=frame_ids, tracks=tracks, lifetime_s=options.every_s)
+        for t0_ns, payload in autoware_encode.encode_batch(batch):
+            yield t0_ns, len(specs) - 1, payload
+
     def extra() -> Iterator[mcap_copy.ExtraMessage]:
         """Forecasts and what-ifs merged in log-time order (the forecast of a time before its what-ifs)."""
-        yield from heapq.merge(forecast_messages(), explain_messages(), key=lambda m: (m[0], m[1]))
+        messages = (forecast_messages(), explain_messages(), autoware_messages())
+        yield from heapq.merge(*messages, key=lambda m: (m[0], m[1]))
 
     def merge() -> mcap_copy.Merge:
         return mcap_copy.Merge(channels=specs, extra=extra(), progress=progress)
@@ -304,7 +320,8 @@ def annotate_log(
     if kind == "ros2":
         with atomic_path(out, directory=True, replaces=BAG_FILES) as tmp:
             inner = tmp / out.name  # rosbags creates the bag directory and names its files after it
-            stats = bag_copy.copy_ros2_bag(src, inner, merge(), typestore=fm.ros2_typestore())
+            store = autoware_encode.writer_typestore() if autoware else fm.ros2_typestore()
+            stats = bag_copy.copy_ros2_bag(src, inner, merge(), typestore=store)
             for part in inner.iterdir():  # relative paths in metadata.yaml stay valid one level up
                 part.rename(tmp / part.name)
                 _readable(tmp / part.name)
