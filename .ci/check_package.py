@@ -14,6 +14,7 @@
 from __future__ import annotations
 
 import argparse
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -34,10 +35,14 @@ def source_files(root: Path) -> set[str]:
 
 
 def wheel_files(root: Path, isolation: bool) -> set[str]:
-    """The files of a wheel built from ``root`` (its .dist-info left out)."""
+    """The files of a wheel built from ``root`` (its .dist-info left out); setuptools' ``build/``
+    is removed again unless it was there before."""
+    made_build = not (root / "build").exists()
     with tempfile.TemporaryDirectory() as out:
         command = [sys.executable, "-m", "pip", "wheel", "--quiet", "--no-deps", "--wheel-dir", out]
         subprocess.run([*command, *([] if isolation else ["--no-build-isolation"]), str(root)], check=True)
+        if made_build:
+            shutil.rmtree(root / "build", ignore_errors=True)
         (wheel,) = Path(out).glob("lanecast-*.whl")
         with zipfile.ZipFile(wheel) as z:
             return {n for n in z.namelist() if not n.split("/", 1)[0].endswith(".dist-info")}
