@@ -24,7 +24,7 @@ def register(sub: argparse._SubParsersAction) -> None:
             "5 s future, every --stride frames), label maneuvers, split by track, and write the dataset "
             "directory training memory-maps: inputs.npy, present.npy, future.npy, maneuver.npy, "
             "windows.parquet, manifest.json. Windows never span a gap in a track. Streams: one recording "
-            "(or a group of small ones, or a chunk of whole tracks of a long one with the traffic "
+            "(or a group of small ones, or a group of whole tracks of a long one with the traffic "
             "around them) at a time is read, cut and appended to the dataset on disk, so memory "
             "stays bounded whatever the dataset or recording length; the directory appears only "
             "when complete. --workers/--engine ray spread recordings over processes or a cluster with "
