@@ -1,9 +1,10 @@
-"""Which engine serves a model: ONNX Runtime where its export is fresh and the runtime installed, else torch.
+"""Which runtime serves a model: ONNX Runtime where its export is fresh and the runtime installed, else torch.
 
-``load_forecaster`` is what the commands that predict call. ``engine="auto"`` takes ONNX Runtime when
-the card's ONNX file was exported from these very weights (``onnx_predict.onnx_file``) and falls back
-to torch otherwise, saying why on stderr; ``"onnx"`` insists (an error instead of the fallback),
-``"torch"`` never tries. torch is imported only when torch serves.
+``load_forecaster`` is what the commands that predict call; its ``engine`` keyword names the runtime.
+``engine="auto"`` takes ONNX Runtime when the card's ONNX file was exported from these very weights
+(``onnx_predict.onnx_file``) and falls back to torch otherwise, saying why on stderr; ``"onnx"``
+insists (an error instead of the fallback), ``"torch"`` never tries. torch is imported only when
+torch serves.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from lanecast.models.card import read_card, resolve
 from lanecast.models.onnx_predict import OnnxForecaster, onnx_file
 from lanecast.models.predictions import Forecaster
 
-ENGINES = ("auto", "onnx", "torch")
+RUNTIMES = ("auto", "onnx", "torch")
 
 
 def check_model(model: Path | str | None = None, *, engine: str = "auto") -> None:
@@ -36,8 +37,8 @@ def load_forecaster(
     quiet: bool = False,
 ) -> Forecaster:
     """A loaded forecaster (``OnnxForecaster`` or ``STCNNForecaster``) for a model (None: the shipped one)."""
-    if engine not in ENGINES:
-        raise InputError(None, f"unknown prediction engine {engine!r}", expected=", ".join(ENGINES))
+    if engine not in RUNTIMES:
+        raise InputError(None, f"unknown runtime {engine!r}", expected=", ".join(RUNTIMES))
     weights_path, card_path = resolve(model)
     if engine != "torch":
         card = read_card(card_path)

@@ -14,8 +14,7 @@ from lanecast.io_adapters.formats import registry, streaming
 from lanecast.io_adapters.logs.conventions import BAG_FILES
 from lanecast.io_adapters.logs.rosbag.writer import STORAGES
 from lanecast.io_adapters.ownership import check_replaceable_files, check_replaceable_output
-from lanecast.workflows.bulk import backends as engines
-from lanecast.workflows.bulk import freed_memory as heap
+from lanecast.workflows.bulk import backends, freed_memory
 from lanecast.workflows.vocabulary import HelpFormatter, add_force_option, add_location_option
 
 _SUFFIX_TO_FORMAT = {".parquet": "parquet", ".pq": "parquet", ".mcap": "mcap", ".bag": "ros1"}
@@ -78,7 +77,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="Parquet: write a dataset directory, one file per recording or group of small ones "
         "(default: one file)",
     )
-    engines.add_arguments(p, "recordings")
+    backends.add_arguments(p, "recordings processed")
     add_force_option(p)
     p.set_defaults(func=run)
 
@@ -130,8 +129,8 @@ def run(args: argparse.Namespace) -> int:
         check_replaceable_output(args.out, force=args.force)
     if os.path.realpath(args.out) in {os.path.realpath(p) for p in args.inputs}:
         raise InputError(args.out, "the output would overwrite an input", expected="a new output path")
-    engines.check(args.workers, args.engine)
-    heap.keep_freed_memory()  # pieces reuse what the previous one freed
+    backends.check(args.workers, args.engine)
+    freed_memory.keep_freed_memory()  # pieces reuse what the previous one freed
     if fmt != "parquet":  # drive logs are written from the whole table
         table = registry.read_any(args.inputs, fmt=args.format, **options)
         path = registry.write_any(
@@ -147,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
                 raise InputError(
                     ", ".join(map(str, args.inputs)), "no rows", expected="at least one row to convert"
                 )
-            ordered_map = engines.mapper_from_args(args, args.inputs, args.out)
+            ordered_map = backends.mapper_from_args(args, args.inputs, args.out)
             rows, tracks = streaming.convert(pieces, args.out, directory=directory, ordered_map=ordered_map)
         path = args.out
     print(f"wrote {path} ({fmt}): {rows:,} rows, {tracks:,} tracks in {time.perf_counter() - started:.1f} s")

@@ -11,8 +11,7 @@ from lanecast.io_adapters.files import activity, check_output_dir
 from lanecast.io_adapters.formats import registry, streaming
 from lanecast.pipeline.make_windows import WindowOptions, write_windows
 from lanecast.workflows.arguments import MAX_SEED, integer, number
-from lanecast.workflows.bulk import backends as engines
-from lanecast.workflows.bulk import freed_memory as heap
+from lanecast.workflows.bulk import backends, freed_memory
 from lanecast.workflows.vocabulary import HelpFormatter, add_location_option
 
 
@@ -25,7 +24,7 @@ def register(sub: argparse._SubParsersAction) -> None:
             "5 s future, every --stride frames), label maneuvers, split by track, and write the dataset "
             "directory training memory-maps: inputs.npy, present.npy, future.npy, maneuver.npy, "
             "windows.parquet, manifest.json. Windows never span a gap in a track. Streams: one recording "
-            "(or a group of small ones, or a chunk of whole tracks of a long one with the traffic "
+            "(or a group of small ones, or a group of whole tracks of a long one with the traffic "
             "around them) at a time is read, cut and appended to the dataset on disk, so memory "
             "stays bounded whatever the dataset or recording length; the directory appears only "
             "when complete. --workers/--engine ray spread recordings over processes or a cluster with "
@@ -76,7 +75,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="also cut windows without 5 s of future (future NaN, maneuver -1 where unknown)",
     )
-    engines.add_arguments(p, "recordings")
+    backends.add_arguments(p, "recordings processed")
     p.set_defaults(func=run)
 
 
@@ -84,14 +83,14 @@ def run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     # before the work: a file there, or a directory holding a user's files, was refused at the end
     check_output_dir(args.out, replaces=DATASET_FILES)
-    engines.check(args.workers, args.engine)
-    heap.keep_freed_memory(arrow=True)  # pieces reuse what the previous one freed
+    backends.check(args.workers, args.engine)
+    freed_memory.keep_freed_memory(arrow=True)  # pieces reuse what the previous one freed
     with streaming.spill_directory(args.out) as spill:  # NGSIM exports: a spill per recording
         options = {"location": args.location} if args.location else {}
         pieces = streaming.plan(
             args.table, fmt=args.format, spill_dir=spill.path, options=options, long="context"
         )
-        ordered_map = engines.mapper_from_args(args, args.table, args.out)
+        ordered_map = backends.mapper_from_args(args, args.table, args.out)
         count = f"{len(pieces):,} piece" + ("s" if len(pieces) != 1 else "")
         with activity(f"windows: resampling, neighbours and tensors of {count}"):
             windows = write_windows(

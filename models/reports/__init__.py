@@ -1,1 +1,1 @@
-"""models/reports."""
+"""Documents for people: the evaluation report (report.md, report.html), the ablation and explain pages."""

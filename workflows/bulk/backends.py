@@ -1,7 +1,7 @@
 """Where per-input tasks run: in this process, on local worker processes, or on a Ray cluster.
 
 Shared by the commands that spread work over inputs (`annotate` through bulk.py, `convert` and
-`windows`): one way to connect to Ray (ray_engine, through :func:`ray_session`), one ordered map over tasks
+`windows`): one way to connect to Ray (ray_backend, through :func:`ray_session`), one ordered map over tasks
 (:func:`ordered_map`) and one set of command-line options (:func:`add_arguments`). On a cluster,
 inputs and outputs must be on storage every node sees; tasks write there and return small results.
 """
@@ -20,19 +20,18 @@ from typing import Any, TypeVar
 
 from lanecast.io_adapters.errors import InputError, LanecastError
 from lanecast.workflows.arguments import MAX_WORKERS, integer
-from lanecast.workflows.bulk import freed_memory as heap
-from lanecast.workflows.bulk import ray_backend as ray_engine
+from lanecast.workflows.bulk import freed_memory, ray_backend
 
 T = TypeVar("T")
 R = TypeVar("R")
-ENGINES = ("local", "ray")
+BACKENDS = ("local", "ray")
 
 
-def add_arguments(p: argparse.ArgumentParser, unit: str) -> None:
-    """``--workers``, ``--engine``, ``--address`` and ``--retries`` (as `annotate` has them) for a
-    command spreading ``unit``s."""
-    p.add_argument("--workers", type=integer(1, MAX_WORKERS), default=1, help=f"{unit} processed in parallel")
-    p.add_argument("--engine", choices=ENGINES, default="local", help="local processes or a Ray cluster")
+def add_arguments(p: argparse.ArgumentParser, done: str) -> None:
+    """``--workers``, ``--engine`` (the backend), ``--address`` and ``--retries`` of a command that
+    spreads its inputs; ``done`` says what ``--workers`` counts (``"logs annotated"``)."""
+    p.add_argument("--workers", type=integer(1, MAX_WORKERS), default=1, help=f"{done} in parallel")
+    p.add_argument("--engine", choices=BACKENDS, default="local", help="local processes or a Ray cluster")
     p.add_argument(
         "--address",
         help="Ray: host:port of a cluster's head, or ray://host:10001 (default: RAY_ADDRESS, else the "
@@ -46,8 +45,8 @@ def add_arguments(p: argparse.ArgumentParser, unit: str) -> None:
 def check(workers: int, engine: str) -> None:
     if workers < 1:
         raise InputError(None, f"--workers {workers}", expected="at least 1")
-    if engine not in ENGINES:
-        raise InputError(None, f"--engine {engine}", expected=f"one of {ENGINES}")
+    if engine not in BACKENDS:
+        raise InputError(None, f"--engine {engine}", expected=f"one of {BACKENDS}")
 
 
 @contextlib.contextmanager
@@ -55,8 +54,8 @@ def ray_session(address: str | None, workers: int) -> Iterator[Any]:
     """The ``ray`` module connected as bulk runs connect (:mod:`lanecast.workflows.bulk.ray_backend`:
     fail fast on a wrong address, join a running cluster, else a local Ray with ``workers`` CPUs);
     a Ray started here is shut down on exit."""
-    started_here = ray_engine.connect(address, workers)
-    ray = ray_engine.ray_module()
+    started_here = ray_backend.connect(address, workers)
+    ray = ray_backend.ray_module()
     try:
         yield ray
     finally:
@@ -87,7 +86,9 @@ def ordered_map(
             yield fn(item)
     else:
         with ProcessPoolExecutor(
-            max_workers=workers, mp_context=mp.get_context("spawn"), initializer=heap.keep_freed_memory
+            max_workers=workers,
+            mp_context=mp.get_context("spawn"),
+            initializer=freed_memory.keep_freed_memory,
         ) as pool:
             pending: deque[Future[R]] = deque()
             for item in items:
@@ -116,7 +117,7 @@ def mapper_from_args(
 
 
 def _call(fn: Callable[[T], R], item: T) -> R:
-    heap.keep_freed_memory()  # once per Ray worker process
+    freed_memory.keep_freed_memory()  # once per Ray worker process
     return fn(item)
 
 
@@ -131,7 +132,7 @@ def _ray_map(
 ) -> Iterator[R]:
     with ray_session(address, workers) as ray:
         if paths:
-            ray_engine.refuse_unreachable_paths(list(paths))
+            ray_backend.refuse_unreachable_paths(list(paths))
         # one CPU each; retried only when a worker dies: a task's own error is deterministic
         remote = ray.remote(num_cpus=1, max_retries=retries, retry_exceptions=False)(_call)
         fn_ref = ray.put(fn)

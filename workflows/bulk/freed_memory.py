@@ -7,7 +7,7 @@ grows with the rows (measured in BENCHMARKS.md, "Whole datasets"). Raising both 
 what one piece freed for the next; the high-water mark, and so the peak memory, is the same.
 With ``arrow``, Arrow's buffers (Parquet pages, filtered and concatenated tables) move to the same
 heap: its default pool (mimalloc) returns freed memory to the kernel between pieces. `windows`
-asks for it (a chunk of a long recording: system time 1.9-2.4 -> 0.5 s on 30 minutes, peak 0.97
+asks for it (a track group of a long recording: system time 1.9-2.4 -> 0.5 s on 30 minutes, peak 0.97
 -> 0.86 GB); `convert` does not (its peak rose 0.6 -> 1.0 GB on 120 minutes, for 0.1 s).
 """
 

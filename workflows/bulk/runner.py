@@ -13,13 +13,13 @@ name it claimed, the options and model that made it and the input's checksum. A 
 - writes outputs only complete (``atomic_path``); leftover ``.*.tmp-*`` entries of a killed run are
   removed when the next run starts (an exclusive lock on OUT_DIR keeps two runs apart).
 
-Engines: ``local`` runs the per-log task in-process (1 worker) or in a ``ProcessPoolExecutor``;
+Backends (``engine=``, the value of ``--engine``): ``local`` runs the per-log task in-process (1 worker) or in a ``ProcessPoolExecutor``;
 ``ray`` submits the same task (``num_cpus=1``, retried when its worker dies) to a cluster
 (``lanecast.workflows.bulk.ray_backend``). Every path a worker gets is absolute.
 
 Finding and naming the logs is :mod:`lanecast.workflows.bulk.discovery`, running the per-log task
 :mod:`lanecast.workflows.bulk.tasks`; this module plans a run against the manifest, keeps OUT_DIR
-safe (lock, leftovers, foreign files) and records what the engines return.
+safe (lock, leftovers, foreign files) and records what the backends return.
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ from lanecast.workflows.annotation.annotate_log import (
     AnnotateOptions,
     precomputed_forecasts_path,
 )
-from lanecast.workflows.bulk import ray_backend as ray_engine
+from lanecast.workflows.bulk import ray_backend
 from lanecast.workflows.bulk.discovery import Task, common_root, discover, name_candidates
 from lanecast.workflows.bulk.manifest import (
     MANIFEST,
@@ -309,7 +309,7 @@ def run_bulk(
         raise InputError(
             None, f"no logs found in {', '.join(map(str, paths))}", expected="*.mcap, *.bag or ROS 2 bags"
         )
-    ray_started_here = ray_engine.connect(address, workers) if engine == "ray" else False  # fail fast
+    ray_started_here = ray_backend.connect(address, workers) if engine == "ray" else False  # fail fast
     created = not out_dir.exists()
     try:
         result = _run_bulk(
@@ -317,7 +317,7 @@ def run_bulk(
         )
     finally:
         if ray_started_here:
-            ray_engine.ray_module().shutdown()
+            ray_backend.ray_module().shutdown()
     if created and result.failed and not result.done:
         _remove_failed_run(out_dir)
     return result

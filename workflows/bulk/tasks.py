@@ -29,7 +29,7 @@ from lanecast.workflows.annotation.annotate_log import (
     AnnotateOptions,
     annotate_log,
 )
-from lanecast.workflows.bulk import ray_backend as ray_engine
+from lanecast.workflows.bulk import ray_backend
 from lanecast.workflows.bulk.discovery import Task
 from lanecast.workflows.bulk.manifest import stat_signature
 
@@ -170,8 +170,8 @@ def run_ray(
 ) -> None:
     """The same task on Ray, one CPU each: retried ``retries`` times when its worker dies or it
     raises unexpectedly. The workers must see the inputs and OUT_DIR by the same absolute paths."""
-    ray = ray_engine.ray_module()  # connected by run_bulk
-    ray_engine.refuse_unreachable_paths([out_dir, *(t.input for t in tasks)])
+    ray = ray_backend.ray_module()  # connected by run_bulk
+    ray_backend.refuse_unreachable_paths([out_dir, *(t.input for t in tasks)])
     remote = ray.remote(num_cpus=1, max_retries=retries, retry_exceptions=True)(annotate_task)
     refs = {remote.remote(task, options, False): task for task in tasks}
     while refs:
