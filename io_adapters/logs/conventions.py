@@ -11,9 +11,9 @@ Documented here, used by the MCAP and ROS bag writers and checked by the readers
   (parsed and checked by :func:`parse_log_metadata`); in the ROS bags lanecast writes, whose
   formats have no checksum of their own, also a digest of their messages (:class:`PayloadDigest`).
 - SceneUpdate: one message per frame, entity id = track id, one cube (centre, yaw, length × width ×
-  1.5 m), entity metadata ``class``, ``lane_id`` (absent = null), ``vx``, ``vy`` (float32 in their
-  shortest decimal form); accelerations are not written (read back as velocity differences;
-  ``ax``/``ay`` keys are read where a log has them).
+  1.5 m), entity metadata ``class``, ``lane_id`` (absent = null), ``vx``, ``vy``, ``ax``, ``ay`` (float32
+  in their shortest decimal form: the same kinematics as the ROS bags carry, so the same table
+  scores the same in either; a log without ``ax``/``ay`` gets them as velocity differences).
 - Autoware TrackedObjects: UUID = the track id as 8 little-endian bytes then 8 zero bytes; twist and
   acceleration in the object's body frame (Autoware's convention); the class as the Autoware label.
   The MarkerArray companion: cube marker per object, id = track id, ``ns`` = lanecast's class

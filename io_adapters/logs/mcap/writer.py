@@ -4,8 +4,7 @@ One message per frame of each recording at the recording's own rate (log time = 
 the frame's earliest ``time_ns``), protobuf (default; the schema is SceneUpdate's file descriptor
 set) or JSON (``encoding="json"``; schema encoding ``jsonschema``). Entities follow the conventions
 of :mod:`lanecast.io_adapters.logs.object_columns` (cube, id = track id, metadata class, lane_id (absent for
-null), vx, vy), so reading the log back gives the same table; accelerations are not written (they
-come back as differences of the velocities). Chunked with zstd, CRCs on, with summary
+null), vx, vy, ax, ay), so reading the log back gives the same table. Chunked with zstd, CRCs on, with summary
 and indexes; written atomically. The log's metadata record ``lanecast`` holds the recording
 metadata (source, frame rate, units, recordings).
 """
@@ -30,6 +29,9 @@ from lanecast.io_adapters.logs import object_columns as to
 
 LIBRARY = "lanecast"
 ENCODINGS = ("protobuf", "json")
+#: The kinematics written as entity metadata (float32 text): the accelerations too, so that a reader
+#: gets the table's own values, as from a ROS bag, instead of differentiating the velocities.
+KINEMATICS = ("vx", "vy", "ax", "ay")
 
 
 @functools.cache
@@ -61,7 +63,7 @@ class RowStrings:
         self.cls = c["object_class"].astype(str).tolist()
         lane = c["lane_id"]
         self.lane = np.where(np.isnan(lane), "", np.nan_to_num(lane).astype(np.int64).astype(str)).tolist()
-        self.kinematics = {k: c[k].astype(np.float32).astype(str).tolist() for k in ("vx", "vy")}
+        self.kinematics = {k: c[k].astype(np.float32).astype(str).tolist() for k in KINEMATICS}
 
 
 def _colour(cls: str) -> tuple[float, float, float, float]:
@@ -98,8 +100,8 @@ def _pb_encoder(frame_id: str, rs: RowStrings) -> Callable[[np.ndarray], bytes]:
             md.add(key="class", value=rs.cls[r])
             if rs.lane[r]:
                 md.add(key="lane_id", value=rs.lane[r])
-            md.add(key="vx", value=kin["vx"][r])
-            md.add(key="vy", value=kin["vy"][r])
+            for key in KINEMATICS:
+                md.add(key=key, value=kin[key][r])
         return msg.SerializeToString()
 
     return encode
@@ -113,7 +115,7 @@ def _json_encoder(frame_id: str, rs: RowStrings) -> Callable[[np.ndarray], bytes
         metadata = [{"key": "class", "value": rs.cls[r]}]
         if rs.lane[r]:
             metadata.append({"key": "lane_id", "value": rs.lane[r]})
-        metadata += [{"key": "vx", "value": kin["vx"][r]}, {"key": "vy", "value": kin["vy"][r]}]
+        metadata += [{"key": key, "value": kin[key][r]} for key in KINEMATICS]
         return {
             "timestamp": {"sec": rs.sec[r], "nsec": rs.nsec[r]},
             "frame_id": frame_id,
