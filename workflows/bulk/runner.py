@@ -37,7 +37,7 @@ from typing import Any
 from lanecast import __version__
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import bar, checksum
-from lanecast.models.card import resolve
+from lanecast.models.card import provenance, provenance_line, resolve
 from lanecast.workflows.annotation.annotate_log import (
     AnnotateOptions,
     precomputed_forecasts_path,
@@ -70,6 +70,8 @@ class BulkResult:
     # entry index → the log's path as the user named it (a symbolic link keeps its own name; the
     # manifest's "input" is the real path, its key for resuming)
     given: dict[int, str] = field(default_factory=dict)
+    # which model made the forecasts (models.card.provenance_line); None for precomputed forecasts
+    model_line: str | None = None
 
     @property
     def done(self) -> list[dict[str, Any]]:
@@ -90,6 +92,8 @@ class BulkResult:
                 else f"; nothing written to {self.out_dir}"
             )
         ]
+        if self.model_line is not None and self.done:
+            lines.append(f"  {self.model_line}")
         lines += [
             f"  FAILED {self.given.get(i, e['input'])}: {e['error']}"
             for i, e in enumerate(self.entries)
@@ -344,6 +348,8 @@ def _run_bulk(
 ) -> BulkResult:
     model = model_identity(options.model_dir) if options.forecasts is None else None
     result = BulkResult(out_dir=out_dir)
+    if options.forecasts is None:
+        result.model_line = provenance_line(provenance(options.model_dir))
     with locked(out_dir):
         clean_temporaries(out_dir)
         manifest = Manifest(out_dir)
