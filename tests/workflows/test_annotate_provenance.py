@@ -22,3 +22,14 @@ def test_the_annotate_summary_names_the_model(tmp_path: Path, capsys: pytest.Cap
     assert (
         f"model: the shipped model (stcnn-sumo) (sha256 {sha[:12]}), trained on 8 simulated recordings" in out
     )
+
+
+def test_the_annotate_summary_names_out_as_the_user_gave_it(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    assert main(["convert", str(HIGHD), "--out", "sim.mcap"]) == 0
+    capsys.readouterr()
+    assert main(["annotate", "sim.mcap", "--out", "annotated"]) == 0
+    first = capsys.readouterr().out.splitlines()[0]
+    assert first.endswith("-> annotated (manifest: annotated/manifest.jsonl)"), first

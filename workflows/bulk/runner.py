@@ -72,6 +72,8 @@ class BulkResult:
     given: dict[int, str] = field(default_factory=dict)
     # which model made the forecasts (models.card.provenance_line); None for precomputed forecasts
     model_line: str | None = None
+    # --out as the user named it (out_dir is made absolute for the workers)
+    out_as_given: Path | None = None
 
     @property
     def done(self) -> list[dict[str, Any]]:
@@ -83,13 +85,14 @@ class BulkResult:
 
     def summary(self) -> str:
         why = ", ".join(f"{n} {reason}" for reason, n in sorted(self.redone.items()))
+        shown = self.out_as_given or self.out_dir
         lines = [
             f"annotated {len(self.done)} log(s), {len(self.failed)} failed, {len(self.skipped)} already done"
             + (f" (redone: {why})" if why else "")
             + (
-                f" -> {self.out_dir} (manifest: {self.out_dir / MANIFEST})"
+                f" -> {shown} (manifest: {shown / MANIFEST})"
                 if (self.out_dir / MANIFEST).is_file()
-                else f"; nothing written to {self.out_dir}"
+                else f"; nothing written to {shown}"
             )
         ]
         if self.model_line is not None and self.done:
@@ -304,7 +307,7 @@ def run_bulk(
     ``out_dir`` and the inputs are made absolute here, so that workers (other processes, Ray nodes
     with another working directory) read and write where the caller meant.
     """
-    out_dir = absolute(out_dir)
+    given, out_dir = Path(out_dir), absolute(out_dir)
     options = options or AnnotateOptions()
     if workers < 1:
         raise InputError(None, f"--workers must be at least 1, got {workers}")
@@ -324,6 +327,7 @@ def run_bulk(
             ray_backend.ray_module().shutdown()
     if created and result.failed and not result.done:
         _remove_failed_run(out_dir)
+    result.out_as_given = given
     return result
 
 
