@@ -54,7 +54,7 @@ class FinetuneOptions:
 
     keep_base: str = "l2sp+replay"
     #: L2-SP weight: the penalty is weight · Σ (w − w_base)², added to each network's loss
-    l2sp_weight: float = 0.01
+    l2sp_weight: float = 0.1
     #: share of the training windows drawn from the replay set (sampled with replacement when the
     #: replay set holds fewer); the same share of the validation windows
     replay_share: float = 0.5

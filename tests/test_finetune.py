@@ -32,13 +32,13 @@ CONFIG = TrainConfig(epochs=1, batch_size=64, lr=3e-3, seed=2, threads=1)
 
 @pytest.fixture(scope="module")
 def base() -> TrainResult:
-    return train(synthetic_windows(400, seed=1), dataclasses.replace(CONFIG, epochs=2))
+    return train(synthetic_windows(240, seed=1), dataclasses.replace(CONFIG, epochs=2))
 
 
 @pytest.fixture(scope="module")
 def queue() -> Windows:
     """New data of another kind: slower traffic without a single lane change."""
-    w = synthetic_windows(300, seed=7, lane_change_share=0.0)
+    w = synthetic_windows(160, seed=7, lane_change_share=0.0)
     w.inputs[:, 2] *= 0.4
     w.inputs[:, 0] *= 0.4
     w.future[:, :, 0] *= 0.4
@@ -89,7 +89,7 @@ def test_classifier_kept_when_the_new_data_has_no_lane_change(base: TrainResult,
     trained = tune(base, queue, keep_base="none", classifier="train")
     assert distance(base.model.classifier, trained.model.classifier) > 0
     # with lane changes in the new data, "auto" trains the classifier
-    mixed = tune(base, synthetic_windows(300, seed=9), keep_base="none", min_lane_change_windows=10)
+    mixed = tune(base, synthetic_windows(120, seed=9), keep_base="none", min_lane_change_windows=10)
     assert mixed.card["finetune"]["classifier"] == "fine-tuned"
 
 
@@ -125,7 +125,7 @@ def test_merged_distribution_pools_mean_and_std() -> None:
 
 
 def test_replay_round_trip_and_mix(tmp_path, base: TrainResult, queue: Windows) -> None:
-    source = synthetic_windows(200, seed=4)
+    source = synthetic_windows(100, seed=4)
     rows = labelled(source, ("train", "val"))
     path = save_replay(source, rows, tmp_path / "m.replay.npz", {"made_by": "test"})
     replay = load_replay(path)
