@@ -161,6 +161,11 @@ def main() -> int:
     ap.add_argument("--methods", nargs="+", default=["none", "l2sp", "replay", "l2sp+replay"])
     ap.add_argument("--l2sp-weights", type=float, nargs="+", default=[0.01])
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument(
+        "--classifier",
+        default=None,
+        help="FinetuneOptions.classifier of the runs keeping the base (default: its)",
+    )
     ap.add_argument("--seed", type=int, default=0, help="fine-tuning's seed (shuffling, augmentation)")
     ap.add_argument("--tag", default="finetune", help="results go to WORK/TAG.json")
     ap.add_argument(
@@ -219,7 +224,7 @@ def main() -> int:
                 opts = FinetuneOptions(
                     keep_base=method,
                     l2sp_weight=weight,
-                    classifier="train" if method == "none" else "auto",
+                    classifier="train" if method == "none" else args.classifier or FinetuneOptions.classifier,
                 )
                 cfg = dataclasses.replace(config, lr=lr, epochs=epochs)
                 t0 = time.perf_counter()

@@ -79,7 +79,7 @@ def test_penalty_keeps_weights_nearer_the_base(base: TrainResult, queue: Windows
 
 
 def test_classifier_kept_when_the_new_data_has_no_lane_change(base: TrainResult, queue: Windows) -> None:
-    kept = tune(base, queue, keep_base="none")  # classifier "auto"
+    kept = tune(base, queue, keep_base="none", classifier="auto")
     for k, v in base.model.classifier.state_dict().items():
         assert torch.equal(v, kept.model.classifier.state_dict()[k]), k
     assert kept.card["finetune"]["classifier"].startswith("frozen: the new training windows hold 0")
@@ -89,8 +89,12 @@ def test_classifier_kept_when_the_new_data_has_no_lane_change(base: TrainResult,
     trained = tune(base, queue, keep_base="none", classifier="train")
     assert distance(base.model.classifier, trained.model.classifier) > 0
     # with lane changes in the new data, "auto" trains the classifier
-    mixed = tune(base, synthetic_windows(120, seed=9), keep_base="none", min_lane_change_windows=10)
-    assert mixed.card["finetune"]["classifier"] == "fine-tuned"
+    lanes = synthetic_windows(120, seed=9)
+    mixed = tune(base, lanes, keep_base="none", classifier="auto", min_lane_change_windows=10)
+    assert mixed.card["finetune"]["classifier"].startswith("fine-tuned on ")
+    assert distance(base.model.classifier, mixed.model.classifier) > 0
+    kept = tune(base, lanes, keep_base="none")  # the default keeps it whatever the data
+    assert distance(base.model.classifier, kept.model.classifier) == 0
 
 
 def test_card_records_base_added_data_and_merged_range(base: TrainResult, queue: Windows) -> None:

@@ -87,8 +87,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--classifier",
         choices=("auto", "train", "freeze"),
-        help="with --init: auto keeps the init model's classifier when the new data holds fewer than "
-        "50 lane-change windows (default: auto)",
+        help="with --init: freeze keeps the init model's classifier; auto fine-tunes it where the new "
+        "data holds at least 50 lane-change windows (default: freeze)",
     )
     p.add_argument(
         "--position-noise",
