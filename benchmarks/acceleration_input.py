@@ -23,7 +23,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from lanecast.io_adapters.contracts.windows import CHANNELS, load_windows  # noqa: E402
+from lanecast.io_adapters.contracts.windows import CHANNELS  # noqa: E402
+from lanecast.io_adapters.windows_store.dataset import load_windows  # noqa: E402
 from lanecast.models.baselines import constant_velocity  # noqa: E402
 from lanecast.models.predict import STCNNForecaster  # noqa: E402
 

@@ -29,7 +29,8 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from acceleration_input import ACC, rmse_per_horizon, trailing_mean  # noqa: E402
 
-from lanecast.io_adapters.contracts.windows import Windows, load_windows  # noqa: E402
+from lanecast.io_adapters.contracts.windows import Windows  # noqa: E402
+from lanecast.io_adapters.windows_store.dataset import load_windows  # noqa: E402
 from lanecast.models.baselines import constant_velocity  # noqa: E402
 from lanecast.models.checkpoint import load_checkpoint, save_checkpoint  # noqa: E402
 from lanecast.models.predict import STCNNForecaster  # noqa: E402

@@ -2,11 +2,11 @@
 
 Builds a synthetic drive log of about ``--size-mb`` MB: highway traffic as a SceneUpdate tracks topic
 (written by ``registry.write_any(..., "mcap")``) plus a camera-like topic of incompressible
-``--frame-kb`` KB payloads at 10 Hz (merged in with ``lanecast.io_adapters.annotations.mcap_copy``). Then, each in its own
+``--frame-kb`` KB payloads at 10 Hz (merged in with ``lanecast.io_adapters.logs.mcap.copy``). Then, each in its own
 process (so that peak RSS is per task):
 
 - plain copy: every record streamed into a new MCAP (``copy_mcap`` with nothing to merge);
-- annotate: ``lanecast.workflows.annotate_log.annotate_log`` (pass 1 tracks, the model, pass 2 copy + merge).
+- annotate: ``lanecast.workflows.annotation.annotate_log.annotate_log`` (pass 1 tracks, the model, pass 2 copy + merge).
 
 - annotate with precomputed forecasts (with origins): no reader, no model: copy, encode, merge.
 
@@ -86,9 +86,9 @@ def synthetic_tracks(duration_s: float, vehicles: int, rate: float = 10.0, seed:
 
 def build_log(path: Path, size_mb: float, frame_kb: float, vehicles: int) -> float:
     """Write the benchmark log; return its duration (s)."""
-    from lanecast.io_adapters import registry
-    from lanecast.io_adapters.annotations.forecast_messages import ChannelSpec
-    from lanecast.io_adapters.annotations.mcap_copy import Merge, copy_mcap
+    from lanecast.io_adapters.formats import registry
+    from lanecast.io_adapters.logs.forecast_messages import ChannelSpec
+    from lanecast.io_adapters.logs.mcap.copy import Merge, copy_mcap
 
     frames = int(size_mb * 1024 / frame_kb)
     duration = frames / 10.0
@@ -112,7 +112,7 @@ def _peak_mb() -> float:
 
 
 def _plain(src: str, out: str) -> dict[str, Any]:
-    from lanecast.io_adapters.annotations.mcap_copy import copy_mcap
+    from lanecast.io_adapters.logs.mcap.copy import copy_mcap
 
     t = time.perf_counter()
     with open(out, "wb") as f:
@@ -123,7 +123,7 @@ def _plain(src: str, out: str) -> dict[str, Any]:
 def _annotate(
     src: str, out: str, synthetic: bool, duration: float, vehicles: int, model: str | None
 ) -> dict[str, Any]:
-    from lanecast.workflows.annotate_log import AnnotateOptions, annotate_log
+    from lanecast.workflows.annotation.annotate_log import AnnotateOptions, annotate_log
 
     forecasts = None
     if synthetic:

@@ -27,7 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from interleave import interleaved_times, machine_line, ratio
 
-from lanecast.io_adapters import registry
+from lanecast.io_adapters.formats import registry
 from lanecast.io_adapters.sim import to_highd
 from lanecast.io_adapters.sim.recording import simulate
 from lanecast.workflows import cli

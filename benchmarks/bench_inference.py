@@ -37,7 +37,7 @@ from interleave import Samples, interleaved_rates, machine_line, ratio
 
 from lanecast.models.losses import classifier_loss, regressor_loss
 from lanecast.models.predict import FusedSTCNN, STCNNForecaster
-from lanecast.models.serving import load_forecaster
+from lanecast.models.runtime import load_forecaster
 from lanecast.models.stcnn import STCNN
 
 LIB_ORT, BARE_ORT, LIB_TORCH = (

@@ -26,7 +26,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from interleave import Samples, machine_line, ratio, round_orders
 
 from lanecast.io_adapters.contracts import track_table
-from lanecast.io_adapters.logs import mcap_reader, mcap_writer
+from lanecast.io_adapters.logs.mcap import reader as mcap_reader
+from lanecast.io_adapters.logs.mcap import writer as mcap_writer
 
 
 def synthetic_table(

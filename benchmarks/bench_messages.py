@@ -27,7 +27,7 @@ sys.path.insert(0, str(ROOT))
 import test_forecast_messages as oracle  # noqa: E402
 from interleave import Samples, machine_line, ratio, round_orders  # noqa: E402
 
-from lanecast.io_adapters.annotations import forecast_messages as fm  # noqa: E402
+from lanecast.io_adapters.logs import forecast_messages as fm  # noqa: E402
 
 
 def cpu_seconds(fn: Callable[[], object]) -> float:

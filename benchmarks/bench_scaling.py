@@ -39,17 +39,17 @@ import pyarrow.compute as pc
 import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
-from lanecast.io_adapters.datasets import highd
+from lanecast.io_adapters.datasets.highd import reader as highd
 
 NEIGHBOUR_IDS = tuple(highd.NEIGHBOURS)  # highD's neighbour id columns
 IN_MEMORY_WINDOWS = (
-    "import sys; from pathlib import Path; from lanecast.io_adapters import registry; "
-    "from lanecast.io_adapters.contracts.windows import save_windows; "
+    "import sys; from pathlib import Path; from lanecast.io_adapters.formats import registry; "
+    "from lanecast.io_adapters.windows_store.dataset import save_windows; "
     "from lanecast.pipeline.make_windows import make_windows; "
     "save_windows(make_windows(registry.read_any([sys.argv[1]])), Path(sys.argv[2]))"
 )
 IN_MEMORY_CONVERT = (
-    "import sys; from lanecast.io_adapters import registry; "
+    "import sys; from lanecast.io_adapters.formats import registry; "
     "registry.write_any(registry.read_any([sys.argv[1]]), sys.argv[2], 'parquet')"
 )
 

@@ -30,9 +30,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import reference_windows
 
 from lanecast.io_adapters.contracts import track_table
-from lanecast.io_adapters.contracts.windows import save_windows
-from lanecast.io_adapters.datasets import highd
+from lanecast.io_adapters.datasets.highd import reader as highd
 from lanecast.io_adapters.sim import recording
+from lanecast.io_adapters.windows_store.dataset import save_windows
 from lanecast.pipeline import labels as labels_mod
 from lanecast.pipeline import neighbours as nb_mod
 from lanecast.pipeline import window_tensors

@@ -60,7 +60,7 @@ def simulate(work: Path, scenario: str, seed: int, minutes: float) -> Path:
 
 def cached(path: Path, make: Any) -> Any:
     """Windows saved at ``path``, made by ``make()`` the first time."""
-    from lanecast.io_adapters.contracts.windows import load_windows, save_windows
+    from lanecast.io_adapters.windows_store.dataset import load_windows, save_windows
 
     if not (path / "manifest.json").is_file():
         save_windows(make(), path)
@@ -79,8 +79,8 @@ def stand_in(work: Path, scenario: str, seed: int, minutes: float, derivatives: 
     """Windows of a simulation written as an NGSIM I-80 file with tracker errors, read back."""
     from real_proxy import write_ngsim_txt
 
-    from lanecast.io_adapters import registry
-    from lanecast.io_adapters.datasets.highd import read as read_highd
+    from lanecast.io_adapters.datasets.highd.reader import read as read_highd
+    from lanecast.io_adapters.formats import registry
     from lanecast.pipeline.make_windows import make_windows
 
     def make() -> Any:
@@ -98,8 +98,8 @@ def stand_in(work: Path, scenario: str, seed: int, minutes: float, derivatives: 
 
 def kinds(work: Path, minutes: float, max_windows: int) -> dict[str, Any]:
     """Every held-out kind's windows (split none), at most ``max_windows`` each."""
-    from lanecast.io_adapters import registry
-    from lanecast.io_adapters.datasets.highd import read as read_highd
+    from lanecast.io_adapters.datasets.highd.reader import read as read_highd
+    from lanecast.io_adapters.formats import registry
     from lanecast.pipeline.make_windows import make_windows
 
     out = {}

@@ -79,7 +79,7 @@ def squared_errors_at_5s(
     the maneuver-based model given the true maneuvers, window index [M])."""
     from train_shipped import recordings, scenario_of_windows
 
-    from lanecast.io_adapters.contracts.windows import load_windows
+    from lanecast.io_adapters.windows_store.dataset import load_windows
     from lanecast.models.evaluation import vehicle_ids
     from lanecast.models.metrics import lane_change_windows
     from lanecast.models.predict import STCNNForecaster
@@ -108,7 +108,7 @@ def with_true_maneuvers(
     [M, 5] instead of the classifier's (an oracle: what the maneuver input is worth when it is right)."""
     import torch
 
-    from lanecast.io_adapters.contracts.windows import normalise
+    from lanecast.io_adapters.contracts.normalisation import normalise
     from lanecast.models.baselines import kinematic_limits, reference_offsets
 
     x = torch.from_numpy(normalise(inputs, present, model.input_stats))
@@ -167,7 +167,8 @@ def per_scenario_table(work: Path, windows_dir: Path) -> None:
     regression-only variant and CV, and the maneuver macro-F1."""
     from train_shipped import recordings, scenario_of_windows
 
-    from lanecast.io_adapters.contracts.windows import load_windows, subset
+    from lanecast.io_adapters.contracts.windows import subset
+    from lanecast.io_adapters.windows_store.dataset import load_windows
     from lanecast.models.baselines import constant_velocity
     from lanecast.models.evaluation import evaluate
     from lanecast.models.predict import STCNNForecaster

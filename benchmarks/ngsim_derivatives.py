@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from lanecast.io_adapters.datasets.ngsim import TXT_COLUMNS
+from lanecast.io_adapters.datasets.ngsim.reader import TXT_COLUMNS
 
 
 def derivative_statistics(path: Path) -> dict[str, float]:

@@ -19,8 +19,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from lanecast.io_adapters import registry  # noqa: E402
 from lanecast.io_adapters.contracts.windows import TARGET_ROW  # noqa: E402
+from lanecast.io_adapters.formats import registry  # noqa: E402
 from lanecast.models.baselines import reference_offsets  # noqa: E402
 from lanecast.models.predict import STCNNForecaster  # noqa: E402
 from lanecast.pipeline.make_windows import make_windows  # noqa: E402

@@ -45,7 +45,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from lanecast.io_adapters.contracts.track_runs import row_extent, run_starts  # noqa: E402
-from lanecast.io_adapters.datasets.highd import read as read_highd  # noqa: E402
+from lanecast.io_adapters.datasets.highd.reader import read as read_highd  # noqa: E402
 from lanecast.io_adapters.sim.recording import simulate  # noqa: E402
 from lanecast.io_adapters.sim.scenarios import scenario_config  # noqa: E402
 from lanecast.io_adapters.sim.tracking_errors import (  # noqa: E402

@@ -42,7 +42,7 @@ def main() -> int:
         windows_for,
     )
 
-    from lanecast.io_adapters.contracts.windows import load_windows
+    from lanecast.io_adapters.windows_store.dataset import load_windows
     from lanecast.models.card import SHIPPED_STEM, WEIGHTS_DIR, read_card
     from lanecast.models.finetune import REPLAY_SUFFIX, save_replay
 

@@ -151,8 +151,9 @@ def windows_for(
     a directory in ``clean_of`` (a measured copy) gets its clean recording's true futures."""
     import numpy as np
 
-    from lanecast.io_adapters.contracts.windows import concat_windows, save_windows, subset
-    from lanecast.io_adapters.datasets import highd
+    from lanecast.io_adapters.contracts.windows import concat_windows, subset
+    from lanecast.io_adapters.datasets.highd import reader as highd
+    from lanecast.io_adapters.windows_store.dataset import save_windows
     from lanecast.pipeline.make_windows import make_windows
 
     if not (out / "manifest.json").is_file():
@@ -200,7 +201,7 @@ def scenario_of_windows(windows: Any, test: list[tuple[str, int, int, float]]) -
 def cached_windows(work: Path) -> tuple[Any, Any, Any, Any]:
     """(training windows, held-out windows, scenario of every training window, of every held-out one)
     as a run of this script left them in ``work``; a measured copy's windows are its scenario's."""
-    from lanecast.io_adapters.contracts.windows import load_windows
+    from lanecast.io_adapters.windows_store.dataset import load_windows
 
     train, test = recordings()
     copies = [
@@ -224,7 +225,7 @@ def mix_model(model: Path | None, epochs: int, threads: int) -> tuple[Any, Any]:
 
 def peachtree_check(models: list[Any], work: Path) -> dict[str, Any] | None:
     """Metrics on the real NGSIM Peachtree sample (all windows; never trained on), or None without it."""
-    from lanecast.io_adapters import registry
+    from lanecast.io_adapters.formats import registry
     from lanecast.models.evaluation import evaluate
     from lanecast.pipeline.make_windows import make_windows
 
@@ -413,14 +414,15 @@ def main() -> int:
     )
     args = ap.parse_args()
 
-    from lanecast.io_adapters.contracts.windows import load_windows, subset
-    from lanecast.io_adapters.datasets import highd
+    from lanecast.io_adapters.contracts.windows import subset
+    from lanecast.io_adapters.datasets.highd import reader as highd
     from lanecast.io_adapters.sim import scenarios
+    from lanecast.io_adapters.windows_store.dataset import load_windows
     from lanecast.models.baselines import constant_acceleration, constant_velocity
     from lanecast.models.checkpoint import SHIPPED_STEM, save_checkpoint
     from lanecast.models.evaluation import always_straight, evaluate, example_scenes, write_metrics
     from lanecast.models.predict import STCNNForecaster
-    from lanecast.models.report import write_report
+    from lanecast.models.reports.document import write_report
     from lanecast.models.stcnn import STCNNConfig
     from lanecast.models.train import TrainConfig, train
     from lanecast.pipeline.traffic import traffic_statistics

@@ -21,6 +21,7 @@ import shutil
 import stat
 import sys
 import tempfile
+import threading
 import time
 from collections.abc import Iterable, Iterator
 from fnmatch import fnmatch
@@ -30,6 +31,7 @@ from typing import Any, TypeVar
 from tqdm.auto import tqdm
 
 from lanecast.io_adapters.errors import InputError, OutputError
+from lanecast.io_adapters.ownership import check_replaceable_output
 
 T = TypeVar("T")
 
@@ -154,17 +156,23 @@ def check_replaceable(target: Path, replaces: tuple[str, ...] = ()) -> None:
 
 
 def check_output_dir(
-    path: str | Path, *, files: tuple[str, ...] = (), replaces: tuple[str, ...] | None = None
+    path: str | Path,
+    *,
+    files: tuple[str, ...] = (),
+    replaces: tuple[str, ...] | None = None,
+    force: bool = False,
 ) -> Path:
     """What a command that writes the directory ``path`` checks before any work (an output it cannot
     write was refused only after minutes of training or cutting): :func:`check_output`, none of the
-    ``files`` it writes into the directory is a directory, and, for a directory replaced as a whole
-    (``replaces`` given, as for :func:`atomic_path`), nothing else is in it."""
+    ``files`` it writes into the directory is a directory or a file lanecast did not write (unless
+    ``force``), and, for a directory replaced as a whole (``replaces`` given, as for
+    :func:`atomic_path`), nothing else is in it."""
     path = check_output(path, directory=True)
     for name in files:
         final = path / name
         if final.is_dir() and not final.is_symlink():
             raise OutputError(final, "is a directory", expected="a file lanecast may replace")
+        check_replaceable_output(final, force=force)
     if replaces is not None:
         check_replaceable(path, replaces)
     return path
@@ -211,11 +219,11 @@ def atomic_path(
 
 
 @contextlib.contextmanager
-def staged_files(target: str | Path) -> Iterator[Path]:
+def staged_files(target: str | Path, *, force: bool = False) -> Iterator[Path]:
     """Yield a temporary directory beside the output directory ``target`` for a command's files
     (a report: metrics.json, report.html, pictures); on success move them into ``target`` (created
-    if missing; files of the same names replaced, others left alone), on any error or interruption
-    remove them: ``target`` gets all of a run's files or none, never some."""
+    if missing; files of the same names replaced if lanecast wrote them or ``force``, others left
+    alone), on any error or interruption remove them: ``target`` gets all of a run's files or none."""
     target = check_output(target, directory=True)
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
@@ -229,6 +237,7 @@ def staged_files(target: str | Path) -> Iterator[Path]:
             final = target / path.relative_to(stage)
             if final.is_dir() and not final.is_symlink():
                 raise OutputError(final, "is a directory", expected="a file lanecast may replace")
+            check_replaceable_output(final, force=force)
         for path in files:
             final = target / path.relative_to(stage)
             final.parent.mkdir(parents=True, exist_ok=True)
@@ -275,8 +284,18 @@ class ProgressLines(tqdm):
         super().close()
 
 
+def _terminal_columns() -> int:
+    """stderr's terminal width; 0 where the terminal does not say (``script -qc`` without a size)."""
+    try:
+        return os.get_terminal_size(sys.stderr.fileno()).columns
+    except (OSError, ValueError):
+        return 0
+
+
 def _bar_kwargs(total: int | float | None) -> dict[str, Any]:
     if sys.stderr.isatty():
+        if _terminal_columns() <= 0:  # tqdm would draw a bar of no width: nothing at all
+            return {"disable": None, "ncols": 80, "nrows": 24, "leave": False}
         return {"disable": None, "dynamic_ncols": True, "leave": False}
     return {
         "file": sys.stderr,
@@ -304,10 +323,43 @@ def progress(iterable: Iterable[T], *, desc: str, total: int | None = None, unit
             raise
 
 
-def bar(*, desc: str, total: int | float | None = None, unit: str = "it") -> tqdm:
+@contextlib.contextmanager
+def activity(desc: str) -> Iterator[None]:
+    """Life signs for a step that has no count to show (a model's export, a report's figures): on a
+    terminal a line with the elapsed time, otherwise a line when it starts and every few seconds
+    while it runs, so that no command stays silent for longer than that."""
+    tty = sys.stderr.isatty()
+    shown = bar(desc=desc, total=None, unit="s", bar_format="{desc} ({elapsed})")
+    done = threading.Event()
+    started = time.monotonic()
+
+    def tick() -> None:
+        while not done.wait(0.5 if tty else 1.0):
+            shown.update(int(time.monotonic() - started) - shown.n)
+
+    ticker = threading.Thread(target=tick, name=f"activity: {desc}", daemon=True)
+    ticker.start()
+    try:
+        yield
+    except BaseException:
+        if isinstance(shown, ProgressLines):
+            shown.final_line = False  # the error is the last line, not a count after it
+        raise
+    finally:
+        done.set()
+        ticker.join()
+        shown.close()
+
+
+def bar(
+    *, desc: str, total: int | float | None = None, unit: str = "it", bar_format: str | None = None
+) -> tqdm:
     """A manual progress bar (``update(n)``): a bar on a terminal, a line every few seconds otherwise."""
     cls = tqdm if sys.stderr.isatty() else ProgressLines
-    return cls(desc=desc, total=total, unit=unit, **_bar_kwargs(total))
+    kwargs = _bar_kwargs(total)
+    if bar_format is not None:
+        kwargs["bar_format"] = bar_format
+    return cls(desc=desc, total=total, unit=unit, **kwargs)
 
 
 def checksum(path: Path) -> str:

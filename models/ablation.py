@@ -31,7 +31,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from lanecast.io_adapters.contracts.windows import ROWS, TARGET_ROW, NormStats, Windows, labelled, normalise
+from lanecast.io_adapters.contracts.normalisation import NormStats, normalise
+from lanecast.io_adapters.contracts.windows import ROWS, TARGET_ROW, Windows, labelled
 from lanecast.io_adapters.errors import InputError
 from lanecast.models.baselines import kinematic_limits, reference_offsets
 from lanecast.models.metrics import (

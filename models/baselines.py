@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from lanecast.io_adapters.contracts.windows import HORIZON_S, TARGET_ROW
-from lanecast.models.forecaster import Predictions
+from lanecast.models.predictions import Predictions
 
 #: Sampling interval of the window history (10 Hz).
 DT_S = 0.1

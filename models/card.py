@@ -259,3 +259,34 @@ def _json_default(value: Any) -> Any:
     if hasattr(value, "tolist"):
         return value.tolist()
     raise TypeError(f"not JSON-serialisable: {type(value).__name__}")
+
+
+def provenance(model: Path | str | None) -> dict[str, str]:
+    """Which model made a forecast, for every output that holds forecasts: its name (a path, or
+    the shipped model's), the sha256 of its weights and what it was trained on, in words."""
+    weights, card_path = resolve(model)
+    card = read_card(card_path)
+    data = card.get("training", {}).get("data", {}) if isinstance(card.get("training"), dict) else {}
+    data = data if isinstance(data, dict) else {}
+    recordings = data.get("train_recordings")
+    if isinstance(recordings, list) and recordings:
+        scenarios = sorted({str(r.get("scenario")) for r in recordings if isinstance(r, dict)})
+        trained_on = f"{len(recordings)} simulated recordings ({', '.join(scenarios)})"
+    elif data.get("windows"):
+        trained_on = f"the windows dataset {data['windows']}"
+    else:
+        trained_on = "data its card does not name"
+    if data.get("init"):
+        trained_on += f", fine-tuned from {data['init']}"
+    name = f"the shipped model ({SHIPPED_STEM})" if model is None else str(card_path)
+    sha = card.get("weights_sha256")
+    return {
+        "model": name,
+        "sha256": sha if isinstance(sha, str) and sha else file_sha256(weights),
+        "trained_on": trained_on,
+    }
+
+
+def provenance_line(prov: dict[str, str]) -> str:
+    """One line of :func:`provenance` for a summary: 'model: … (sha256 1a2b3c4d5e6f), trained on …'."""
+    return f"model: {prov['model']} (sha256 {prov['sha256'][:12]}), trained on {prov['trained_on']}"

@@ -19,10 +19,11 @@ import pyarrow as pa
 from lanecast.io_adapters.contracts.windows import Windows, labelled
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import atomic_path
-from lanecast.models.forecaster import Forecaster, Predictions
+from lanecast.io_adapters.ownership import GENERATOR
 from lanecast.models.metrics import accuracy, confusion_matrix, macro_f1, summary
 from lanecast.models.ood import target_speed
-from lanecast.models.report import Scene
+from lanecast.models.predictions import Forecaster, Predictions
+from lanecast.models.reports.document import Scene
 
 
 def vehicle_ids(index: pa.Table) -> np.ndarray:
@@ -140,14 +141,36 @@ def speed_band_note(metrics: dict[str, Any], model: str = "stcnn") -> str | None
     cv = (metrics.get("cv") or {}).get("per_speed_band")
     if not bands or not cv:
         return None
-    worse = []
+    worse, unclear = [], []
     for band, row in bands.items():
         ratios = [m / c for m, c in zip(row["rmse"], cv[band]["rmse"], strict=True) if m is not None and c]
-        if ratios and max(ratios) > 1:
-            worse.append(f"{band} ({row['n_windows']:,} windows; up to {max(ratios):.2f}× its RMSE)")
-    if not worse:
-        return "no worse than constant velocity at any horizon in any band of target speed"
-    return "worse than constant velocity at some horizon for targets at " + ", ".join(worse)
+        if not ratios or max(ratios) <= 1:
+            continue
+        n = row["n_windows"]
+        words = f"{band} ({n:,} window{'' if n == 1 else 's'}; up to {max(ratios):.2f}× its RMSE)"
+        if _worse_beyond_intervals(row, cv[band]):
+            worse.append(words)
+        else:
+            unclear.append(words)
+    note = (
+        "worse than constant velocity at some horizon for targets at " + ", ".join(worse)
+        if worse
+        else "no worse than constant velocity at any horizon in any band of target speed"
+    )
+    if unclear:
+        note += "; worse by its RMSE but within the 95 % intervals (too few windows to tell) at " + ", ".join(
+            unclear
+        )
+    return note
+
+
+def _worse_beyond_intervals(model: dict[str, Any], cv: dict[str, Any]) -> bool:
+    """Whether a band's model RMSE is above constant velocity's beyond both 95 % intervals at some
+    horizon (bands without intervals, from older metrics, are judged by their RMSE alone)."""
+    if "rmse_ci" not in model or "rmse_ci" not in cv:
+        return any(m is not None and c and m > c for m, c in zip(model["rmse"], cv["rmse"], strict=True))
+    lows, highs = model["rmse_ci"]["low"], cv["rmse_ci"]["high"]
+    return any(lo is not None and hi is not None and lo > hi for lo, hi in zip(lows, highs, strict=True))
 
 
 def out_of_distribution_note(
@@ -255,7 +278,9 @@ def write_metrics(path: Path, metrics: dict[str, Any], meta: dict[str, Any]) -> 
     """metrics.json: one key per model name plus ``meta``."""
     with atomic_path(path) as tmp:
         tmp.write_text(
-            json.dumps({**metrics, "meta": meta}, indent=2, allow_nan=False) + "\n", encoding="utf-8"
+            json.dumps({**metrics, "meta": {**meta, "generator": GENERATOR}}, indent=2, allow_nan=False)
+            + "\n",
+            encoding="utf-8",
         )
     return path
 

@@ -20,7 +20,7 @@ import numpy as np
 
 from lanecast.io_adapters.contracts.windows import MANEUVERS, NEIGHBOUR_ROWS, ROWS
 from lanecast.io_adapters.errors import InputError
-from lanecast.models.forecaster import Forecaster, Predictions
+from lanecast.models.predictions import Forecaster, Predictions
 
 #: The neighbour slots, by name (every row but the target's).
 NEIGHBOURS: tuple[str, ...] = NEIGHBOUR_ROWS

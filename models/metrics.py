@@ -228,13 +228,20 @@ def per_speed_band(
     errors: np.ndarray, speed: np.ndarray, edges: tuple[float, ...] = SPEED_BAND_EDGES_MPS
 ) -> dict[str, dict[str, Any]]:
     """RMSE per window by horizon within bands of the target's speed at t0: errors [N, H], speed
-    [N] (m/s) → {band label: {"n_windows", "rmse" [H]}}, bands in order, empty bands left out."""
+    [N] (m/s) → {band label: {"n_windows", "rmse" [H], "rmse_ci" {"low" [H], "high" [H]}}}, bands in
+    order, empty bands left out. The 95 % bootstrap interval (200 resamples, seeded; null below two
+    windows) is what a band is judged by: a band of a few windows says little."""
     band = np.digitize(np.asarray(speed, dtype=np.float64), edges)
     out: dict[str, dict[str, Any]] = {}
     for i, label in enumerate(speed_band_labels(edges)):
         sel = band == i
         if sel.any():
-            out[label] = {"n_windows": int(sel.sum()), "rmse": _finite_or_none(rmse(errors[sel]))}
+            low, high = rmse_ci(errors[sel], boots=200)
+            out[label] = {
+                "n_windows": int(sel.sum()),
+                "rmse": _finite_or_none(rmse(errors[sel])),
+                "rmse_ci": {"low": _finite_or_none(low), "high": _finite_or_none(high)},
+            }
     return out
 
 

@@ -24,7 +24,8 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from lanecast.io_adapters.contracts.windows import HORIZON_S, TARGET_ROW, NormStats
+from lanecast.io_adapters.contracts.normalisation import NormStats
+from lanecast.io_adapters.contracts.windows import HORIZON_S, TARGET_ROW
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import atomic_path
 from lanecast.models.baselines import CV_SPAN, _fit_matrix

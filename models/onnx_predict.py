@@ -20,7 +20,7 @@ import numpy as np
 
 from lanecast.io_adapters.errors import InputError
 from lanecast.models.card import file_sha256, normalisation_sha256
-from lanecast.models.forecaster import Predictions
+from lanecast.models.predictions import Predictions
 
 #: Environment variable overriding the intra-op threads of an ONNX Runtime session.
 THREADS_ENV = "LANECAST_THREADS"

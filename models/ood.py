@@ -16,7 +16,7 @@ import numpy as np
 from lanecast.io_adapters.contracts.windows import ROWS
 
 TARGET_ROW = ROWS.index("T")
-NEIGHBOUR_ROWS = [i for i, r in enumerate(ROWS) if r != "T"]
+NEIGHBOUR_ROW_INDICES = [i for i, r in enumerate(ROWS) if r != "T"]
 PERCENTILES = (0.5, 5.0, 25.0, 50.0, 75.0, 95.0, 99.5)
 RANGE = ("p0.5", "p99.5")  # a window outside this range of any checked quantity is flagged
 CHECKED = ("speed_mps", "lon_acc_mps2")
@@ -34,7 +34,7 @@ def target_state(inputs: np.ndarray, present: np.ndarray) -> dict[str, np.ndarra
     return {
         "speed_mps": target_speed(inputs),
         "lon_acc_mps2": np.asarray(inputs[:, 3, TARGET_ROW, -1], dtype=np.float64),
-        "neighbours_present": np.asarray(present[:, NEIGHBOUR_ROWS, -1]).sum(axis=1).astype(np.int64),
+        "neighbours_present": np.asarray(present[:, NEIGHBOUR_ROW_INDICES, -1]).sum(axis=1).astype(np.int64),
     }
 
 

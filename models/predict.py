@@ -5,9 +5,9 @@ paper's inference). Beyond the paper, the K most probable of the 3^5 = 243 maneu
 probability of a sequence is the product of its per-step probabilities) are each regressed too.
 Offsets are de-normalised with the card's statistics; ``forecasts_table`` maps them to the source
 frame. For speed both networks run as one fused module (see ``FusedSTCNN``). This is the torch engine;
-``lanecast.models.onnx_predict`` runs the same path exported to ONNX (``lanecast.models.serving``
-picks one). What a prediction is (``lanecast.models.forecaster``) and the forecasts table
-(``lanecast.models.forecasts``) are torch-free.
+``lanecast.models.onnx_predict`` runs the same path exported to ONNX (``lanecast.models.runtime``
+picks one). What a prediction is (``lanecast.models.predictions``) and the forecasts table
+(``lanecast.models.forecasts_from_predictions``) are torch-free.
 """
 
 from __future__ import annotations
@@ -21,13 +21,12 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from lanecast.io_adapters.contracts.windows import NormStats, normalise
+from lanecast.io_adapters.contracts.normalisation import NormStats, normalise
 from lanecast.models import ood
 from lanecast.models.baselines import kinematic_limits, reference_offsets
 from lanecast.models.checkpoint import load_checkpoint
-from lanecast.models.forecaster import Predictions
-from lanecast.models.forecasts import forecasts_table as forecasts_table
-from lanecast.models.forecasts import nested as nested
+from lanecast.models.forecasts_from_predictions import forecasts_table as forecasts_table
+from lanecast.models.predictions import Predictions
 from lanecast.models.stcnn import STCNN
 
 

@@ -11,7 +11,7 @@ network keeps its best epoch on the validation split (regressor: RMSE; classifie
 ``select_classifier="macro_f1"`` the per-step macro-F1, which rewards lane-change recall that the
 NLL, dominated by the ~97 % straight steps, does not).
 
-Inputs are normalised with statistics from the training split (``lanecast.io_adapters.contracts.windows``). Future
+Inputs are normalised with statistics from the training split (``lanecast.io_adapters.contracts.normalisation``). Future
 offsets are normalised per model as (offset − mean[step, axis]) / std, one std for all steps and both
 axes, so the regressor's loss stays proportional to the RMSE in metres (the paper's criterion);
 both are stored in the card.
@@ -33,7 +33,8 @@ import numpy as np
 import torch
 
 from lanecast.io_adapters import json_fields as jf
-from lanecast.io_adapters.contracts.windows import NormStats, Windows, compute_stats, labelled, normalise
+from lanecast.io_adapters.contracts.normalisation import NormStats, compute_stats, normalise
+from lanecast.io_adapters.contracts.windows import Windows, labelled
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import bar, check_input
 from lanecast.models import ood
@@ -41,7 +42,7 @@ from lanecast.models.augment import Augmentation, augment
 from lanecast.models.baselines import CV_SPAN, RELATIVE_TO, reference_offsets
 from lanecast.models.card import check_architecture
 from lanecast.models.checkpoint import torch_device
-from lanecast.models.decision import choose_offsets, classifier_log_probs, fold_into_classifier
+from lanecast.models.decision_offsets import choose_offsets, classifier_log_probs, fold_into_classifier
 from lanecast.models.losses import (
     class_weights,
     classifier_loss,
@@ -118,7 +119,7 @@ class TrainConfig:
     #: forecast a standing car with no neighbour in sight 3 m ahead at 5 s. 0 = the paper.
     neighbour_dropout: float = 0.0
     #: after training, shift the classifier's decision by per-class logit offsets chosen for the best
-    #: validation macro-F1 (lanecast.models.decision); False = the paper's plain argmax
+    #: validation macro-F1 (lanecast.models.decision_offsets); False = the paper's plain argmax
     decision_offsets: bool = False
     model: STCNNConfig = field(default_factory=STCNNConfig)
 

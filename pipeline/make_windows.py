@@ -24,7 +24,6 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from lanecast.io_adapters.chunks import Chunk
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.contracts.track_runs import run_bounds
 from lanecast.io_adapters.contracts.windows import (
@@ -38,13 +37,12 @@ from lanecast.io_adapters.contracts.windows import (
     MANEUVERS,
     ROWS,
     SPLITS,
-    DatasetWriter,
     Windows,
-    load_windows,
-    save_shard,
 )
+from lanecast.io_adapters.datasets.parquet.pieces import Chunk
 from lanecast.io_adapters.errors import InputError
-from lanecast.io_adapters.streaming import Piece, uncut
+from lanecast.io_adapters.formats.pieces import Piece, uncut
+from lanecast.io_adapters.windows_store.dataset import DatasetWriter, load_windows, save_shard
 from lanecast.pipeline import labels as labels_mod
 from lanecast.pipeline import neighbours as nb_mod
 from lanecast.pipeline import window_tensors as wt

@@ -49,7 +49,7 @@ def sim_recording_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
     highD format at 25 Hz, 3 lanes per direction (highD laneIds 2, 3, 4 upper and 6, 7, 8 lower),
     cars and trucks, lane changes with continuous lateral motion, neighbour ids from SUMO.
-    Read it with ``lanecast.io_adapters.datasets.highd.read([sim_recording_dir])``; treat it as read-only.
+    Read it with ``lanecast.io_adapters.datasets.highd.reader.read([sim_recording_dir])``; treat it as read-only.
     """
     from lanecast.io_adapters.sim import recording
 

@@ -14,7 +14,9 @@ import pytest
 import torch
 from conftest import synthetic_windows
 
-from lanecast.io_adapters.contracts.windows import TARGET_ROW, NormStats, normalise, save_windows
+from lanecast.io_adapters.contracts.normalisation import NormStats, normalise
+from lanecast.io_adapters.contracts.windows import TARGET_ROW
+from lanecast.io_adapters.windows_store.dataset import save_windows
 from lanecast.models.ablation import (
     SHUFFLED_ROWS,
     InputAblation,

@@ -1,7 +1,7 @@
 """Annotating one drive log: byte-for-byte copy, forecasts merged in log time, decodable everywhere.
 
 Logs are real MCAP files / ROS bags written here with the ``mcap`` and ``rosbags`` libraries; the
-forecasts are a table built by hand with the columns ``lanecast.workflows.forecast.forecast_table`` returns.
+forecasts are a table built by hand with the columns ``lanecast.workflows.annotation.track_forecasts.forecast_table`` returns.
 """
 
 from __future__ import annotations
@@ -19,11 +19,11 @@ from mcap.reader import make_reader
 from mcap.records import Message
 from mcap.writer import Writer
 
-from lanecast.io_adapters.annotations import forecast_messages as fm
 from lanecast.io_adapters.contracts.track_table import RecordingMeta, TableMeta, build_table
 from lanecast.io_adapters.contracts.windows import MANEUVER_COLOURS, UNKNOWN_COLOUR
 from lanecast.io_adapters.errors import LogError
-from lanecast.workflows.annotate_log import (
+from lanecast.io_adapters.logs import forecast_messages as fm
+from lanecast.workflows.annotation.annotate_log import (
     AnnotateOptions,
     annotate_log,
     choose_encoding,
@@ -329,8 +329,8 @@ def _seeded_model(directory: Path) -> Path:
 def test_forecast_in_annotated_log_matches_batch_prediction(tmp_path: Path) -> None:
     """The forecast written for a vehicle equals what batch prediction gives for the same window,
     and reading the annotated log back gives the original tracks (forecasts are not objects)."""
-    forecast = pytest.importorskip("lanecast.workflows.forecast")
-    from lanecast.io_adapters import registry
+    forecast = pytest.importorskip("lanecast.workflows.annotation.track_forecasts")
+    from lanecast.io_adapters.formats import registry
 
     model = _seeded_model(tmp_path / "model")
     n_frames, rate = 120, 10.0  # 12 s at 10 Hz, two vehicles side by side
@@ -388,11 +388,11 @@ def test_forecast_in_annotated_log_matches_batch_prediction(tmp_path: Path) -> N
 @pytest.mark.parametrize("fmt", ["ros2", "ros1"])
 def test_bags_written_by_lanecast_are_annotated_end_to_end(tmp_path: Path, fmt: str) -> None:
     """Pass 1 through the registry's bag reader, the model, pass 2 into a ROS 2 bag / an MCAP."""
-    pytest.importorskip("lanecast.workflows.forecast")
+    pytest.importorskip("lanecast.workflows.annotation.track_forecasts")
     from rosbags.highlevel import AnyReader
     from ruamel.yaml import YAML  # rosbags' own YAML library
 
-    from lanecast.io_adapters import registry
+    from lanecast.io_adapters.formats import registry
 
     model = _seeded_model(tmp_path / "model")
     n_frames, rate = 80, 10.0
@@ -479,7 +479,7 @@ def test_a_refused_run_and_a_finished_run_leave_no_lock_in_out_dir(tmp_path: Pat
     import pyarrow.parquet as pq
 
     from lanecast.io_adapters.errors import InputError
-    from lanecast.workflows.bulk import LOCK, locked, run_bulk
+    from lanecast.workflows.bulk.runner import LOCK, locked, run_bulk
 
     log = make_mcap(tmp_path / "drive.mcap", n=40)
     pq.write_table(forecasts_for("drive", [1, 2], [1]), tmp_path / "fc.parquet")

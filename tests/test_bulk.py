@@ -24,11 +24,11 @@ from mcap.writer import CompressionType, Writer
 
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import checksum
-from lanecast.workflows.annotate_log import AnnotateOptions
-from lanecast.workflows.bulk import clean_temporaries, run_bulk
-from lanecast.workflows.log_discovery import discover, plan_outputs
-from lanecast.workflows.log_report import annotated_logs
-from lanecast.workflows.manifest import Manifest
+from lanecast.workflows.annotation.annotate_log import AnnotateOptions
+from lanecast.workflows.annotation.log_scores import annotated_logs
+from lanecast.workflows.bulk.discovery import discover, plan_outputs
+from lanecast.workflows.bulk.manifest import Manifest
+from lanecast.workflows.bulk.runner import clean_temporaries, run_bulk
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -171,7 +171,7 @@ def _cli(*args: str) -> list[str]:
 _PAUSE_IN_THIRD_LOG = """
 import sys, time
 from pathlib import Path
-from lanecast.io_adapters.annotations import mcap_copy
+from lanecast.io_adapters.logs.mcap import copy as mcap_copy
 from lanecast.workflows.cli import main
 ready, copy_mcap, calls = Path(sys.argv[1]), mcap_copy.copy_mcap, []
 def pausing_copy(src, out, **kwargs):
@@ -342,8 +342,8 @@ def test_changed_input_options_or_force_redo_and_nothing_else(tmp_path: Path) ->
 def test_another_model_means_other_options(tmp_path: Path) -> None:
     """The options record the model's checksum: a model with other weights redoes the log."""
     from lanecast.models.checkpoint import resolve
-    from lanecast.workflows.bulk import model_identity, plan
-    from lanecast.workflows.manifest import options_key, stat_signature
+    from lanecast.workflows.bulk.manifest import options_key, stat_signature
+    from lanecast.workflows.bulk.runner import model_identity, plan
 
     shipped = model_identity(None)
     weights, card = resolve(None)
@@ -423,7 +423,7 @@ def test_a_file_lanecast_did_not_write_is_never_overwritten(tmp_path: Path) -> N
 
 
 def test_each_log_of_one_name_gets_its_own_report_folder(tmp_path: Path) -> None:
-    from lanecast.workflows.log_report import per_log_names
+    from lanecast.workflows.annotation.log_scores import per_log_names
 
     logs = [make_mcap(tmp_path / d / "drive.mcap", n=5) for d in ("a", "b") if (tmp_path / d).mkdir() is None]
     assert per_log_names(logs) == {logs[0]: "a/drive", logs[1]: "b/drive"}

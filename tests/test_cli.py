@@ -65,7 +65,7 @@ def test_model_means_the_same_everywhere(capsys: pytest.CaptureFixture[str]) -> 
 def test_a_closed_stdout_ends_quietly(tmp_path: Path) -> None:
     """`lanecast info … | head`: the reader is gone before lanecast writes; no traceback."""
     from lanecast.io_adapters.contracts import track_table
-    from lanecast.io_adapters.datasets import highd
+    from lanecast.io_adapters.datasets.highd import reader as highd
     from lanecast.io_adapters.sim import recording
 
     rec = recording.simulate(
@@ -120,7 +120,7 @@ def test_convert_refuses_a_suffix_it_would_not_write(
 
 
 def test_convert_to_ros2_writes_mcap_storage_unless_asked(small_table: Path, tmp_path: Path) -> None:
-    from lanecast.io_adapters import registry
+    from lanecast.io_adapters.formats import registry
 
     assert cli.main(["convert", str(small_table), "--to", "ros2", "--out", str(tmp_path / "bag")]) == 0
     assert [p.suffix for p in (tmp_path / "bag").iterdir() if p.name != "metadata.yaml"] == [".mcap"]
@@ -143,7 +143,7 @@ def test_convert_to_ros2_writes_mcap_storage_unless_asked(small_table: Path, tmp
 
 
 def test_the_location_choices_are_the_readers_locations() -> None:
-    from lanecast.io_adapters.datasets import ngsim
+    from lanecast.io_adapters.datasets.ngsim import reader as ngsim
     from lanecast.workflows.vocabulary import NGSIM_LOCATIONS
 
     assert NGSIM_LOCATIONS == ngsim.FREEWAYS + ngsim.ARTERIALS

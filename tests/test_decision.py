@@ -1,4 +1,4 @@
-"""Decision offsets (lanecast.models.decision): chosen on validation for the macro-F1, folded into the
+"""Decision offsets (lanecast.models.decision_offsets): chosen on validation for the macro-F1, folded into the
 classifier's last bias so that every consumer applies them."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import pytest
 import torch
 from conftest import synthetic_windows
 
-from lanecast.models.decision import choose_offsets, fold_into_classifier, offset_macro_f1
+from lanecast.models.decision_offsets import choose_offsets, fold_into_classifier, offset_macro_f1
 from lanecast.models.stcnn import STCNN
 from lanecast.models.train import TrainConfig, train
 

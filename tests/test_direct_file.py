@@ -8,10 +8,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lanecast.io_adapters import direct_file
-from lanecast.io_adapters.direct_file import ALIGN, DirectWriter
 from lanecast.io_adapters.errors import InputError
-from lanecast.io_adapters.npy_append import SHARD_HEADER_BYTES, NpyAppender, read_npy_header, save_npy
+from lanecast.io_adapters.windows_store import direct_file
+from lanecast.io_adapters.windows_store.direct_file import ALIGN, DirectWriter
+from lanecast.io_adapters.windows_store.npy_append import (
+    SHARD_HEADER_BYTES,
+    NpyAppender,
+    read_npy_header,
+    save_npy,
+)
 
 
 @pytest.fixture(params=[True, False], ids=["direct", "buffered"])

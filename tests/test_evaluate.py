@@ -12,15 +12,16 @@ import pytest
 from conftest import synthetic_windows
 
 from lanecast.io_adapters.contracts.track_table import RecordingMeta, TableMeta, build_table
-from lanecast.io_adapters.contracts.windows import save_windows, to_source_frame
+from lanecast.io_adapters.contracts.window_frame import to_source_frame
+from lanecast.io_adapters.windows_store.dataset import save_windows
 from lanecast.models.baselines import constant_velocity
 from lanecast.models.checkpoint import load_checkpoint
 from lanecast.models.evaluation import speed_band_note
 from lanecast.models.metrics import displacement_errors, per_speed_band, rmse
 from lanecast.models.predict import STCNNForecaster
 from lanecast.pipeline.make_windows import make_windows
+from lanecast.workflows.annotation.track_forecasts import forecast_table
 from lanecast.workflows.cli import main
-from lanecast.workflows.forecast import forecast_table
 
 MODEL_KEYS = {
     "rmse",
@@ -261,7 +262,8 @@ def test_shipped_model_forecast_lands_where_the_target_went(speed: float) -> Non
 
 
 def test_evaluate_in_memory_mapped_batches_equals_one_shot(trained: tuple[Path, Path, Path]) -> None:
-    from lanecast.io_adapters.contracts.windows import labelled, load_windows
+    from lanecast.io_adapters.contracts.windows import labelled
+    from lanecast.io_adapters.windows_store.dataset import load_windows
     from lanecast.models.baselines import constant_acceleration
     from lanecast.models.evaluation import evaluate, vehicle_ids
     from lanecast.models.metrics import summary

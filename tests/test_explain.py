@@ -117,11 +117,11 @@ def test_annotate_explain_writes_each_what_if(tmp_path: Path, forecaster: STCNNF
     the forecast of that window with the neighbour's slot zeroed."""
     from mcap.reader import make_reader
 
-    from lanecast.io_adapters import registry
-    from lanecast.io_adapters.annotations import forecast_messages as fm
-    from lanecast.io_adapters.contracts.windows import to_source_frame
-    from lanecast.workflows.annotate_log import AnnotateOptions, annotate_log, forecast_times
-    from lanecast.workflows.forecast import windows_to_forecast
+    from lanecast.io_adapters.contracts.window_frame import to_source_frame
+    from lanecast.io_adapters.formats import registry
+    from lanecast.io_adapters.logs import forecast_messages as fm
+    from lanecast.workflows.annotation.annotate_log import AnnotateOptions, annotate_log, forecast_times
+    from lanecast.workflows.annotation.track_forecasts import windows_to_forecast
 
     frames = np.arange(100)
     table = table_of(straight({1: (2, 0.0), 2: (3, 20.0), 3: (2, 40.0)}, frames), rotate=0.3)
@@ -162,7 +162,7 @@ def test_a_time_between_strided_windows_takes_the_nearest(
 ) -> None:
     """A windows dataset cut every 1 s has no window at 3.3 s: explain takes the one at 2.9 s and says
     so; a time outside the track's windows is still refused."""
-    from lanecast.io_adapters.contracts.windows import save_windows
+    from lanecast.io_adapters.windows_store.dataset import save_windows
 
     frames = np.arange(120)
     windows = make_windows(

@@ -149,7 +149,7 @@ def test_replay_round_trip_and_mix(tmp_path, base: TrainResult, queue: Windows) 
 
 
 def test_cli_fine_tune_writes_card_and_summary(tmp_path, base: TrainResult, queue: Windows, capsys) -> None:
-    from lanecast.io_adapters.contracts.windows import save_windows
+    from lanecast.io_adapters.windows_store.dataset import save_windows
     from lanecast.models.checkpoint import load_checkpoint
     from lanecast.workflows.cli import main as cli_main
 

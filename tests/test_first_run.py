@@ -17,7 +17,7 @@ import pytest
 from conftest import make_track_table, synthetic_windows
 
 from lanecast.io_adapters.contracts import track_table
-from lanecast.io_adapters.contracts.windows import save_windows
+from lanecast.io_adapters.windows_store.dataset import save_windows
 from lanecast.workflows import cli, demo
 
 REPO = Path(__file__).resolve().parents[1]
@@ -76,7 +76,7 @@ def test_matplotlib_without_a_writable_home_says_nothing(tmp_path: Path) -> None
     (tmp_path / "home").write_text("a file, not a directory: no config directory can be made in it")
     env = {k: v for k, v in os.environ.items() if not k.startswith(("MPL", "XDG_"))}
     done = subprocess.run(
-        [sys.executable, "-c", "from lanecast.models.report_plots import pyplot; pyplot().figure()"],
+        [sys.executable, "-c", "from lanecast.models.reports.plots import pyplot; pyplot().figure()"],
         env={**env, "HOME": str(tmp_path / "home"), "PYTHONPATH": str(REPO)},
         capture_output=True,
         text=True,
@@ -118,7 +118,7 @@ def test_demo_claims_a_new_empty_or_previous_demo_directory(tmp_path: Path) -> N
 def test_demo_reruns_in_a_directory_an_earlier_version_made(tmp_path: Path) -> None:
     """A demo folder from before the mark (no .lanecast-demo) is recognised by its annotation
     manifest, whose input is the demo's log: the rerun after an upgrade is not refused."""
-    from lanecast.workflows.manifest import Manifest
+    from lanecast.workflows.bulk.manifest import Manifest
 
     (tmp_path / "tracks.parquet").write_bytes(b"the old demo's")
     Manifest(tmp_path / "annotated").append(
@@ -214,7 +214,7 @@ def test_a_missing_input_says_what_the_argument_takes(
 
 def test_ray_install_advice_is_for_this_environment() -> None:
     """`pip install 'lanecast[ray]'` would fetch another lanecast than a clone's."""
-    from lanecast.workflows import ray_engine
+    from lanecast.workflows.bulk import ray_backend as ray_engine
 
     extra = re.search(r'^ray = \["([^"]+)"\]', (REPO / "pyproject.toml").read_text(), re.M)
     assert extra is not None and extra.group(1) == ray_engine.RAY_REQUIREMENT

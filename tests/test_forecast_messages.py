@@ -16,8 +16,8 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
-from lanecast.io_adapters.annotations import forecast_messages as fm
 from lanecast.io_adapters.contracts.windows import MANEUVERS
+from lanecast.io_adapters.logs import forecast_messages as fm
 
 # ------------------------------------------------------------------- the per-object encoders (oracle)
 

@@ -43,9 +43,9 @@ import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
-from lanecast.io_adapters import registry
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.errors import LanecastError
+from lanecast.io_adapters.formats import registry
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO / "tests" / "data"
@@ -217,7 +217,8 @@ class Seeds(dict[str, Any]):
 
 @pytest.fixture(scope="module")
 def seeds(tmp_path_factory: pytest.TempPathFactory) -> Seeds:
-    from lanecast.io_adapters.logs import mcap_writer, rosbag_writer
+    from lanecast.io_adapters.logs.mcap import writer as mcap_writer
+    from lanecast.io_adapters.logs.rosbag import writer as rosbag_writer
 
     root = tmp_path_factory.mktemp("seeds")
     us101 = registry.read_any([DATA / "ngsim" / "us-101" / "trajectories-fixture.txt"])
@@ -449,8 +450,8 @@ def test_fuzz_model_card(data: st.DataObject) -> None:
 def test_fuzz_annotate_mcap(seeds: Seeds, data: st.DataObject) -> None:
     """`annotate` reads a log, then copies every record: a mutant is refused naming the file, or
     the annotated copy reads back as the same tracks (the seed's chunks carry CRCs)."""
-    from lanecast.io_adapters.logs import mcap_reader
-    from lanecast.workflows.annotate_log import annotate_log
+    from lanecast.io_adapters.logs.mcap import reader as mcap_reader
+    from lanecast.workflows.annotation.annotate_log import annotate_log
 
     original = mcap_reader.read(seeds["mcap"])
     with workdir() as d:

@@ -26,7 +26,8 @@ import pytest
 from conftest import channel_record, mcap_contents, mcap_record_spans, staggered_cars
 
 from lanecast.io_adapters.contracts import track_table
-from lanecast.io_adapters.logs import mcap_writer, rosbag_writer
+from lanecast.io_adapters.logs.mcap import writer as mcap_writer
+from lanecast.io_adapters.logs.rosbag import writer as rosbag_writer
 from lanecast.workflows.cli import main
 
 RATE = 10.0

@@ -21,7 +21,10 @@ from conftest import staggered_cars
 
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.errors import LogError
-from lanecast.io_adapters.logs import mcap_reader, mcap_writer, rosbag_reader, rosbag_writer
+from lanecast.io_adapters.logs.mcap import reader as mcap_reader
+from lanecast.io_adapters.logs.mcap import writer as mcap_writer
+from lanecast.io_adapters.logs.rosbag import reader as rosbag_reader
+from lanecast.io_adapters.logs.rosbag import writer as rosbag_writer
 from lanecast.workflows.cli import main
 
 OP_CHUNK, OP_MESSAGE_INDEX, OP_CHUNK_INDEX, OP_SUMMARY_OFFSET, OP_FOOTER = 0x06, 0x07, 0x08, 0x0E, 0x02
@@ -290,7 +293,7 @@ def test_report_reads_the_forecasts_of_the_data_section_not_of_a_lying_chunk_ind
     from mcap.writer import CompressionType, Writer
     from test_log_errors import _prediction_doc
 
-    from lanecast.workflows.log_report import prediction_documents
+    from lanecast.workflows.annotation.log_scores import prediction_documents
 
     log = tmp_path / "annotated.mcap"
     with log.open("wb") as f:
@@ -317,7 +320,7 @@ def _copied(src: Path, out: Path) -> list[tuple[int, int, bytes]]:
     by the mcap library with every CRC checked."""
     from mcap.reader import make_reader
 
-    from lanecast.io_adapters.annotations import mcap_copy
+    from lanecast.io_adapters.logs.mcap import copy as mcap_copy
 
     with out.open("wb") as f:
         mcap_copy.copy_mcap(src, f)
@@ -352,7 +355,7 @@ def test_an_index_the_mcap_library_cannot_read_is_named_by_annotate_and_read_by_
     offset of the end of the file, and the reader's check of message-index offsets wrapped around
     int64 (an IndexError). Convert now reads the data and names the index; annotate's error names
     the index record."""
-    from lanecast.io_adapters.annotations import mcap_copy
+    from lanecast.io_adapters.logs.mcap import copy as mcap_copy
 
     src, clean = logs["pb"]
     d = bytearray(src.read_bytes())
@@ -645,7 +648,7 @@ def test_a_forecast_of_another_layout_is_refused_not_scored(
     report scored its five points as 1-5 s and its classes as straight/left/right, exit 0."""
     from test_log_errors import _prediction_doc
 
-    from lanecast.workflows.log_report import prediction_documents
+    from lanecast.workflows.annotation.log_scores import prediction_documents
 
     good = _prediction_doc()
     bad = _prediction_doc()
@@ -664,7 +667,7 @@ def test_report_refuses_a_forecast_logged_at_another_time_than_its_t0(tmp_path: 
     from test_log_errors import _prediction_doc
 
     from lanecast.io_adapters.errors import InputError
-    from lanecast.workflows.log_report import checked_forecast_times, prediction_documents
+    from lanecast.workflows.annotation.log_scores import checked_forecast_times, prediction_documents
 
     doc = _prediction_doc()
     log = _prediction_log(tmp_path / "shifted.mcap", [(doc["t0_ns"], doc), (doc["t0_ns"] - 10**9, doc)])
@@ -768,7 +771,7 @@ def test_a_ros2_bag_whose_mcap_index_disagrees_with_its_data_is_refused_at_the_i
     assert err.value.path == str(storage) and err.value.offset == at
     assert f"{length + 16} bytes, it has {length}" in str(err.value)
     # annotate with precomputed forecasts copies the bag without reading its tracks: the same check
-    from lanecast.io_adapters.annotations import bag_copy
+    from lanecast.io_adapters.logs.rosbag import copy as bag_copy
 
     with pytest.raises(LogError, match="rosbags reads the bag through the index") as err:
         bag_copy.copy_ros2_bag(bag, tmp_path / "copy")

@@ -14,10 +14,13 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from lanecast.io_adapters import registry, streaming
 from lanecast.io_adapters.contracts import track_table
-from lanecast.io_adapters.datasets import highd, highd_stream, ngsim, ngsim_stream
+from lanecast.io_adapters.datasets.highd import reader as highd
+from lanecast.io_adapters.datasets.highd import stream as highd_stream
+from lanecast.io_adapters.datasets.ngsim import reader as ngsim
+from lanecast.io_adapters.datasets.ngsim import stream as ngsim_stream
 from lanecast.io_adapters.errors import InputError, TrackTableError
+from lanecast.io_adapters.formats import registry, streaming
 from lanecast.models import card
 from lanecast.workflows.cli import main
 

@@ -20,10 +20,10 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
-from lanecast.io_adapters import registry
 from lanecast.io_adapters.contracts import track_table
-from lanecast.io_adapters.datasets import highd
+from lanecast.io_adapters.datasets.highd import reader as highd
 from lanecast.io_adapters.errors import InputError
+from lanecast.io_adapters.formats import registry
 from lanecast.workflows import cli
 
 DATA = Path(__file__).parent / "data" / "highd"

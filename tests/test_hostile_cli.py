@@ -273,7 +273,7 @@ def test_ngsim_csv_with_quoted_fields_reads_as_unquoted(
     """Every field in double quotes (a valid CSV) was 'format not recognised'."""
     import pyarrow.parquet as pq
 
-    from lanecast.io_adapters import streaming
+    from lanecast.io_adapters.formats import streaming
 
     lines = PEACHTREE.read_text().splitlines()[:300]
     plain, quoted = tmp_path / "plain" / "peachtree.csv", tmp_path / "quoted" / "peachtree.csv"
@@ -308,7 +308,7 @@ def test_ngsim_csv_without_a_key_column_names_it(
 
 def track_table_copy(tmp_path: Path, edit: Callable[[pa.Table], pa.Table] | None = None) -> Path:
     """The highD fixture as a Parquet track table (``edit``ed, written as is) in ``tmp_path``."""
-    from lanecast.io_adapters import registry
+    from lanecast.io_adapters.formats import registry
 
     table = registry.read_any([HIGHD])
     path = tmp_path / "table.parquet"
@@ -473,7 +473,7 @@ def windows_copy(tmp_path: Path, damage: Callable[[Path], object]) -> Path:
     """A small windows dataset in ``tmp_path/win``, then ``damage``d."""
     from conftest import synthetic_windows
 
-    from lanecast.io_adapters.contracts.windows import save_windows
+    from lanecast.io_adapters.windows_store.dataset import save_windows
 
     directory = save_windows(synthetic_windows(60), tmp_path / "win")
     damage(directory)

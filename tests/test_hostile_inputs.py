@@ -17,11 +17,11 @@ import pyarrow.parquet as pq
 import pytest
 from conftest import synthetic_windows
 
-from lanecast.io_adapters import registry
 from lanecast.io_adapters.contracts import track_table
-from lanecast.io_adapters.contracts.windows import load_windows, save_windows
 from lanecast.io_adapters.errors import InputError, LanecastError, LogError, TrackTableError
-from lanecast.io_adapters.logs import mcap_reader
+from lanecast.io_adapters.formats import registry
+from lanecast.io_adapters.logs.mcap import reader as mcap_reader
+from lanecast.io_adapters.windows_store.dataset import load_windows, save_windows
 from lanecast.workflows.cli import main
 
 REPO = Path(__file__).resolve().parents[1]
@@ -590,7 +590,7 @@ def test_an_open_quote_that_swallows_the_lines_after_it_is_refused_at_its_line(
 
 
 def test_an_open_quote_in_a_location_is_refused_by_the_streaming_reader_too(tmp_path: Path) -> None:
-    from lanecast.io_adapters.datasets import ngsim_stream
+    from lanecast.io_adapters.datasets.ngsim import stream as ngsim_stream
 
     path = _quoted(
         PEACHTREE, tmp_path / "peachtree.csv", 3, lambda text: text.replace(",peachtree", ',"peachtree')
@@ -812,7 +812,7 @@ def test_an_onnx_export_onnx_runtime_cannot_load(tmp_path: Path, capsys: pytest.
     already never used.)"""
     from lanecast.models.card import SHIPPED_STEM, WEIGHTS_DIR, file_sha256
     from lanecast.models.predict import STCNNForecaster
-    from lanecast.models.serving import load_forecaster
+    from lanecast.models.runtime import load_forecaster
 
     model = tmp_path / "model"
     model.mkdir()
@@ -840,7 +840,8 @@ def test_an_onnx_export_onnx_runtime_cannot_load(tmp_path: Path, capsys: pytest.
 def test_ros2_mcap_bags_are_written_with_crcs_and_checked(tmp_path: Path) -> None:
     from mcap.reader import make_reader
 
-    from lanecast.io_adapters.logs import rosbag_reader, rosbag_writer
+    from lanecast.io_adapters.logs.rosbag import reader as rosbag_reader
+    from lanecast.io_adapters.logs.rosbag import writer as rosbag_writer
 
     table = registry.read_any([US101])
     bag = rosbag_writer.write(table, tmp_path / "bag", "ros2", storage="mcap")
@@ -970,7 +971,8 @@ def test_own_bags_without_checksums_carry_a_payload_digest(
     tmp_path: Path, fmt: str, storage: str, name: str
 ) -> None:
     """ROS 1 and sqlite3 bags have no checksum: lanecast's metadata holds one of every message."""
-    from lanecast.io_adapters.logs import rosbag_reader, rosbag_writer
+    from lanecast.io_adapters.logs.rosbag import reader as rosbag_reader
+    from lanecast.io_adapters.logs.rosbag import writer as rosbag_writer
 
     table = registry.read_any([US101])
     bag = rosbag_writer.write(table, tmp_path / name, fmt, storage=storage)
@@ -1304,9 +1306,10 @@ def test_a_header_repeated_mid_file_is_named_as_such(tmp_path: Path, form: str) 
     """Two files joined into one (``cat a.csv b.csv``) put the header line amid the rows: it was
     refused as "cell 'frame' is not an integer" ('Vehicle_ID' is not a finite number), which sends
     a user looking for a bad value; now it says the header is there again, at its line."""
-    from lanecast.io_adapters import streaming
-    from lanecast.io_adapters.datasets import highd, highd_stream
-    from lanecast.io_adapters.datasets.ngsim import TXT_COLUMNS
+    from lanecast.io_adapters.datasets.highd import reader as highd
+    from lanecast.io_adapters.datasets.highd import stream as highd_stream
+    from lanecast.io_adapters.datasets.ngsim.reader import TXT_COLUMNS
+    from lanecast.io_adapters.formats import streaming
 
     if form.startswith("highd"):
         source = HIGHD / "01_tracks.csv"

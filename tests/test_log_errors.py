@@ -17,7 +17,9 @@ from conftest import channel_record, mcap_contents, mcap_record_spans, staggered
 
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.errors import LogError
-from lanecast.io_adapters.logs import mcap_reader, mcap_writer, rosbag_reader
+from lanecast.io_adapters.logs.mcap import reader as mcap_reader
+from lanecast.io_adapters.logs.mcap import writer as mcap_writer
+from lanecast.io_adapters.logs.rosbag import reader as rosbag_reader
 
 RATE = 25.0
 
@@ -248,7 +250,7 @@ def test_truncated_bag_names_file_and_offset(
 ) -> None:
     """A bag cut short was 'cannot read the bag: Bag index looks damaged' (ROS 1), 'database disk
     image is malformed' (sqlite3) or 'not a complete MCAP file' (ROS 2 MCAP storage): no offset."""
-    from lanecast.io_adapters.logs import rosbag_writer
+    from lanecast.io_adapters.logs.rosbag import writer as rosbag_writer
 
     bag = rosbag_writer.write(table, tmp_path / name, fmt, **({"storage": storage} if storage else {}))
     data_file = bag if bag.is_file() else next(p for p in bag.iterdir() if p.suffix in (".db3", ".mcap"))
@@ -270,7 +272,7 @@ def test_bad_sqlite3_message_names_where_reading_stopped(
     AnyReaderError: Invalid or unsupported CDR encapsulation', no message, topic or time."""
     import sqlite3
 
-    from lanecast.io_adapters.logs import rosbag_writer
+    from lanecast.io_adapters.logs.rosbag import writer as rosbag_writer
 
     bag = rosbag_writer.write(table, tmp_path / "b", "ros2", storage="sqlite3")
     with sqlite3.connect(bag / "b.db3") as con:
@@ -305,7 +307,7 @@ def test_undecodable_message_in_a_sqlite3_page_names_its_offset_and_page(
     """A message whose bytes on its page were damaged (sqlite's quick_check sees only the b-trees)
     was 'cannot read the bag at message 2 … or the next: … Invalid string length' naming the bag
     directory and no offset; now the .db3, the message's byte offset and its page."""
-    from lanecast.io_adapters.logs import rosbag_writer
+    from lanecast.io_adapters.logs.rosbag import writer as rosbag_writer
 
     bag = rosbag_writer.write(table, tmp_path / "b", "ros2", storage="sqlite3")
     offset = _damage_first_message(bag, "/tracked_objects", 12, b"\xf0\xff\xff\x7f")  # frame_id's length
@@ -324,7 +326,7 @@ def test_changed_message_bytes_that_still_decode_name_the_sqlite3_file(
 ) -> None:
     """A changed byte of a message that still decodes was caught by lanecast's payload checksum only,
     naming the bag directory; now the .db3 whose bytes changed, and that sqlite3 finds it intact."""
-    from lanecast.io_adapters.logs import rosbag_writer
+    from lanecast.io_adapters.logs.rosbag import writer as rosbag_writer
 
     bag = rosbag_writer.write(table, tmp_path / "b", "ros2", storage="sqlite3")
     _damage_first_message(bag, "/tracked_objects", 4, b"\x01")  # the header's stamp (seconds)
@@ -358,7 +360,7 @@ def _small_chunks_ros1_bag(table: pa.Table, path: Path) -> Path:
     """lanecast's ROS 1 bag of ``table`` rewritten by rosbags into uncompressed chunks of ~4 kB."""
     from rosbags.rosbag1 import Reader, Writer
 
-    from lanecast.io_adapters.logs import rosbag_writer
+    from lanecast.io_adapters.logs.rosbag import writer as rosbag_writer
 
     src = rosbag_writer.write(table, path.with_name("src.bag"), "ros1")
     with Reader(src) as r:
@@ -504,7 +506,7 @@ def test_damaged_attachment_is_named_by_convert_and_annotate(tmp_path: Path, dam
     import pyarrow.parquet as pq
     from conftest import forecasts_for, make_mcap
 
-    from lanecast.workflows.annotate_log import AnnotateOptions, annotate_log
+    from lanecast.workflows.annotation.annotate_log import AnnotateOptions, annotate_log
 
     log = make_mcap(tmp_path / "log.mcap", n=40)
     pq.write_table(forecasts_for("log", [1, 2], [1]), tmp_path / "fc.parquet")  # no track reading: the copy
@@ -538,7 +540,7 @@ def test_damaged_attachment_is_named_by_convert_and_annotate(tmp_path: Path, dam
 def test_annotating_a_file_of_only_the_mcap_magic_says_it_is_truncated(tmp_path: Path) -> None:
     """'cannot read the MCAP header: ' (the mcap library's empty message) at offset 0; now the
     reader's own error: truncated at 8 bytes, without a footer."""
-    from lanecast.workflows.annotate_log import AnnotateOptions, annotate_log
+    from lanecast.workflows.annotation.annotate_log import AnnotateOptions, annotate_log
 
     log = tmp_path / "log.mcap"
     log.write_bytes(b"\x89MCAP0\r\n")
@@ -614,7 +616,7 @@ def test_a_bad_prediction_document_names_its_message_and_field(
 
     from mcap.writer import Writer
 
-    from lanecast.workflows.log_report import prediction_documents
+    from lanecast.workflows.annotation.log_scores import prediction_documents
 
     bad = _prediction_doc()
     edit(bad)  # type: ignore[operator]
@@ -707,7 +709,7 @@ def test_annotate_names_the_damaged_record_of_a_ros1_bag_as_convert_does(
     """annotate opens a bag to list its topics before reading it; a bag rosbags could not open
     there was 'cannot open the bag: Header could not be read from file.' (fuzz seed 1101), no
     offset, where convert names the record. Now annotate gives convert's error."""
-    from lanecast.workflows.annotate_log import AnnotateOptions, annotate_log
+    from lanecast.workflows.annotation.annotate_log import AnnotateOptions, annotate_log
 
     bag = _small_chunks_ros1_bag(table, tmp_path / "b.bag")
     data = bytearray(bag.read_bytes())
@@ -741,7 +743,7 @@ def test_a_sqlite3_type_definition_rosbags_refuses_names_its_table_and_row(
     table and row."""
     import sqlite3
 
-    from lanecast.io_adapters.logs import rosbag_writer
+    from lanecast.io_adapters.logs.rosbag import writer as rosbag_writer
 
     bag = rosbag_writer.write(table, tmp_path / "b", "ros2", storage="sqlite3")
     with sqlite3.connect(bag / "b.db3") as con:
@@ -761,7 +763,7 @@ def test_ros2_mcap_channel_with_garbage_qos_metadata_names_its_record(
     from mcap.reader import make_reader
     from mcap.writer import Writer
 
-    from lanecast.io_adapters.logs import rosbag_writer
+    from lanecast.io_adapters.logs.rosbag import writer as rosbag_writer
 
     bag = rosbag_writer.write(table, tmp_path / "b", "ros2", storage="mcap")
     storage = next(bag.glob("*.mcap"))
@@ -830,7 +832,7 @@ def test_a_sqlite3_message_on_no_topic_is_refused_not_dropped(tmp_path: Path, ta
     table, row and column."""
     import sqlite3
 
-    from lanecast.io_adapters.logs import rosbag_writer
+    from lanecast.io_adapters.logs.rosbag import writer as rosbag_writer
 
     bag = rosbag_writer.write(table, tmp_path / "b", "ros2", storage="sqlite3")
     with sqlite3.connect(bag / "b.db3") as con:  # another tool's bag: no lanecast checksum
@@ -858,7 +860,8 @@ def test_an_orientation_that_is_no_unit_quaternion_is_refused(
     import dataclasses
     import sqlite3
 
-    from lanecast.io_adapters.logs import ros_types, rosbag_writer
+    from lanecast.io_adapters.logs.messages import ros_types
+    from lanecast.io_adapters.logs.rosbag import writer as rosbag_writer
 
     bag = rosbag_writer.write(table, tmp_path / "b", "ros2", storage="sqlite3")
     store = ros_types.typestore(2)
@@ -914,8 +917,8 @@ def test_annotate_names_a_damaged_ros2_bag_as_convert_does(
     version or an MCAP storage file with a record deleted was 'cannot open the bag: Invalid bag
     metadata: '>' not supported between instances of 'str' and 'int'' or 'cannot open the bag:'
     with nothing after it (fuzz seeds 1382, 1386). Now convert's error: the file and line/offset."""
-    from lanecast.io_adapters.logs import rosbag_writer
-    from lanecast.workflows.annotate_log import AnnotateOptions, annotate_log
+    from lanecast.io_adapters.logs.rosbag import writer as rosbag_writer
+    from lanecast.workflows.annotation.annotate_log import AnnotateOptions, annotate_log
 
     bag = rosbag_writer.write(table, tmp_path / "b", "ros2", storage=storage)
     meta = bag / "metadata.yaml"
@@ -1006,7 +1009,7 @@ def test_ros2_metadata_naming_qos_profiles_rosbags_cannot_parse_names_its_line(
     """offered_qos_profiles: 'junk' was 'cannot read the bag: AnyReaderError: Invalid bag metadata:
     string indices must be integers, not 'str'': neither metadata.yaml nor a line (found by
     tests/test_fuzz_logs.py). Now metadata.yaml, the line and the key."""
-    from lanecast.io_adapters.logs import rosbag_writer
+    from lanecast.io_adapters.logs.rosbag import writer as rosbag_writer
 
     bag = rosbag_writer.write(table, tmp_path / "b", "ros2", storage="mcap")
     meta = bag / "metadata.yaml"
@@ -1021,7 +1024,7 @@ def test_ros2_metadata_listing_a_copy_of_its_storage_file_names_both(tmp_path: P
     """A bag listing its storage file and a byte copy of it was 'the messages do not match the
     checksum lanecast wrote (6,000 messages read, 3000 written)', no line (fuzz2 seed 5017); a
     foreign bag would read every message twice. Now metadata.yaml's relative_file_paths line."""
-    from lanecast.io_adapters.logs import rosbag_writer
+    from lanecast.io_adapters.logs.rosbag import writer as rosbag_writer
 
     bag = rosbag_writer.write(table, tmp_path / "b", "ros2", storage="mcap")
     storage = next(bag.glob("*.mcap"))

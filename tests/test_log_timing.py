@@ -10,7 +10,7 @@ import pyarrow.parquet as pq
 import pytest
 from test_hostile_inputs import _entity, json_log
 
-from lanecast.io_adapters.logs.stamp_frames import frames_of, nominal_rate
+from lanecast.io_adapters.logs.frames_from_stamps import frames_of, nominal_rate
 from lanecast.workflows.cli import main
 
 

@@ -16,9 +16,9 @@ import pytest
 from conftest import forecasts_for, make_mcap
 
 from lanecast.io_adapters.errors import InputError
-from lanecast.workflows.annotate_log import AnnotateOptions
-from lanecast.workflows.bulk import LOCK, run_bulk
-from lanecast.workflows.manifest import MANIFEST, Manifest
+from lanecast.workflows.annotation.annotate_log import AnnotateOptions
+from lanecast.workflows.bulk.manifest import MANIFEST, Manifest
+from lanecast.workflows.bulk.runner import LOCK, run_bulk
 
 
 def _log(folder: Path, name: str, fc: Path) -> Path:
@@ -122,7 +122,7 @@ def test_report_on_a_manifest_entry_naming_no_output_file_names_the_manifest(
     """`lanecast report OUT_DIR` whose manifest has a done entry with a number or a list as its
     output was a TypeError traceback; '.' read OUT_DIR itself as a log. Now refused naming the
     manifest and the entry's input."""
-    from lanecast.workflows.log_report import annotated_logs
+    from lanecast.workflows.annotation.log_scores import annotated_logs
 
     out = tmp_path / "out"
     out.mkdir()

@@ -12,12 +12,14 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
-from lanecast.io_adapters import registry
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.errors import FrameError, LogError
-from lanecast.io_adapters.logs import mcap_reader, mcap_writer, ros_types
-from lanecast.io_adapters.logs import scene_update_wire as wire
-from lanecast.io_adapters.logs import tracked_objects as to
+from lanecast.io_adapters.formats import registry
+from lanecast.io_adapters.logs import object_columns as to
+from lanecast.io_adapters.logs.foxglove import scene_update_decode as wire
+from lanecast.io_adapters.logs.mcap import reader as mcap_reader
+from lanecast.io_adapters.logs.mcap import writer as mcap_writer
+from lanecast.io_adapters.logs.messages import ros_types
 
 RATE = 25.0
 EPOCH = 1_700_000_000_000_000_000  # ns, a log-like absolute time for the second recording
@@ -662,7 +664,7 @@ def _varint(value: int) -> bytes:
 
 def test_varints_of_every_length_decode_exactly() -> None:
     """Varints of 1 to 10 bytes (the one-byte gather, the joined 8-byte word, the 10-byte window)."""
-    from lanecast.io_adapters.logs import protobuf_wire
+    from lanecast.io_adapters.logs.messages import protobuf_wire
 
     rng = np.random.default_rng(5)
     edges = [

@@ -232,7 +232,7 @@ def test_row_index_lookup_with_gaps(big_ids: bool) -> None:
 @pytest.mark.slow
 def test_agreement_with_sumo_neighbours(sim_recording_dir: Path) -> None:
     """lanecast's lane-based neighbours vs the ones SUMO wrote (highD columns), at 10 Hz."""
-    from lanecast.io_adapters.datasets import highd
+    from lanecast.io_adapters.datasets.highd import reader as highd
     from lanecast.pipeline.resample import resample
 
     table = resample(highd.read([sim_recording_dir]))

@@ -12,12 +12,12 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
-from lanecast.io_adapters import registry
 from lanecast.io_adapters.contracts import track_table
-from lanecast.io_adapters.datasets import ngsim
+from lanecast.io_adapters.contracts.track_summary import summarise
+from lanecast.io_adapters.datasets.ngsim import reader as ngsim
 from lanecast.io_adapters.errors import InputError
+from lanecast.io_adapters.formats import registry
 from lanecast.workflows import cli
-from lanecast.workflows.table_summary import summarise
 
 DATA = Path(__file__).parent / "data" / "ngsim"
 SAMPLE = DATA / "peachtree_sample.csv"

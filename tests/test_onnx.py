@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 import torch
 
-from lanecast.io_adapters.datasets import highd
+from lanecast.io_adapters.datasets.highd import reader as highd
 from lanecast.io_adapters.errors import InputError
 from lanecast.models.card import SHIPPED_STEM, WEIGHTS_DIR, read_card, resolve
 from lanecast.models.checkpoint import load_checkpoint, save_checkpoint
 from lanecast.models.onnx_predict import OnnxForecaster, onnx_file
 from lanecast.models.predict import STCNNForecaster
-from lanecast.models.serving import load_forecaster
+from lanecast.models.runtime import load_forecaster
 from lanecast.pipeline.make_windows import make_windows
 from lanecast.workflows.cli import main
 
@@ -150,7 +150,7 @@ def test_empty_and_top_zero_predictions_have_the_torch_shapes() -> None:
 @pytest.mark.slow
 def test_annotating_with_onnx_runtime_never_imports_torch(sim_recording_dir: Path, tmp_path: Path) -> None:
     """`lanecast annotate` end to end (CLI, bulk runner, forecasts, messages) without torch in the process."""
-    from lanecast.io_adapters import registry
+    from lanecast.io_adapters.formats import registry
 
     log = registry.write_any(highd.read([sim_recording_dir]), tmp_path / "drive.mcap", "mcap")
     code = (

@@ -7,9 +7,9 @@ import json
 import numpy as np
 import pyarrow as pa
 
-from lanecast.models.forecaster import Predictions
-from lanecast.models.forecasts import forecasts_table
+from lanecast.models.forecasts_from_predictions import forecasts_table
 from lanecast.models.ood import distribution, out_of_distribution, target_state
+from lanecast.models.predictions import Predictions
 
 
 def windows_at(speed: np.ndarray, acc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -76,7 +76,7 @@ def test_flags_reach_the_forecasts_table() -> None:
 
 
 def test_flags_reach_the_prediction_message() -> None:
-    from lanecast.io_adapters.annotations.forecast_messages import frames_from_table, prediction_dict
+    from lanecast.io_adapters.logs.forecast_messages import frames_from_table, prediction_dict
 
     index, preds = three_forecasts()
     doc = prediction_dict(next(iter(frames_from_table(forecasts_table(index, preds), frame_id="map"))))

@@ -7,10 +7,10 @@ from pathlib import Path
 
 import numpy as np
 
-from lanecast.io_adapters.annotations import forecast_messages as fm
 from lanecast.io_adapters.contracts.windows import MANEUVER_COLOURS
+from lanecast.io_adapters.logs import forecast_messages as fm
 from lanecast.models.metrics import summary
-from lanecast.models.report import MANEUVER_HEX, Scene, hex_colour, scene_plot, write_report
+from lanecast.models.reports.document import MANEUVER_HEX, Scene, hex_colour, scene_plot, write_report
 
 
 def scene(kind: str = "example") -> Scene:

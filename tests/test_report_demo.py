@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lanecast.io_adapters import registry
-from lanecast.io_adapters.datasets import highd
+from lanecast.io_adapters.datasets.highd import reader as highd
+from lanecast.io_adapters.formats import registry
 from lanecast.workflows.cli import main
 
 
@@ -32,7 +32,7 @@ def test_report_scores_logged_forecasts_like_batch_prediction(
     from lanecast.models.metrics import summary
     from lanecast.models.predict import STCNNForecaster
     from lanecast.pipeline.make_windows import make_windows
-    from lanecast.workflows import log_report as report
+    from lanecast.workflows.annotation import log_scores as report
 
     log, out_dir = annotated
     assert main(["report", str(out_dir), "--out", str(tmp_path / "r")]) == 0

@@ -15,8 +15,8 @@ from mcap.writer import Writer as McapWriter
 from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Bag2Writer
 
-from lanecast.io_adapters import registry
-from lanecast.io_adapters.logs import ros_types
+from lanecast.io_adapters.formats import registry
+from lanecast.io_adapters.logs.messages import ros_types
 
 AUTO = "autoware_auto_perception_msgs"
 SPEED = 12.5  # m/s, along each object's heading (Autoware's twist is in the body frame)

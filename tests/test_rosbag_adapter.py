@@ -9,11 +9,13 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
-from lanecast.io_adapters import registry
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.errors import FrameError, LogError
-from lanecast.io_adapters.logs import ros_types, rosbag_reader, rosbag_writer
-from lanecast.io_adapters.logs import tracked_objects as to
+from lanecast.io_adapters.formats import registry
+from lanecast.io_adapters.logs import object_columns as to
+from lanecast.io_adapters.logs.messages import ros_types
+from lanecast.io_adapters.logs.rosbag import reader as rosbag_reader
+from lanecast.io_adapters.logs.rosbag import writer as rosbag_writer
 
 RATE = 10.0
 
@@ -368,7 +370,7 @@ def test_a_yaml_alias_bomb_in_metadata_yaml_is_refused_before_it_expands(tmp_pat
     """Nine nested aliases in custom_data (9**9 values): annotate spent 85 s and 2 GB before a
     MemoryError ('cannot read the ROS 2 bag: MemoryError:'); now metadata.yaml is refused at once."""
 
-    from lanecast.io_adapters.annotations.bag_copy import ros2_custom_data
+    from lanecast.io_adapters.logs.rosbag.copy import ros2_custom_data
 
     bag = rosbag_writer.write(make_table(), tmp_path / "b", "ros2", storage="sqlite3")
     meta = bag / "metadata.yaml"

@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lanecast.io_adapters import registry
 from lanecast.io_adapters.contracts.track_table import RecordingMeta, TableMeta, build_table
-from lanecast.io_adapters.datasets import highd
+from lanecast.io_adapters.datasets.highd import reader as highd
 from lanecast.io_adapters.errors import InputError
+from lanecast.io_adapters.formats import registry
 from lanecast.io_adapters.sim import recording, scenarios, to_highd
 from lanecast.pipeline.traffic import speed_dips, traffic_statistics
 from lanecast.workflows import cli

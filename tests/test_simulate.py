@@ -15,7 +15,7 @@ import pyarrow.csv as pacsv
 import pytest
 
 from lanecast.io_adapters.contracts import track_table
-from lanecast.io_adapters.datasets import highd
+from lanecast.io_adapters.datasets.highd import reader as highd
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.sim import recording, sumo_highway, to_highd
 from lanecast.workflows import cli
@@ -306,7 +306,7 @@ def test_libsumo_imported_before_pyarrow_works(tmp_path: Path) -> None:
         "import libsumo, sys\n"
         "import pyarrow.parquet as pq\n"
         "from pathlib import Path\n"
-        "from lanecast.io_adapters.datasets import highd\n"
+        "from lanecast.io_adapters.datasets.highd import reader as highd\n"
         "from lanecast.io_adapters.sim import recording\n"
         "out = recording.simulate(Path(sys.argv[1]), minutes=0.05, seed=1, section_length_m=100.0,\n"
         "                            approach_length_m=150.0, show_progress=False)\n"

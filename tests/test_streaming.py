@@ -14,11 +14,16 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 import pytest
 
-from lanecast.io_adapters import registry, streaming
 from lanecast.io_adapters.contracts import track_table
-from lanecast.io_adapters.contracts.windows import NpyAppender, Windows, compute_stats, load_windows
-from lanecast.io_adapters.datasets import highd, ngsim, ngsim_stream
+from lanecast.io_adapters.contracts.normalisation import compute_stats
+from lanecast.io_adapters.contracts.windows import Windows
+from lanecast.io_adapters.datasets.highd import reader as highd
+from lanecast.io_adapters.datasets.ngsim import reader as ngsim
+from lanecast.io_adapters.datasets.ngsim import stream as ngsim_stream
 from lanecast.io_adapters.errors import InputError, TrackTableError
+from lanecast.io_adapters.formats import registry, streaming
+from lanecast.io_adapters.windows_store.dataset import load_windows
+from lanecast.io_adapters.windows_store.npy_append import NpyAppender
 from lanecast.pipeline.make_windows import WindowOptions, make_windows, write_windows
 from lanecast.workflows.cli import main
 
@@ -166,8 +171,8 @@ def test_a_long_world_frame_recording_windowed_in_chunks_equals_the_one_call_res
 def test_a_long_highd_recording_converts_block_by_block_in_whole_tracks(
     sim_recording_dir: Path, tmp_path: Path, directory: bool, workers: int
 ) -> None:
-    from lanecast.io_adapters.datasets import highd_stream
-    from lanecast.workflows import engines
+    from lanecast.io_adapters.datasets.highd import stream as highd_stream
+    from lanecast.workflows.bulk import backends as engines
 
     expected = registry.read_any([sim_recording_dir])
     with streaming.spill_directory(tmp_path / "out") as spill:
@@ -217,7 +222,7 @@ def test_a_long_highd_recording_windowed_from_its_csv_equals_the_one_call_result
 def test_an_unsorted_or_damaged_highd_file_read_in_blocks_goes_the_whole_file_way(
     sim_recording_dir: Path, tmp_path: Path
 ) -> None:
-    from lanecast.io_adapters.datasets import highd_stream
+    from lanecast.io_adapters.datasets.highd import stream as highd_stream
 
     lines = (sim_recording_dir / "01_tracks.csv").read_text().splitlines(keepends=True)
     for kind in ("tracksMeta", "recordingMeta"):
@@ -488,7 +493,7 @@ def test_a_bad_cell_deep_in_a_streamed_export_is_named_by_line(
 def test_freed_memory_is_kept_for_the_next_piece_on_glibc() -> None:
     import platform
 
-    from lanecast.workflows import heap
+    from lanecast.workflows.bulk import freed_memory as heap
 
     if platform.libc_ver()[0] != "glibc":
         pytest.skip("mallopt is glibc's")

@@ -9,7 +9,7 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
-from lanecast.io_adapters.datasets import highd
+from lanecast.io_adapters.datasets.highd import reader as highd
 from lanecast.io_adapters.sim import recording, sumo_highway, to_highd
 from lanecast.io_adapters.sim.tracking_errors import (
     NGSIM_MAX_ACC,

@@ -335,7 +335,7 @@ def test_load_rejects_bad_files(tmp_path) -> None:
 
 def test_forecaster_equals_the_plain_networks(windows: Windows) -> None:
     """The fused, channels-last, batched path gives what classifier → argmax → regressor gives."""
-    from lanecast.io_adapters.contracts.windows import compute_stats, normalise
+    from lanecast.io_adapters.contracts.normalisation import compute_stats, normalise
 
     torch.manual_seed(5)
     model = STCNN().eval()
@@ -375,7 +375,7 @@ def test_init_starts_from_the_given_weights_and_normalisation(windows: Windows, 
 
 
 def test_cli_train_init(windows: Windows, tmp_path, capsys) -> None:
-    from lanecast.io_adapters.contracts.windows import save_windows
+    from lanecast.io_adapters.windows_store.dataset import save_windows
     from lanecast.workflows.cli import main as cli_main
 
     base = train(windows, TrainConfig(epochs=1, batch_size=128, seed=3, threads=1))
@@ -449,7 +449,8 @@ def test_neighbour_dropout_shows_targets_alone(windows: Windows) -> None:
     """A dropped window keeps its target (inputs and presence) and loses every neighbour: presence
     False and the normalised inputs exactly 0, as for a window recorded without neighbours; the
     others are untouched; the future is the same either way."""
-    from lanecast.io_adapters.contracts.windows import TARGET_ROW, compute_stats, normalise
+    from lanecast.io_adapters.contracts.normalisation import compute_stats, normalise
+    from lanecast.io_adapters.contracts.windows import TARGET_ROW
     from lanecast.models.augment import Augmentation
     from lanecast.models.train import _Batches
 
@@ -476,7 +477,7 @@ def test_neighbour_dropout_shows_targets_alone(windows: Windows) -> None:
 def test_derivative_outliers_touch_only_present_speed_and_acceleration(windows: Windows) -> None:
     """Outliers go into the speed (upwards only) and acceleration inputs of present entries, at
     about the share asked for; positions, absent entries and the future are untouched."""
-    from lanecast.io_adapters.contracts.windows import compute_stats
+    from lanecast.io_adapters.contracts.normalisation import compute_stats
     from lanecast.models.augment import Augmentation
     from lanecast.models.train import _Batches
 

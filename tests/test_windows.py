@@ -13,24 +13,15 @@ import pyarrow as pa
 import pytest
 from conftest import LANE, ROW_OF_ID, SEVEN, straight, table_of
 
+from lanecast.io_adapters.contracts.normalisation import NormStats, compute_stats, denormalise, normalise
 from lanecast.io_adapters.contracts.track_table import (
     concat,
     write_parquet,
 )
-from lanecast.io_adapters.contracts.windows import (
-    ROWS,
-    NormStats,
-    Windows,
-    compute_stats,
-    concat_windows,
-    denormalise,
-    load_windows,
-    normalise,
-    save_windows,
-    subset,
-    to_source_frame,
-)
+from lanecast.io_adapters.contracts.window_frame import to_source_frame
+from lanecast.io_adapters.contracts.windows import ROWS, Windows, concat_windows, subset
 from lanecast.io_adapters.errors import InputError, TrackTableError
+from lanecast.io_adapters.windows_store.dataset import load_windows, save_windows
 from lanecast.pipeline.make_windows import make_windows
 from lanecast.workflows.cli import main as cli_main
 
@@ -310,7 +301,7 @@ def write_highd(directory: Path) -> Path:
 
 
 def test_highd_directions_give_mirror_consistent_windows(tmp_path: Path) -> None:
-    from lanecast.io_adapters.datasets import highd
+    from lanecast.io_adapters.datasets.highd import reader as highd
 
     table = highd.read([write_highd(tmp_path)])
     w = make_windows(table, split="none", stride=1)

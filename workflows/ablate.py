@@ -14,12 +14,14 @@ from pathlib import Path
 
 import numpy as np
 
-from lanecast.io_adapters.contracts.windows import labelled, load_windows, subset
+from lanecast.io_adapters.contracts.windows import labelled, subset
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import check_output_dir, staged_files
-from lanecast.models.ablation_report import write_ablation_report
+from lanecast.io_adapters.ownership import GENERATOR
+from lanecast.io_adapters.windows_store.dataset import load_windows
+from lanecast.models.reports.ablation import write_ablation_report
 from lanecast.workflows.arguments import integer
-from lanecast.workflows.vocabulary import HelpFormatter
+from lanecast.workflows.vocabulary import HelpFormatter, add_force_option
 
 #: The ``--quick`` preset (CI, smoke tests): a few epochs on at most this many training windows.
 QUICK = {"epochs": 2, "max_train_windows": 1500, "batch_size": 128}
@@ -73,6 +75,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="a preset small enough for CI: 2 epochs, at most 1,500 training windows, batch 128",
     )
     p.add_argument("--threads", type=integer(1, 1024), default=1, help="torch threads")
+    add_force_option(p)
     p.set_defaults(func=run)
 
 
@@ -86,7 +89,9 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(
             None, f"unknown variant(s) {unknown}", column="--variants", expected=", ".join(variants())
         )
-    check_output_dir(args.out, files=("ablation.json", "report.md", "report.html", "ablation.png"))
+    check_output_dir(
+        args.out, files=("ablation.json", "report.md", "report.html", "ablation.png"), force=args.force
+    )
     config = TrainConfig.from_file(args.config) if args.config else TrainConfig(epochs=10)
     config.threads = args.threads
     max_train = args.max_train_windows
@@ -106,9 +111,15 @@ def run(args: argparse.Namespace) -> int:
     result = run_ablation(windows, names, list(range(args.seeds)), config)
     result["windows"] = str(args.windows)
     result["max_train_windows"] = max_train
-    with staged_files(args.out) as stage:  # all of the report's files or none
+    if args.quick:
+        result["quick_warning"] = (
+            f"{config.epochs} epochs on at most {max_train:,} training windows, a check that the ablation "
+            "runs: these figures do not compare the variants"
+        )
+    with staged_files(args.out, force=args.force) as stage:  # all of the report's files or none
         (stage / "ablation.json").write_text(
-            json.dumps(finite(result), indent=2, allow_nan=False) + "\n", encoding="utf-8"
+            json.dumps(finite({**result, "generator": GENERATOR}), indent=2, allow_nan=False) + "\n",
+            encoding="utf-8",
         )
         html = args.out / write_ablation_report(stage, result).relative_to(stage)  # NaN shows "–"
     settings = f"the settings of {args.config}" if args.config else "the paper's training settings"
@@ -116,11 +127,8 @@ def run(args: argparse.Namespace) -> int:
     for v in result["variants"].values():
         print(f"  {v['label']:<24}" + " ".join(f"{x:.2f}" for x in v["mean"]["rmse"]))
     if args.quick:
-        print(
-            f"  (--quick: {config.epochs} epochs on at most {max_train:,} training windows, a check that "
-            "the ablation runs: these figures do not compare the variants)"
-        )
-    print(f"wrote {args.out / 'ablation.json'}, {html}")
+        print(f"  (--quick: {result['quick_warning']})")
+    print(f"wrote {args.out / 'ablation.json'}, report.md, ablation.png and {html}")
     return 0
 
 

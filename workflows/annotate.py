@@ -1,7 +1,7 @@
 """`lanecast annotate`: write forecasts into drive logs (MCAP, ROS 2 bags, ROS 1 bags → MCAP).
 
-The command only parses its options: one log end to end is ``lanecast.workflows.annotate_log``, many
-logs (manifest, resume, local processes or Ray) are ``lanecast.workflows.bulk``.
+The command only parses its options: one log end to end is ``lanecast.workflows.annotation.annotate_log``, many
+logs (manifest, resume, local processes or Ray) are ``lanecast.workflows.bulk.runner``.
 """
 
 from __future__ import annotations
@@ -13,10 +13,11 @@ from pathlib import Path
 
 from lanecast.io_adapters.errors import UsageError
 from lanecast.io_adapters.files import check_output
-from lanecast.models.serving import check_model
-from lanecast.workflows import bulk
-from lanecast.workflows.annotate_log import AnnotateOptions, read_forecasts_table
-from lanecast.workflows.arguments import MANEUVER_SEQUENCES, MAX_WORKERS, integer, number
+from lanecast.models.runtime import check_model
+from lanecast.workflows.annotation.annotate_log import AnnotateOptions, read_forecasts_table
+from lanecast.workflows.arguments import MANEUVER_SEQUENCES, integer, number
+from lanecast.workflows.bulk import backends
+from lanecast.workflows.bulk import runner as bulk
 from lanecast.workflows.vocabulary import HelpFormatter, add_model_option
 
 
@@ -65,9 +66,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--encoding",
-        choices=("auto", "protobuf", "json"),
+        choices=("auto", "protobuf", "json", "autoware"),
         default="auto",
-        help="SceneUpdate encoding in plain MCAP (default: JSON for all-JSON logs, else protobuf; ROS 2: CDR)",
+        help="SceneUpdate encoding in plain MCAP (default: JSON for all-JSON logs, else protobuf; ROS 2: CDR); "
+        "autoware: as auto, and the forecasts as Autoware PredictedObjects on /lanecast/predicted_objects",
     )
     p.add_argument(
         "--forecasts",
@@ -86,18 +88,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="for damaged MCAP: annotate every intact chunk (the output holds those) and report the loss",
     )
-    p.add_argument("--workers", type=integer(1, MAX_WORKERS), default=1, help="logs annotated in parallel")
-    p.add_argument(
-        "--engine", choices=("local", "ray"), default="local", help="local processes or a Ray cluster"
-    )
-    p.add_argument(
-        "--address",
-        help="Ray: host:port of a cluster's head, or ray://host:10001 (default: RAY_ADDRESS, else the "
-        "cluster `ray start` runs on this machine, else a new local Ray)",
-    )
-    p.add_argument(
-        "--retries", type=integer(0, 100), default=2, help="Ray: retries of a task whose worker died"
-    )
+    backends.add_arguments(p, "logs annotated")
     p.add_argument(
         "--force", action="store_true", help="redo every log, even those the manifest says are done"
     )

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import codecs
+import difflib
 import errno
 import importlib
 import io
@@ -121,6 +122,13 @@ def parse(parser: argparse.ArgumentParser, argv: Sequence[str] | None) -> argpar
     """The arguments; one the command does not take is refused with the command's own usage and name
     (``lanecast demo --bogus`` showed the top-level usage and 'lanecast: error:', as if the
     command were wrong)."""
+    given = list(sys.argv[1:] if argv is None else argv)
+    commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices
+    first = next((a for a in given if not a.startswith("-")), None)
+    if first is not None and first not in commands and given.index(first) == 0:
+        close = difflib.get_close_matches(first, list(commands), n=1, cutoff=0.6)
+        hint = f"; did you mean {close[0]!r}?" if close else ""
+        parser.error(f"unknown command {first!r}{hint} (commands: {', '.join(commands)})")
     args, extra = parser.parse_known_args(argv)
     if extra:
         subcommand(parser, args.command).error(f"unrecognized arguments: {' '.join(extra)}")

@@ -7,18 +7,18 @@ import os
 import time
 from pathlib import Path
 
-from lanecast.io_adapters import registry, streaming
 from lanecast.io_adapters.contracts import track_table
-from lanecast.io_adapters.errors import InputError, OutputError, UsageError
+from lanecast.io_adapters.errors import InputError, UsageError
 from lanecast.io_adapters.files import check_output, check_output_dir
-from lanecast.io_adapters.logs.log_conventions import BAG_FILES
-from lanecast.io_adapters.logs.rosbag_writer import STORAGES
-from lanecast.workflows import engines, heap
-from lanecast.workflows.vocabulary import HelpFormatter, add_location_option
+from lanecast.io_adapters.formats import registry, streaming
+from lanecast.io_adapters.logs.conventions import BAG_FILES
+from lanecast.io_adapters.logs.rosbag.writer import STORAGES
+from lanecast.io_adapters.ownership import check_replaceable_files, check_replaceable_output
+from lanecast.workflows.bulk import backends, freed_memory
+from lanecast.workflows.vocabulary import HelpFormatter, add_force_option, add_location_option
 
 _SUFFIX_TO_FORMAT = {".parquet": "parquet", ".pq": "parquet", ".mcap": "mcap", ".bag": "ros1"}
 _FORMAT_SUFFIXES = {"parquet": (".parquet", ".pq"), "mcap": (".mcap",), "ros1": (".bag",)}
-_FORMAT_MAGIC = {fmt: registry.SUFFIX_MAGIC[suffixes[0]] for fmt, suffixes in _FORMAT_SUFFIXES.items()}
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -77,7 +77,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="Parquet: write a dataset directory, one file per recording or group of small ones "
         "(default: one file)",
     )
-    engines.add_arguments(p, "recordings")
+    backends.add_arguments(p, "recordings processed")
+    add_force_option(p)
     p.set_defaults(func=run)
 
 
@@ -104,23 +105,6 @@ def output_format(out: Path, to: str | None) -> str:
     return fmt
 
 
-def check_replaceable(out: Path, fmt: str) -> None:
-    """An existing file at ``out`` is replaced only if it is a ``fmt`` file (an earlier run's
-    output) or empty: a file of the user's in another format under that name is refused, never
-    overwritten (``--out notes`` replaced a text file with Parquet bytes)."""
-    if not out.is_file():
-        return
-    kind, magic = _FORMAT_MAGIC[fmt]
-    with out.open("rb") as fh:
-        head = fh.read(len(magic))
-    if head and head != magic:
-        raise OutputError(
-            out,
-            f"exists and is not {kind}, so it is not replaced",
-            expected="a new --out path, or remove the file first",
-        )
-
-
 def run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     options: dict[str, object] = {}
@@ -134,13 +118,19 @@ def run(args: argparse.Namespace) -> int:
     directory = fmt == "ros2" or (fmt == "parquet" and args.partition)
     if directory:  # a directory holding a user's files is refused before the work, not after it
         check_output_dir(args.out, replaces=BAG_FILES if fmt == "ros2" else streaming.PARTS)
+        if fmt == "ros2" and args.out.is_dir() and any(args.out.iterdir()):
+            check_replaceable_output(args.out, force=args.force)  # a user's own bag is not replaced
+        elif args.out.is_dir():
+            check_replaceable_files(
+                args.out, tuple(p.name for p in args.out.glob("*.parquet")), force=args.force
+            )
     else:
         check_output(args.out)
-        check_replaceable(args.out, fmt)
+        check_replaceable_output(args.out, force=args.force)
     if os.path.realpath(args.out) in {os.path.realpath(p) for p in args.inputs}:
         raise InputError(args.out, "the output would overwrite an input", expected="a new output path")
-    engines.check(args.workers, args.engine)
-    heap.keep_freed_memory()  # pieces reuse what the previous one freed
+    backends.check(args.workers, args.engine)
+    freed_memory.keep_freed_memory()  # pieces reuse what the previous one freed
     if fmt != "parquet":  # drive logs are written from the whole table
         table = registry.read_any(args.inputs, fmt=args.format, **options)
         path = registry.write_any(
@@ -156,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
                 raise InputError(
                     ", ".join(map(str, args.inputs)), "no rows", expected="at least one row to convert"
                 )
-            ordered_map = engines.mapper_from_args(args, args.inputs, args.out)
+            ordered_map = backends.mapper_from_args(args, args.inputs, args.out)
             rows, tracks = streaming.convert(pieces, args.out, directory=directory, ordered_map=ordered_map)
         path = args.out
     print(f"wrote {path} ({fmt}): {rows:,} rows, {tracks:,} tracks in {time.perf_counter() - started:.1f} s")

@@ -12,19 +12,19 @@ import shlex
 import time
 from pathlib import Path
 
-from lanecast.io_adapters import registry
 from lanecast.io_adapters.contracts import track_table
-from lanecast.io_adapters.datasets import highd
+from lanecast.io_adapters.contracts.track_summary import summarise
+from lanecast.io_adapters.datasets.highd import reader as highd
 from lanecast.io_adapters.errors import InputError, OutputError
 from lanecast.io_adapters.files import check_output
+from lanecast.io_adapters.formats import registry
 from lanecast.io_adapters.sim.recording import simulate
 from lanecast.io_adapters.sim.scenarios import DRIVING
 from lanecast.io_adapters.sim.sumo_highway import HighwayConfig
-from lanecast.workflows.annotate_log import AnnotateOptions
-from lanecast.workflows.bulk import run_bulk
-from lanecast.workflows.log_report import report_logs
-from lanecast.workflows.manifest import Manifest
-from lanecast.workflows.table_summary import summarise
+from lanecast.workflows.annotation.annotate_log import AnnotateOptions
+from lanecast.workflows.annotation.log_scores import report_logs
+from lanecast.workflows.bulk.manifest import Manifest
+from lanecast.workflows.bulk.runner import run_bulk
 from lanecast.workflows.vocabulary import HelpFormatter, add_model_option
 
 # A seed the shipped weights never saw (benchmarks/train_shipped.py trains on seeds 11-15, tests on 901-902).

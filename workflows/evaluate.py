@@ -11,11 +11,11 @@ from pathlib import Path
 
 import numpy as np
 
-from lanecast.io_adapters.contracts.windows import load_windows
 from lanecast.io_adapters.errors import InputError
-from lanecast.io_adapters.files import check_output_dir, staged_files
+from lanecast.io_adapters.files import activity, check_output_dir, staged_files
+from lanecast.io_adapters.windows_store.dataset import load_windows
 from lanecast.models.baselines import constant_acceleration, constant_velocity
-from lanecast.models.card import resolve
+from lanecast.models.card import provenance, provenance_line, resolve
 from lanecast.models.evaluation import (
     always_straight,
     evaluate,
@@ -24,10 +24,11 @@ from lanecast.models.evaluation import (
     speed_band_note,
     write_metrics,
 )
-from lanecast.models.forecaster import Forecaster
-from lanecast.models.report import write_report
+from lanecast.models.predictions import Forecaster
+from lanecast.models.reports.document import write_report
+from lanecast.models.reports.tables import headline, model_name
 from lanecast.workflows.arguments import MANEUVER_SEQUENCES, MAX_EXAMPLES, integer
-from lanecast.workflows.vocabulary import HelpFormatter, add_model_option
+from lanecast.workflows.vocabulary import HelpFormatter, add_force_option, add_model_option
 
 SPLITS = {"test": ("test",), "val": ("val",), "all": ("train", "val", "test", "none")}
 
@@ -64,6 +65,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--examples", type=integer(0, MAX_EXAMPLES), default=4, help="example scenes in the report"
     )
     p.add_argument("--batch-size", type=integer(1, 1 << 20), default=4096, help="windows per inference batch")
+    add_force_option(p)
     p.set_defaults(func=run)
 
 
@@ -72,7 +74,9 @@ def run(args: argparse.Namespace) -> int:
 
     from lanecast.models.predict import STCNNForecaster
 
-    check_output_dir(args.out, files=("metrics.json", "report.md", "report.html"))  # before the work
+    check_output_dir(
+        args.out, files=("metrics.json", "report.md", "report.html"), force=args.force
+    )  # before the work
     torch.set_num_threads(max(1, min(2, torch.get_num_threads())))
     windows = load_windows(args.windows, check_values=True)
     forecasters: list[Forecaster] = [
@@ -83,15 +87,18 @@ def run(args: argparse.Namespace) -> int:
     if args.regression_only is not None:
         forecasters.append(STCNNForecaster.load(args.regression_only, "stcnn_regression_only"))
     try:
-        metrics, preds, idx = evaluate(
-            windows, forecasters, splits=SPLITS[args.split], top_k=args.top_k, batch_size=args.batch_size
-        )
+        with activity(f"evaluate: {len(forecasters)} forecasters on the {args.split} windows"):
+            metrics, preds, idx = evaluate(
+                windows, forecasters, splits=SPLITS[args.split], top_k=args.top_k, batch_size=args.batch_size
+            )
     except InputError as exc:  # e.g. no labelled windows in the split: in the dataset given
         raise exc.naming(args.windows) from exc
     meta = {
         "windows": str(args.windows),
         "split": args.split,
-        "model": str(resolve(args.model)[1]),
+        "model": (prov := provenance(args.model))["model"],
+        "model_sha256": prov["sha256"],
+        "model_trained_on": prov["trained_on"],
         "regression_only_model": None
         if args.regression_only is None
         else str(resolve(args.regression_only)[1]),
@@ -103,25 +110,31 @@ def run(args: argparse.Namespace) -> int:
     if ood_note is not None:
         meta["out_of_distribution"] = ood_note
     scenes = example_scenes(windows, idx, preds["stcnn"], args.examples)
-    with staged_files(args.out) as stage:  # an interrupted run leaves none of the report's files
-        write_metrics(stage / "metrics.json", metrics, meta)
-        write_report(stage, metrics, meta, scenes)
+    with staged_files(
+        args.out, force=args.force
+    ) as stage:  # an interrupted run leaves none of the report's files
+        with activity("evaluate: writing the report and its figures"):
+            write_metrics(stage / "metrics.json", metrics, meta)
+            write_report(stage, metrics, meta, scenes)
     share = "" if args.split == "all" else f" of {len(windows):,}"
-    print(f"evaluated {len(idx):,}{share} windows ({args.split}); RMSE per window at 1-5 s (m):")
+    for line in headline(metrics):
+        print(line)
+    print(f"evaluated {len(idx):,}{share} windows ({args.split}); {provenance_line(prov)}")
+    print("RMSE per window at 1-5 s (m):")
     for name, m in metrics.items():
         rmse = " ".join("–" if v is None else f"{v:.2f}" for v in m["rmse"])
         f1, acc = m["maneuver_macro_f1"], m["maneuver_accuracy"]
         maneuvers = "" if f1 is None else f"   macro-F1 {f1:.3f}, accuracy {acc:.3f}"
-        print(f"  {name:<24}{rmse}{maneuvers}")
+        print(f"  {model_name(name):<28}{rmse}{maneuvers}")
     straight = meta["always_straight"]
     print(
-        f"  {'always straight':<24}{'':<24}   macro-F1 {straight['maneuver_macro_f1']:.3f}, "
+        f"  {'always straight':<28}{'':<24}   macro-F1 {straight['maneuver_macro_f1']:.3f}, "
         f"accuracy {straight['maneuver_accuracy']:.3f}"
     )
     print("  (macro-F1 over the maneuver classes present or predicted: a false lane change counts)")
     band_note = speed_band_note(metrics)
     if band_note is not None:
-        print(f"by target speed, stcnn: {band_note} (report: By target speed)")
+        print(f"by target speed, {model_name('stcnn')}: {band_note} (report: By target speed)")
     print(f"wrote {args.out / 'metrics.json'}, report.md, report.html")
     if args.split != "all" and len(idx) < len(windows):
         print(

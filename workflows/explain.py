@@ -17,17 +17,19 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from lanecast.io_adapters import registry
-from lanecast.io_adapters.contracts.windows import DATASET_FILES, HISTORY, Windows, load_windows
+from lanecast.io_adapters.contracts.windows import DATASET_FILES, HISTORY, Windows
 from lanecast.io_adapters.errors import InputError
-from lanecast.io_adapters.files import check_output_dir, staged_files
+from lanecast.io_adapters.files import activity, check_output_dir, staged_files
+from lanecast.io_adapters.formats import registry
+from lanecast.io_adapters.windows_store.dataset import load_windows
+from lanecast.models.card import provenance, provenance_line
 from lanecast.models.explain import parse_removals, present_neighbours, what_if
-from lanecast.models.explain_report import write_explain
-from lanecast.models.serving import load_forecaster
+from lanecast.models.reports.explain import write_explain
+from lanecast.models.runtime import load_forecaster
 from lanecast.pipeline.make_windows import make_windows
 from lanecast.pipeline.neighbours import NEIGHBOUR_RANGE_M
 from lanecast.workflows.arguments import MANEUVER_SEQUENCES, MAX_TIME_S, integer, number
-from lanecast.workflows.vocabulary import HelpFormatter, add_model_option
+from lanecast.workflows.vocabulary import HelpFormatter, add_force_option, add_model_option
 
 STEP_NS = 100_000_000  # windows sit on the 10 Hz grid
 
@@ -78,6 +80,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--top-k", type=integer(1, MANEUVER_SEQUENCES), default=3, help="maneuver sequences drawn per scene"
     )
+    add_force_option(p)
     p.set_defaults(func=run)
 
 
@@ -201,7 +204,7 @@ def no_window_in_table(
 
 
 def run(args: argparse.Namespace) -> int:
-    check_output_dir(args.out, files=("explain.json", "explain.html"))  # before the work
+    check_output_dir(args.out, files=("explain.json", "explain.html"), force=args.force)  # before the work
     forecaster = load_forecaster(args.model)
     card: dict[str, Any] = getattr(forecaster, "card", None) or {}
     windows, i = window_of(args, card)
@@ -214,7 +217,8 @@ def run(args: argparse.Namespace) -> int:
         removals += [(n,) for n in present_neighbours(present) if (n,) not in removals]
     if not removals:
         raise InputError(args.input, "the target has no neighbour in this window: nothing to remove")
-    whatif = what_if(forecaster, inputs, present, removals, top_k=args.top_k)
+    with activity(f"explain: forecasts with {len(removals)} neighbour removal(s)"):
+        whatif = what_if(forecaster, inputs, present, removals, top_k=args.top_k)
     row = windows.index.slice(i, 1).to_pylist()[0]
     window = {
         "source": str(args.input),
@@ -223,9 +227,10 @@ def run(args: argparse.Namespace) -> int:
         "t0_s": row["t0_ns"] / 1e9,
         "neighbours": present_neighbours(present),
     }
-    model = str(args.model) if args.model else "the shipped model"
-    with staged_files(args.out) as stage:  # an interrupted run leaves none of its files
-        page = write_explain(stage, whatif, window, model, np.asarray(windows.future[i]))
+    model = provenance_line(provenance(args.model)).removeprefix("model: ")
+    with staged_files(args.out, force=args.force) as stage:  # an interrupted run leaves none of its files
+        with activity("explain: drawing the scenes"):
+            page = write_explain(stage, whatif, window, model, np.asarray(windows.future[i]))
     page = args.out / page.relative_to(stage)
     effects = {e["scenario"]: e for e in whatif.effects()}
     print(

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from lanecast.io_adapters.files import activity
 from lanecast.models.card import read_card
 
 FORMATS = ("onnx",)
@@ -39,7 +40,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from lanecast.models.onnx_export import export_onnx
 
-    path = export_onnx(args.model, args.out)
+    with activity("export: tracing the model to ONNX and checking it against torch"):
+        path = export_onnx(args.model, args.out)
     section = read_card(path.with_suffix(".json"))["onnx"]
     print(
         f"wrote {path} (opset {section['opset']}, {path.stat().st_size / 1e3:.0f} kB; "

@@ -5,10 +5,11 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from lanecast.io_adapters import registry
 from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.contracts.track_summary import summarise
+from lanecast.io_adapters.formats import registry
+from lanecast.io_adapters.logs.topics import log_topics
 from lanecast.pipeline.traffic import traffic_statistics
-from lanecast.workflows.table_summary import summarise
 from lanecast.workflows.vocabulary import HelpFormatter, add_location_option
 
 
@@ -72,9 +73,21 @@ def run(args: argparse.Namespace) -> int:
             f"lat. acc. {lateral}; "
             f"{st['speed_dips_per_vehicle_min']:.2f} speed dips per vehicle-minute"
         )
+    for path in map(Path, args.paths):
+        if path.suffix.lower() in (".mcap", ".bag") or (path / "metadata.yaml").is_file():
+            print_topics(path)
     total_tracks = sum(int(r["tracks"]) for r in rows)  # type: ignore[call-overload]
     total_changes = sum(int(r["lane_changes"]) for r in rows)  # type: ignore[call-overload]
     print(
         f"  total: {len(rows)} recordings, {total_tracks:,} tracks, {table.num_rows:,} rows, {total_changes:,} lane changes"
     )
     return 0
+
+
+def print_topics(path: Path) -> None:
+    """A log's topics with their message types and counts (lanecast's own forecasts among them)."""
+    topics = log_topics(path)
+    print(f"  topics of {path} ({len(topics)}; messages, type, encoding):")
+    width = max([24, *(len(t.topic) + 2 for t in topics)])
+    for t in topics:
+        print(f"    {t.topic:<{width}}{t.messages:>9,}  {t.message_type or '(no schema)'} ({t.encoding})")

@@ -123,7 +123,7 @@ def run(args: argparse.Namespace) -> int:
     print(
         f"wrote {out}: {', '.join(names.values())}; {summary['vehicles']:,} vehicles "
         f"({summary['cars']:,} cars, {summary['trucks']:,} trucks), {summary['lane_changes']:,} lane changes, "
-        f"{args.minutes:g} simulated minutes"
+        f"{args.minutes:g} simulated minute{'' if args.minutes == 1 else 's'}"
         + (f" of scenario {args.scenario}" if args.scenario else "")
         + f" in {time.perf_counter() - started:.1f} s"
     )

@@ -12,9 +12,10 @@ import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from lanecast.io_adapters.contracts.windows import load_windows
 from lanecast.io_adapters.errors import InputError, UsageError
 from lanecast.io_adapters.files import check_output_dir
+from lanecast.io_adapters.windows_store.dataset import load_windows
+from lanecast.models.baselines import constant_velocity
 from lanecast.models.card import read_card, resolve
 from lanecast.models.evaluation import evaluate
 
@@ -22,7 +23,7 @@ if TYPE_CHECKING:
     from lanecast.models.finetune import FinetuneOptions
     from lanecast.models.train import TrainConfig
 
-from lanecast.workflows.vocabulary import HelpFormatter
+from lanecast.workflows.vocabulary import HelpFormatter, add_force_option
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -51,22 +52,32 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--out", type=Path, required=True, metavar="MODEL_DIR", help="where to write the model")
     p.add_argument("--config", type=Path, metavar="FILE", help="training config, JSON")
-    shipped = "(default: the shipped model's, see --config)"
-    p.add_argument("--epochs", type=int, help=f"passes over the training windows {shipped}")
-    p.add_argument("--seed", type=int, help=f"seed of initialisation and shuffling {shipped}")
-    p.add_argument("--batch-size", type=int, help=f"windows per batch {shipped}")
-    p.add_argument("--lr", type=float, help=f"Adam's learning rate {shipped}")
+    defaults = shipped_defaults()
+
+    def shipped(key: str) -> str:
+        value = defaults.get(key)
+        return (
+            "(default: the shipped model's, see --config)"
+            if value is None
+            else f"(default: {value}, the shipped model's)"
+        )
+
+    p.add_argument("--epochs", type=int, help=f"passes over the training windows {shipped('epochs')}")
+    p.add_argument("--seed", type=int, help=f"seed of initialisation and shuffling {shipped('seed')}")
+    p.add_argument("--batch-size", type=int, help=f"windows per batch {shipped('batch_size')}")
+    p.add_argument("--lr", type=float, help=f"Adam's learning rate {shipped('lr')}")
     p.add_argument("--threads", type=int, help="CPU threads (default: 2)")
     p.add_argument("--device", help="auto (GPU when there is one), cpu, cuda, ... (default: auto)")
     p.add_argument(
         "--class-weight-power",
         type=float,
-        help=f"weight the classifier's NLL by (1/class frequency)^POWER (0: the paper's plain NLL) {shipped}",
+        help="weight the classifier's NLL by (1/class frequency)^POWER (0: the paper's plain NLL) "
+        + shipped("class_weight_power"),
     )
     p.add_argument(
         "--select-classifier",
         choices=("nll", "macro_f1"),
-        help=f"validation criterion for the classifier's epoch {shipped}",
+        help=f"validation criterion for the classifier's epoch {shipped('select_classifier')}",
     )
     p.add_argument(
         "--regression-only", action="store_true", help="regressor without maneuver input (ablation)"
@@ -96,7 +107,17 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="M",
         help="augmentation: Gaussian noise (std, m) on the x, y inputs of training batches (default 0)",
     )
+    add_force_option(p)
     p.set_defaults(func=run)
+
+
+def shipped_defaults() -> dict[str, Any]:
+    """The shipped model's training settings, read from its card (torch-free: for ``--help``)."""
+    try:
+        config = read_card(resolve(None)[1])["training"]["config"]
+    except (InputError, KeyError, TypeError):
+        return {}
+    return config if isinstance(config, dict) else {}
 
 
 def default_config() -> TrainConfig:
@@ -211,9 +232,11 @@ def train_and_save(
     metrics: dict[str, Any] = {}
     for name, splits in (("validation", ("val",)), ("test", ("test",))):
         try:
-            metrics[name] = evaluate(windows, [forecaster], splits=splits, top_k=top_k)[0]["stcnn"]
+            scores = evaluate(windows, [forecaster, constant_velocity()], splits=splits, top_k=top_k)[0]
         except InputError:  # no labelled windows in that split
             metrics[name] = None
+            continue
+        metrics[name] = {**scores["stcnn"], "constant_velocity_rmse": scores["cv"]["rmse"]}
     card = {**result.card, "metrics": metrics}
     save_checkpoint(result.model, card, out)
     return card
@@ -222,7 +245,9 @@ def train_and_save(
 def run(args: argparse.Namespace) -> int:
     from lanecast.models.train import TrainConfig
 
-    check_output_dir(args.out, files=("stcnn.safetensors", "stcnn.json"))  # before minutes of training
+    check_output_dir(
+        args.out, files=("stcnn.safetensors", "stcnn.json"), force=args.force
+    )  # before minutes of training
     config = TrainConfig.from_file(args.config) if args.config else default_config()
     names = (
         "epochs",
@@ -248,22 +273,12 @@ def run(args: argparse.Namespace) -> int:
     if args.regression_only:
         config = dataclasses.replace(config, model=dataclasses.replace(config.model, maneuver_input=False))
     card = train_and_save(args.windows, args.out, config, init=args.init, keep=keep and keep[0])
-    t = card["training"]
-    print(
-        f"trained {t['data']['train_windows']:,} windows x {config.epochs} epochs in {t['train_seconds']:.0f} s "
-        f"({t['train_samples_per_s']:,.0f} samples/s); best epochs {t['best_epoch']}"
-    )
-    for name, m in card["metrics"].items():
-        if m:
-            rmse = " ".join(f"{v:.2f}" for v in m["rmse"])
-            print(
-                f"  {name}: RMSE 1-5 s {rmse} m, maneuver accuracy {m['maneuver_accuracy']:.3f}, "
-                f"macro-F1 {m['maneuver_macro_f1']:.3f}"
-            )
+    for line in summary(card, config.epochs):
+        print(line)
     if card.get("finetune"):
-        from lanecast.models.finetune import summary
+        from lanecast.models.finetune import summary as finetune_summary
 
-        print(f"  {summary(card)}")
+        print(f"  {finetune_summary(card)}")
     print(f"wrote {args.out}/stcnn.safetensors and stcnn.json")
     return 0
 
@@ -293,3 +308,36 @@ def finetune_options(
         keys = jf.loads(args.config.read_bytes(), "config")
         preset = {k: v for k, v in preset.items() if k not in keys}
     return FinetuneOptions(**given), dataclasses.replace(config, **preset)
+
+
+def summary(card: dict[str, Any], epochs: int) -> list[str]:
+    """What a training run says: its size, the best epochs, each split's RMSE beside constant
+    velocity's, and a warning where the classifier had no lane change to learn from."""
+    t = card["training"]
+    best = t["best_epoch"]
+    lines = [
+        f"trained {t['data']['train_windows']:,} windows x {epochs} epochs in {t['train_seconds']:.0f} s "
+        f"({t['train_samples_per_s']:,.0f} samples/s); best epochs: classifier {best['classifier']}, "
+        f"regressor {best['regressor']}"
+    ]
+    for name, m in card["metrics"].items():
+        if not m:
+            continue
+        rmse = " ".join(f"{v:.2f}" for v in m["rmse"])
+        cv = m.get("constant_velocity_rmse")
+        versus = ""
+        if cv:
+            ratio = m["rmse"][-1] / cv[-1] if cv[-1] > 0 else float("nan")
+            versus = f" (constant velocity {' '.join(f'{v:.2f}' for v in cv)} m; {ratio:.2f}x at 5 s)"
+        lines.append(
+            f"  {name}: RMSE 1-5 s {rmse} m{versus}, maneuver accuracy {m['maneuver_accuracy']:.3f}, "
+            f"macro-F1 {m['maneuver_macro_f1']:.3f}"
+        )
+    counts = t["data"].get("train_maneuver_counts") or []
+    if len(counts) == 3 and counts[1] + counts[2] == 0:
+        lines.append(
+            f"  note: the training split holds no lane change ({counts[0]:,} straight steps): the classifier "
+            "had nothing but 'straight' to learn, and a validation macro-F1 near 1 is trivial; add "
+            "recordings with lane changes, or fine-tune the shipped model (--init default)"
+        )
+    return lines

@@ -10,7 +10,7 @@ import argparse
 import copy
 from pathlib import Path
 
-# NGSIM's locations (lanecast.io_adapters.datasets.ngsim.FREEWAYS + ARTERIALS, which a test checks);
+# NGSIM's locations (lanecast.io_adapters.datasets.ngsim.reader.FREEWAYS + ARTERIALS, which a test checks);
 # spelled out here so that `--help` does not import the reader.
 NGSIM_LOCATIONS = ("us-101", "i-80", "lankershim", "peachtree")
 
@@ -51,4 +51,14 @@ def add_location_option(parser: argparse.ArgumentParser) -> None:
         choices=NGSIM_LOCATIONS,
         help="NGSIM: the location of the .txt files (default: from the file or folder name; NGSIM's own "
         "trajectories-0750am-0805am.txt … are US-101, trajectories-0400-0415.txt … I-80)",
+    )
+
+
+def add_force_option(parser: argparse.ArgumentParser) -> None:
+    """``--force``: replace existing outputs that lanecast did not write (refused by default)."""
+    parser.add_argument(
+        "--force",
+        action="store_true",
+        help="replace an existing output of the same name that lanecast did not write (by default such a "
+        "file is named and refused, never overwritten; lanecast's own earlier outputs are replaced)",
     )

@@ -6,12 +6,12 @@ import argparse
 import time
 from pathlib import Path
 
-from lanecast.io_adapters import registry, streaming
 from lanecast.io_adapters.contracts.windows import DATASET_FILES
-from lanecast.io_adapters.files import check_output_dir
+from lanecast.io_adapters.files import activity, check_output_dir
+from lanecast.io_adapters.formats import registry, streaming
 from lanecast.pipeline.make_windows import WindowOptions, write_windows
-from lanecast.workflows import engines, heap
 from lanecast.workflows.arguments import MAX_SEED, integer, number
+from lanecast.workflows.bulk import backends, freed_memory
 from lanecast.workflows.vocabulary import HelpFormatter, add_location_option
 
 
@@ -24,7 +24,7 @@ def register(sub: argparse._SubParsersAction) -> None:
             "5 s future, every --stride frames), label maneuvers, split by track, and write the dataset "
             "directory training memory-maps: inputs.npy, present.npy, future.npy, maneuver.npy, "
             "windows.parquet, manifest.json. Windows never span a gap in a track. Streams: one recording "
-            "(or a group of small ones, or a chunk of whole tracks of a long one with the traffic "
+            "(or a group of small ones, or a group of whole tracks of a long one with the traffic "
             "around them) at a time is read, cut and appended to the dataset on disk, so memory "
             "stays bounded whatever the dataset or recording length; the directory appears only "
             "when complete. --workers/--engine ray spread recordings over processes or a cluster with "
@@ -45,7 +45,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--format", choices=sorted(registry.READERS), help="input format (default: detected)")
     add_location_option(p)
     p.add_argument(
-        "--split", choices=("pip", "hash", "none"), default="pip", help="split by track (default: pip)"
+        "--split",
+        choices=("pip", "hash", "none"),
+        default="pip",
+        help="split by track into train/val/test, 70/10/20: pip = the PiP convention (Song et al., ECCV 2020; "
+        "by vehicle id within each recording: the lowest 70 %% of the id range train, the next 10 %% val, "
+        "the rest test), hash = a seeded hash of (recording, track), none = every track in split 'none' "
+        "(default: pip)",
     )
     p.add_argument("--seed", type=integer(0, MAX_SEED), default=0, help="seed of the hash split (default: 0)")
     p.add_argument(
@@ -69,7 +75,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="also cut windows without 5 s of future (future NaN, maneuver -1 where unknown)",
     )
-    engines.add_arguments(p, "recordings")
+    backends.add_arguments(p, "recordings processed")
     p.set_defaults(func=run)
 
 
@@ -77,35 +83,41 @@ def run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     # before the work: a file there, or a directory holding a user's files, was refused at the end
     check_output_dir(args.out, replaces=DATASET_FILES)
-    engines.check(args.workers, args.engine)
-    heap.keep_freed_memory(arrow=True)  # pieces reuse what the previous one freed
+    backends.check(args.workers, args.engine)
+    freed_memory.keep_freed_memory(arrow=True)  # pieces reuse what the previous one freed
     with streaming.spill_directory(args.out) as spill:  # NGSIM exports: a spill per recording
         options = {"location": args.location} if args.location else {}
         pieces = streaming.plan(
             args.table, fmt=args.format, spill_dir=spill.path, options=options, long="context"
         )
-        ordered_map = engines.mapper_from_args(args, args.table, args.out)
-        windows = write_windows(
-            pieces,
-            args.out,
-            WindowOptions(
-                stride=args.stride,
-                require_future=not args.no_future,
-                split=args.split,
-                seed=args.seed,
-                neighbours=args.neighbours,
-                neighbour_range=args.neighbour_range,
-            ),
-            ordered_map=ordered_map,
-            sources={"inputs": [str(Path(p)) for p in args.table]},
-        )
+        ordered_map = backends.mapper_from_args(args, args.table, args.out)
+        count = f"{len(pieces):,} piece" + ("s" if len(pieces) != 1 else "")
+        with activity(f"windows: resampling, neighbours and tensors of {count}"):
+            windows = write_windows(
+                pieces,
+                args.out,
+                WindowOptions(
+                    stride=args.stride,
+                    require_future=not args.no_future,
+                    split=args.split,
+                    seed=args.seed,
+                    neighbours=args.neighbours,
+                    neighbour_range=args.neighbour_range,
+                ),
+                ordered_map=ordered_map,
+                sources={"inputs": [str(Path(p)) for p in args.table]},
+            )
     m = windows.manifest
     counts = ", ".join(f"{k} {v:,}" for k, v in m["counts"].items() if v)
     labels = ", ".join(f"{k} {v:,}" for k, v in m["label_distribution"].items())
+    pieces_read = f"{len(pieces):,} piece" + ("s" if len(pieces) != 1 else "")
     print(
-        f"wrote {args.out}: {len(windows):,} windows ({counts}) from {len(pieces):,} piece(s) "
+        f"wrote {args.out}: {len(windows):,} windows ({counts}) from {pieces_read} "
         f"in {time.perf_counter() - started:.1f} s"
     )
+    skew = split_skew(m["counts"], args.split)
+    if skew:
+        print(f"  note: {skew}")
     print(f"  maneuver labels (all steps): {labels}")
     methods = sorted(
         {r["neighbour_method"] for r in m["sources"]["recordings"].values() if r["neighbour_method"]}
@@ -114,3 +126,21 @@ def run(args: argparse.Namespace) -> int:
     for name, why in m["skipped_recordings"].items():
         print(f"  skipped {name}: {why}")
     return 0
+
+
+def split_skew(counts: dict[str, int], method: str) -> str | None:
+    """A word when a 70/10/20 split came out far from it (the pip split follows vehicle ids, so one
+    outlier id, e.g. 9999 among ids up to 300, moves nearly every track into train)."""
+    total = sum(counts.get(s, 0) for s in ("train", "val", "test"))
+    if method == "none" or total < 50:
+        return None
+    shares = [counts.get(s, 0) / total for s in ("train", "val", "test")]
+    if all(abs(share - target) <= 0.1 for share, target in zip(shares, (0.7, 0.1, 0.2), strict=True)):
+        return None
+    percent = " / ".join(f"{100 * share:.0f}" for share in shares)
+    advice = (
+        " (pip follows vehicle ids: an outlier id stretches the range; --split hash does not)"
+        if method == "pip"
+        else ""
+    )
+    return f"the {method} split came out {percent} % train / val / test, not 70 / 10 / 20{advice}"

@@ -146,6 +146,12 @@ def record_lines(data: bytes, whitespace: bool = False) -> tuple[np.ndarray, np.
     return np.flatnonzero(keep).astype(np.int64) + 1, counts[keep]
 
 
+def row_line(path: Path, row: int, *, header: bool = True, whitespace: bool = False) -> int:
+    """The 1-based editor line of the parser's ``row``-th data record of ``path`` (``header``: the
+    first record is the header line). Reads the file: for the error path only."""
+    return int(record_lines(path.read_bytes(), whitespace)[0][row + int(header)])
+
+
 def check_field_counts(path: Path, data: bytes, names: Sequence[str], *, whitespace: bool = False) -> None:
     """Raise InputError at the first read line whose number of fields is not ``len(names)``.
 

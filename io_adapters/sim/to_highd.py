@@ -38,7 +38,7 @@ from lanecast.io_adapters.contracts.track_runs import (
     row_extent,
     run_starts,
 )
-from lanecast.io_adapters.datasets.highd import NEIGHBOURS
+from lanecast.io_adapters.datasets.highd.reader import NEIGHBOURS
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.sim.slow_signals import sinusoid_sum
 from lanecast.io_adapters.sim.sumo_highway import HighwayConfig, Samples

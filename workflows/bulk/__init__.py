@@ -1,0 +1,1 @@
+"""Runs over many inputs: bulk annotation (manifest, resume) and the backends its tasks run on."""
