@@ -159,7 +159,7 @@ def main() -> int:
     ap.add_argument("--epochs", type=int, default=None, help="default: lanecast.models.finetune's")
     ap.add_argument("--lrs", type=float, nargs="+", default=None, help="default: lanecast.models.finetune's")
     ap.add_argument("--methods", nargs="+", default=["none", "l2sp", "replay", "l2sp+replay"])
-    ap.add_argument("--l2sp-weights", type=float, nargs="+", default=[0.01])
+    ap.add_argument("--l2sp-weights", type=float, nargs="+", default=None, help="default: FinetuneOptions'")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument(
         "--classifier",
@@ -219,7 +219,7 @@ def main() -> int:
     runs: dict[str, Any] = {}
     for lr in args.lrs or [FINETUNE_LR]:
         for method in args.methods:
-            for weight in args.l2sp_weights if "l2sp" in method else [0.0]:
+            for weight in (args.l2sp_weights or [FinetuneOptions.l2sp_weight]) if "l2sp" in method else [0.0]:
                 name = f"{method}{f' α={weight:g}' if weight else ''} lr={lr:g}"
                 opts = FinetuneOptions(
                     keep_base=method,
