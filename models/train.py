@@ -278,6 +278,7 @@ def train(
     classifier_from: STCNN | None = None,
     transform: Callable[[np.ndarray], np.ndarray] | None = None,
     init_from: tuple[STCNN, dict[str, Any]] | None = None,
+    penalty: Callable[[str, torch.nn.Module], torch.Tensor] | None = None,
 ) -> TrainResult:
     """Train both networks on the ``train`` split, validating on ``val`` each epoch; keep the best epochs.
 
@@ -289,7 +290,9 @@ def train(
     from that model's weights and keeping its normalisation (input and offset statistics): the
     trained filters expect inputs scaled as in their training, and recomputing the statistics on
     a small new dataset would shift every input the network sees before the first step. (The best
-    epoch is then chosen among the fine-tuning epochs.) Reproducible for a seed on a given machine
+    epoch is then chosen among the fine-tuning epochs.) ``penalty(name, network)``: a term added
+    to the loss of the network "classifier" or "regressor" (``lanecast.models.finetune.L2SP``),
+    not to the losses the history reports. Reproducible for a seed on a given machine
     and thread count. Raises InputError when there is nothing to train on.
     """
     config = config or TrainConfig()
@@ -367,7 +370,7 @@ def train(
                 logits = model.classifier(x)
                 loss_c = classifier_loss(logits, m, weight_t)
                 opt_c.zero_grad(set_to_none=True)
-                loss_c.backward()
+                (loss_c if penalty is None else loss_c + penalty("classifier", model.classifier)).backward()
                 opt_c.step()
             else:
                 with torch.no_grad():
@@ -379,7 +382,7 @@ def train(
                 m_in = torch.where(use_predicted.to(m.device)[:, None], logits.detach().argmax(dim=2), m)
             loss_r = regressor_loss(model.regressor(x, m_in), y, step_weight_t)
             opt_r.zero_grad(set_to_none=True)
-            loss_r.backward()
+            (loss_r if penalty is None else loss_r + penalty("regressor", model.regressor)).backward()
             opt_r.step()
             for schedule in schedules:
                 schedule.step()

@@ -20,6 +20,7 @@ from lanecast.models.card import read_card, resolve
 from lanecast.models.evaluation import evaluate
 
 if TYPE_CHECKING:
+    from lanecast.models.finetune import FinetuneOptions
     from lanecast.models.train import TrainConfig
 
 from lanecast.workflows.vocabulary import HelpFormatter, add_force_option
@@ -86,6 +87,19 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="MODEL_DIR",
         help="fine-tune: start from this model's weights ('default': the shipped model) and keep its "
         "normalisation; the architecture is the init model's",
+    )
+    p.add_argument(
+        "--keep-base",
+        choices=("l2sp+replay", "replay", "l2sp", "none"),
+        help="with --init: how fine-tuning keeps the init model's skills: rehearse its training data "
+        "(its replay set) and/or an L2-SP penalty towards its weights; none: plain fine-tune "
+        "(default: l2sp+replay; lr 3e-4 and 6 epochs unless given)",
+    )
+    p.add_argument(
+        "--classifier",
+        choices=("auto", "train", "freeze"),
+        help="with --init: freeze keeps the init model's classifier; auto fine-tunes it where the new "
+        "data holds at least 50 lane-change windows (default: freeze)",
     )
     p.add_argument(
         "--position-noise",
@@ -177,10 +191,17 @@ def check_config(config: TrainConfig, options: dict[str, Any], file: Path | None
 
 
 def train_and_save(
-    windows_dir: Path, out: Path, config: TrainConfig, *, top_k: int = 3, init: str | None = None
+    windows_dir: Path,
+    out: Path,
+    config: TrainConfig,
+    *,
+    top_k: int = 3,
+    init: str | None = None,
+    keep: FinetuneOptions | None = None,
 ) -> dict[str, Any]:
     """Train (from the weights of model ``init`` if given, "default" = the shipped model), evaluate
-    on val and test (if present), save; return the card."""
+    on val and test (if present), save; return the card. ``keep``: how a fine-tune keeps the init
+    model's skills (lanecast.models.finetune; default FinetuneOptions())."""
     from lanecast.models.checkpoint import save_checkpoint
     from lanecast.models.predict import STCNNForecaster
     from lanecast.models.train import train
@@ -199,7 +220,12 @@ def train_and_save(
         config = dataclasses.replace(config, model=init_from[0].config)
         data["init"] = "shipped model" if init == "default" else str(init)
     try:
-        result = train(windows, config, data_card=data, init_from=init_from)
+        if init_from is not None and init is not None:
+            from lanecast.models.finetune import FinetuneOptions, finetune_from
+
+            result = finetune_from(init, windows, config, keep or FinetuneOptions(), data)
+        else:
+            result = train(windows, config, data_card=data, init_from=init_from)
     except InputError as exc:  # e.g. no labelled training windows: in the dataset given
         raise exc.naming(windows_dir) from exc
     forecaster = STCNNForecaster(result.model, result.card)
@@ -241,13 +267,47 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:  # TrainConfig's own range checks
         raise UsageError("training options", str(exc)) from exc
     check_config(config, overrides, args.config)
+    keep = finetune_options(args, config, overrides)
+    if keep is not None:
+        config = keep[1]
     if args.regression_only:
         config = dataclasses.replace(config, model=dataclasses.replace(config.model, maneuver_input=False))
-    card = train_and_save(args.windows, args.out, config, init=args.init)
+    card = train_and_save(args.windows, args.out, config, init=args.init, keep=keep and keep[0])
     for line in summary(card, config.epochs):
         print(line)
+    if card.get("finetune"):
+        from lanecast.models.finetune import summary as finetune_summary
+
+        print(f"  {finetune_summary(card)}")
     print(f"wrote {args.out}/stcnn.safetensors and stcnn.json")
     return 0
+
+
+def finetune_options(
+    args: argparse.Namespace, config: TrainConfig, overrides: dict[str, Any]
+) -> tuple[FinetuneOptions, TrainConfig] | None:
+    """With --init: how to keep the init model (--keep-base, --classifier) and the config with
+    fine-tuning's learning rate and epochs where neither an option nor --config set them; None
+    without --init (where --keep-base and --classifier are refused)."""
+    if args.init is None:
+        for name in ("keep_base", "classifier"):
+            if getattr(args, name) is not None:
+                raise UsageError(
+                    f"--{name.replace('_', '-')}", "given without --init", expected="--init MODEL_DIR"
+                )
+        return None
+    from lanecast.models.finetune import FINETUNE_EPOCHS, FINETUNE_LR, FinetuneOptions
+
+    given = {k: getattr(args, k) for k in ("keep_base", "classifier") if getattr(args, k) is not None}
+    preset: dict[str, Any] = {
+        k: v for k, v in (("lr", FINETUNE_LR), ("epochs", FINETUNE_EPOCHS)) if k not in overrides
+    }
+    if args.config is not None:  # a config file's own values win over fine-tuning's defaults
+        from lanecast.io_adapters import json_fields as jf
+
+        keys = jf.loads(args.config.read_bytes(), "config")
+        preset = {k: v for k, v in preset.items() if k not in keys}
+    return FinetuneOptions(**given), dataclasses.replace(config, **preset)
 
 
 def summary(card: dict[str, Any], epochs: int) -> list[str]:
