@@ -36,6 +36,7 @@ from lanecast.io_adapters.contracts.windows import INDEX_SCHEMA, Windows, concat
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import atomic_path
 from lanecast.models import ood
+from lanecast.models.card import SHIPPED_STEM, WEIGHTS_DIR, file_sha256, read_card, resolve
 from lanecast.models.stcnn import STCNN
 from lanecast.models.train import TrainConfig, TrainResult, train
 
@@ -331,16 +332,12 @@ def summary(card: dict[str, Any]) -> str:
 def find_replay(weights: Path, card: dict[str, Any]) -> Path | None:
     """The replay set of a base model: beside its weights, else (a model fine-tuned from the shipped
     one) the shipped model's; None when there is none."""
-    from lanecast.models.card import SHIPPED_STEM, WEIGHTS_DIR
-
     own = replay_path(weights)
     if own.is_file():
         return own
     shipped = WEIGHTS_DIR / f"{SHIPPED_STEM}{REPLAY_SUFFIX}"
     root = (card.get("finetune") or {}).get("base", {}).get("root_sha256")
     if shipped.is_file() and root is not None:
-        from lanecast.models.card import read_card
-
         if read_card(WEIGHTS_DIR / f"{SHIPPED_STEM}.json").get("weights_sha256") == root:
             return shipped
     return None
@@ -350,7 +347,6 @@ def finetune_from(
     init: str, windows: Windows, config: TrainConfig, options: FinetuneOptions, data_card: dict[str, Any]
 ) -> TrainResult:
     """``lanecast train --init INIT``: fine-tune the model ``init`` ("default": the shipped one)."""
-    from lanecast.models.card import file_sha256, resolve
     from lanecast.models.checkpoint import load_checkpoint
 
     path = None if init == "default" else init

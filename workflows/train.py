@@ -12,6 +12,7 @@ import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from lanecast.io_adapters import json_fields as jf
 from lanecast.io_adapters.errors import InputError, UsageError
 from lanecast.io_adapters.files import check_output_dir
 from lanecast.io_adapters.windows_store.dataset import load_windows
@@ -303,8 +304,6 @@ def finetune_options(
         k: v for k, v in (("lr", FINETUNE_LR), ("epochs", FINETUNE_EPOCHS)) if k not in overrides
     }
     if args.config is not None:  # a config file's own values win over fine-tuning's defaults
-        from lanecast.io_adapters import json_fields as jf
-
         keys = jf.loads(args.config.read_bytes(), "config")
         preset = {k: v for k, v in preset.items() if k not in keys}
     return FinetuneOptions(**given), dataclasses.replace(config, **preset)
