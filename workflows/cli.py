@@ -24,20 +24,24 @@ from lanecast import __version__
 from lanecast.io_adapters.errors import InputError, LanecastError
 from lanecast.workflows.vocabulary import HelpFormatter
 
-COMMANDS = (
-    "demo",
-    "simulate",
-    "convert",
-    "info",
-    "windows",
-    "train",
-    "evaluate",
-    "export",
-    "ablate",
-    "explain",
-    "annotate",
-    "report",
-)
+#: Every command and its one-line help, in the order `lanecast --help` lists them. The top-level help
+#: and a command's own run import only what they need: the one command's module, not every reader
+#: and model library (a test checks these lines against each module's own ``help=``).
+SUMMARIES = {
+    "demo": "simulate, convert, annotate and evaluate a highway with the shipped weights",
+    "simulate": "simulate highway traffic with SUMO and write it as a highD recording",
+    "convert": "convert highD, NGSIM, MCAP, ROS bags or a track table into a track table or a drive log",
+    "info": "summarise a dataset, track table or drive log",
+    "windows": "cut a track table into network windows (4x8x30 inputs, 5 s futures, maneuver labels, splits)",
+    "train": "train the ST-CNN (classifier and regressor) on a windows dataset",
+    "evaluate": "metrics and a report of a model against constant-velocity/-acceleration baselines",
+    "export": "export a model to ONNX (then every command predicts with ONNX Runtime)",
+    "ablate": "retrain and score the paper's seven ablation variants (Table II)",
+    "explain": "what-if forecasts of one target with its neighbours removed (the paper's Figs. 4-5)",
+    "annotate": "write forecasts into drive logs (MCAP, ROS 2 and ROS 1 bags), one machine or a Ray cluster",
+    "report": "metrics of annotated logs against the future recorded in them",
+}
+COMMANDS = tuple(SUMMARIES)
 
 
 # What lanecast prints beyond ASCII (help texts, units, arrows), spelled in ASCII for a terminal
@@ -82,7 +86,10 @@ def printable_everywhere() -> None:
             stream.reconfigure(errors="lanecast-ascii")
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(only: str | bool | None = True) -> argparse.ArgumentParser:
+    """The command line's parser. ``only``: True builds every command's parser (importing every
+    command module); a command's name builds that one and lists the others by their one-line help;
+    None builds none (the top-level help and ``--version``), for a start-up that imports nothing else."""
     parser = argparse.ArgumentParser(
         prog="lanecast",
         description="Highway maneuver and trajectory prediction (Mersch et al., IROS 2021) for datasets and drive logs.",
@@ -92,6 +99,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"lanecast {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in COMMANDS:
+        if only is not True and name != only:
+            sub.add_parser(name, help=SUMMARIES[name], add_help=False)  # listed, not built
+            continue
         try:
             module = importlib.import_module(f"lanecast.workflows.{name}")
         except ModuleNotFoundError as exc:
@@ -234,8 +244,10 @@ def _on_sigterm(pid: int) -> Callable[[int, FrameType | None], None]:
 
 def main(argv: Sequence[str] | None = None) -> int:
     printable_everywhere()
-    parser = build_parser()
-    if not (sys.argv[1:] if argv is None else argv):  # `lanecast` alone: what it can do, not a usage error
+    given = list(sys.argv[1:] if argv is None else argv)
+    command = next((a for a in given if not a.startswith("-")), None)
+    parser = build_parser(only=command if command in SUMMARIES else None)
+    if not given:  # `lanecast` alone: what it can do, not a usage error
         parser.print_help()
         return 0
     args = parse(parser, argv)
