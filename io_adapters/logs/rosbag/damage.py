@@ -210,7 +210,7 @@ def _unindexed(offsets: set[int]) -> str:
 def _conn_type(data: bytes) -> bytes:
     """The message type and md5sum a connection record's data (its connection header) states: what
     two copies of one connection must agree on (other fields, such as callerid, may differ)."""
-    fields = _fields_of(data) or {}
+    fields = _fields(data) or {}
     return fields.get("type", b"") + b" " + fields.get("md5sum", b"")
 
 
@@ -269,7 +269,7 @@ def _index_data_problem(
 def _connection_problem(fields: dict[str, bytes], data: bytes) -> str | None:
     """A connection record without a message definition (rosbags then refuses its type's hash)."""
     conn, topic = _u32(fields.get("conn")), fields.get("topic", b"").decode("latin-1")
-    found = _fields_of(data)
+    found = _fields(data)
     if found is None:
         return f"connection {conn} (topic {topic!r}): its fields run past the record"
     definition = found.get("message_definition")
@@ -296,7 +296,7 @@ def _definition_problem(who: str, text: str, msgtype: str, md5: str) -> str | No
         msgtype = normalize_msgtype(msgtype)  # std_msgs/String → std_msgs/msg/String, as rosbags names it
         types = get_types_from_msg(text, msgtype)
     except Exception as exc:  # rosbags' parser raises its own and generic errors
-        return f"{who}: its message definition of {msgtype!r} cannot be parsed ({_short(exc)})"
+        return f"{who}: its message definition of {msgtype!r} cannot be parsed ({short_error(exc)})"
     if not md5 or md5 == "*":
         return None
     try:
@@ -304,41 +304,30 @@ def _definition_problem(who: str, text: str, msgtype: str, md5: str) -> str | No
         store.register(types)
         have = store.generate_msgdef(msgtype)[1]
     except Exception as exc:  # a type it uses is not defined in the text
-        return f"{who}: its message definition of {msgtype!r} is incomplete ({_short(exc)})"
+        return f"{who}: its message definition of {msgtype!r} is incomplete ({short_error(exc)})"
     if have != md5:
         return f"{who}: md5sum {md5} is not that of its message definition of {msgtype!r} ({have})"
     return None
 
 
-def _short(exc: Exception) -> str:
+def short_error(exc: Exception) -> str:
+    """An exception of another library as one line of at most 160 characters."""
     text = " ".join(f"{type(exc).__name__}: {exc}".split())
     return text if len(text) <= 160 else text[:157] + "..."
 
 
-def _fields_of(data: bytes) -> dict[str, bytes] | None:
-    out: dict[str, bytes] = {}
-    pos = 0
-    while pos < len(data):
-        if pos + 4 > len(data):
-            return None
-        (n,) = _U32.unpack_from(data, pos)
-        if pos + 4 + n > len(data):
-            return None
-        name, _, value = data[pos + 4 : pos + 4 + n].partition(b"=")
-        out[name.decode("latin-1")] = value
-        pos += 4 + n
-    return out
-
-
-def _fields(mm: mmap.mmap, pos: int, end: int) -> dict[str, bytes] | None:
+def _fields(buf: bytes | mmap.mmap, pos: int = 0, end: int | None = None) -> dict[str, bytes] | None:
+    """The ``name=value`` fields of a ROS 1 record header (or connection header) buf[pos:end], each
+    with its length; None where one runs past ``end``."""
+    end = len(buf) if end is None else end
     out: dict[str, bytes] = {}
     while pos < end:
         if pos + 4 > end:
             return None
-        (n,) = _U32.unpack_from(mm, pos)
+        (n,) = _U32.unpack_from(buf, pos)
         if pos + 4 + n > end:
             return None
-        name, _, value = bytes(mm[pos + 4 : pos + 4 + n]).partition(b"=")
+        name, _, value = bytes(buf[pos + 4 : pos + 4 + n]).partition(b"=")
         out[name.decode("latin-1")] = value
         pos += 4 + n
     return out
@@ -382,7 +371,7 @@ def _chunk_records_problem(
         if pos + 4 > len(raw):
             return f"a record header at byte {pos} of the chunk's records runs past them"
         (header_len,) = _U32.unpack_from(raw, pos)
-        header = _fields_of(raw[pos + 4 : pos + 4 + header_len]) if pos + 8 + header_len <= len(raw) else None
+        header = _fields(raw[pos + 4 : pos + 4 + header_len]) if pos + 8 + header_len <= len(raw) else None
         if header is None:
             return f"a record at byte {pos} of the chunk's records runs past them"
         (data_len,) = _U32.unpack_from(raw, pos + 4 + header_len)

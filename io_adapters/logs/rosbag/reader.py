@@ -21,7 +21,8 @@ from lanecast.io_adapters.logs import assembly as log_assembly
 from lanecast.io_adapters.logs import conventions as conv
 from lanecast.io_adapters.logs import coordinate_frames as frame_transforms
 from lanecast.io_adapters.logs import object_columns as to
-from lanecast.io_adapters.logs.mcap.crc import verify_crcs, verify_index
+from lanecast.io_adapters.logs.mcap.errors import IndexMismatch
+from lanecast.io_adapters.logs.mcap.walk import check_file
 from lanecast.io_adapters.logs.messages import ros_types
 from lanecast.io_adapters.logs.rosbag import damage as bag_damage
 from lanecast.io_adapters.logs.rosbag import ros2_metadata as bag_metadata
@@ -207,11 +208,19 @@ def _chunk_listed_twice(reader: Any) -> bool:
 
 def check_storage(target: Path) -> None:
     """A ROS 2 bag directory's metadata.yaml and storage files, before rosbags reads them: MCAP
-    CRCs (rosbags checks none), a sqlite3 file cut short (it may still open) and its tables."""
+    files walked with every check (rosbags checks no CRC, and reads through the chunk indexes, so
+    it would skip or repeat chunks where they lie, without a word), a sqlite3 file cut short (it
+    may still open) and its tables."""
     listed = bag_metadata.check_metadata(target)  # other files in the directory are not the bag's
     for storage_file in (f for f in listed if f.suffix == ".mcap"):
-        verify_crcs(storage_file)
-        verify_index(storage_file)
+        for offset, problem in check_file(storage_file)[:1]:
+            raise IndexMismatch(
+                storage_file,
+                f"the file's index disagrees with its data section: {problem}; rosbags reads the bag "
+                "through the index and would read other messages than the file holds",
+                offset=offset,
+                expected="indexes that match the data section (mcap recover writes them anew)",
+            )
     for storage_file in (f for f in listed if f.suffix == ".db3"):
         cut = bag_damage.sqlite_truncation(storage_file)
         if cut is not None:
