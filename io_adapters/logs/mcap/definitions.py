@@ -9,16 +9,13 @@ a chunk's records against a copy before any of them is used.
 
 from __future__ import annotations
 
-import struct
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
 from mcap.opcode import Opcode
 
 from lanecast.io_adapters.logs.mcap.errors import LogDamage
 from lanecast.io_adapters.logs.mcap.records import MSG_HEAD, records
-
-CHANNEL_ID = struct.Struct("<H")
 
 
 class Definitions:
@@ -68,27 +65,36 @@ class Definitions:
             )
         return channel
 
-    def check_chunk(
-        self,
-        buf: Any,
-        start: int,
-        end: int,
-        offset: int,
-        schema: Callable[[Any, int, int], tuple[int, Any]],
-        channel: Callable[[Any, int, int], tuple[int, Any]],
-    ) -> None:
-        """Check the records of buf[start:end] (a chunk at file ``offset``) against these
+    def check_chunk(self, items: Iterable[tuple[int, int, int, int, Any]], offset: int) -> None:
+        """Check the records of a chunk at file ``offset`` (``items``: :func:`parsed`) against these
         definitions and those made earlier in it, before any is used: with salvage a damaged chunk
-        is skipped whole, so none of its messages may be read or copied before the damage is found.
-        ``schema``/``channel`` parse a record's body into (id, record)."""
+        is skipped whole, so none of its messages may be read or copied before the damage is found."""
         trial = Definitions(dict(self.schemas), dict(self.channels))
-        for op, pos, body, nxt in records(buf, start, end):
+        for op, pos, _body, _nxt, value in items:
             if op == Opcode.MESSAGE:
-                if nxt - body < MSG_HEAD.size:
-                    raise ValueError(f"a Message record of {nxt - body} bytes, shorter than its header")
-                (cid,) = CHANNEL_ID.unpack_from(buf, body)
-                trial.channel_of(offset, cid, f"at byte {pos} of the chunk ", resync=True)
+                trial.channel_of(offset, value[0], f"at byte {pos} of the chunk ", resync=True)
             elif op == Opcode.SCHEMA:
-                trial.schema(offset, *schema(buf, body, nxt))
+                trial.schema(offset, *value)
             elif op == Opcode.CHANNEL:
-                trial.channel(offset, *channel(buf, body, nxt))
+                trial.channel(offset, *value)
+
+
+def parsed(
+    buf: Any,
+    start: int,
+    end: int,
+    schema: Callable[[Any, int, int], tuple[int, Any]],
+    channel: Callable[[Any, int, int], tuple[int, Any]],
+) -> Iterator[tuple[int, int, int, int, Any]]:
+    """(opcode, offset, body, end, content) of the Schema, Channel and Message records of
+    buf[start:end]: (id, record) as ``schema``/``channel`` parse a body, a Message's header fields
+    (channel id, sequence, log time, publish time)."""
+    for op, pos, body, nxt in records(buf, start, end):
+        if op == Opcode.MESSAGE:
+            if nxt - body < MSG_HEAD.size:
+                raise ValueError(f"a Message record of {nxt - body} bytes, shorter than its header")
+            yield op, pos, body, nxt, MSG_HEAD.unpack_from(buf, body)
+        elif op == Opcode.SCHEMA:
+            yield op, pos, body, nxt, schema(buf, body, nxt)
+        elif op == Opcode.CHANNEL:
+            yield op, pos, body, nxt, channel(buf, body, nxt)

@@ -32,7 +32,7 @@ from lanecast.io_adapters.logs import conventions as conv
 from lanecast.io_adapters.logs import coordinate_frames as frame_transforms
 from lanecast.io_adapters.logs import object_columns as to
 from lanecast.io_adapters.logs.foxglove import scene_update_decode as wire
-from lanecast.io_adapters.logs.mcap.definitions import Definitions
+from lanecast.io_adapters.logs.mcap.definitions import Definitions, parsed
 from lanecast.io_adapters.logs.mcap.errors import NotMcap
 from lanecast.io_adapters.logs.mcap.index import verified_offsets
 from lanecast.io_adapters.logs.mcap.records import (
@@ -237,7 +237,7 @@ class _LogDecoder:
             count = self._batched_chunk(buf, end, hint)
             if count is not None:
                 return count
-            self.defs.check_chunk(buf, 0, end, self.offset, read_schema, read_channel)
+            self.defs.check_chunk(parsed(buf, 0, end, read_schema, read_channel), self.offset)
         count = 0
         unpack_msg, message = MSG_HEAD.unpack_from, Opcode.MESSAGE
         handler, handlers, defs = self.handler, self.handlers, self.defs

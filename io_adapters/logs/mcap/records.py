@@ -61,13 +61,14 @@ def records(buf: Any, start: int, end: int) -> Iterator[tuple[int, int, int, int
     unpack = REC_HEAD.unpack_from
     pos = start
     while pos < end:
-        if pos + 9 > end:
+        body = pos + 9
+        if body > end:
             raise RecordOverrun(pos, start, end)
         op, length = unpack(buf, pos)
-        nxt = pos + 9 + length
+        nxt = body + length
         if nxt > end:
             raise RecordOverrun(pos, start, end, op, length)
-        yield op, pos, pos + 9, nxt
+        yield op, pos, body, nxt
         pos = nxt
 
 

@@ -33,13 +33,12 @@ from lanecast.io_adapters.logs.mcap.copy import (
     check_new_topics,
     start_copy,
 )
-from lanecast.io_adapters.logs.mcap.definitions import Definitions
+from lanecast.io_adapters.logs.mcap.definitions import Definitions, parsed
 from lanecast.io_adapters.logs.mcap.records import (
     MSG_HEAD,
     read_schema,
     read_string,
     read_string_map,
-    records,
 )
 from lanecast.io_adapters.logs.mcap.walk import ReadStats, walk
 
@@ -67,15 +66,16 @@ class _CopySink:
         self.channels: dict[int, Channel] = self.defs.channels
 
     def records(self, buf: Any, start: int, end: int, in_chunk: bool, hint: Any = None) -> int:
-        self.defs.check_chunk(buf, start, end, self.offset, _schema, _channel)
+        items = list(parsed(buf, start, end, _schema, _channel))
+        self.defs.check_chunk(items, self.offset)
         count = 0
-        for op, _pos, body, nxt in records(buf, start, end):
+        for op, _pos, body, nxt, value in items:
             if op == Opcode.SCHEMA:
-                self._put_schema(_schema(buf, body, nxt)[1])
+                self._put_schema(value[1])
             elif op == Opcode.CHANNEL:
-                self._put_channel(_channel(buf, body, nxt)[1])
-            elif op == Opcode.MESSAGE:
-                cid, seq, log_time, publish_time = MSG_HEAD.unpack_from(buf, body)
+                self._put_channel(value[1])
+            else:
+                cid, seq, log_time, publish_time = value
                 self.copying.before(log_time)
                 self.writer.add_message(
                     cid, log_time, bytes(buf[body + MSG_HEAD.size : nxt]), publish_time, seq

@@ -47,6 +47,7 @@ from lanecast.io_adapters.logs.mcap.index import (
     index_offsets,
     message_index_problem,
     summary_definition,
+    verified_offsets,
 )
 from lanecast.io_adapters.logs.mcap.records import (
     FIXED_SIZE,
@@ -138,6 +139,11 @@ class CountingSink:
         self.stats = ReadStats()
 
     def records(self, buf: Any, start: int, end: int, in_chunk: bool, hint: Any = None) -> int:
+        if in_chunk and hint is not None:  # the chunk's MessageIndex offsets, if they are its records
+            raw = np.frombuffer(buf, dtype=np.uint8)
+            at = verified_offsets(raw, end, hint)
+            if at is not None:
+                return int((raw[at] == Opcode.MESSAGE).sum())
         return sum(op == Opcode.MESSAGE for op, *_ in records(buf, start, end))
 
     def metadata(self, buf: Any, pos: int, end: int) -> None:

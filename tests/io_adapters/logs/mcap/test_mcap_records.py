@@ -13,7 +13,7 @@ from mcap.opcode import Opcode
 
 from lanecast.io_adapters.errors import LogError
 from lanecast.io_adapters.logs.mcap import reader as mcap_reader
-from lanecast.io_adapters.logs.mcap.definitions import Definitions
+from lanecast.io_adapters.logs.mcap.definitions import Definitions, parsed
 from lanecast.io_adapters.logs.mcap.errors import (
     CorruptRecord,
     CrcMismatch,
@@ -86,7 +86,7 @@ def test_a_redefined_channel_and_a_message_on_no_channel_are_damage_and_a_chunk_
     channel = struct.pack("<BQ", Opcode.CHANNEL, len(body)) + body
     chunk = channel + struct.pack("<BQ", Opcode.MESSAGE, 22) + struct.pack("<HIQQ", 5, 0, 1, 1)
     with pytest.raises(LogDamage, match=f"message at byte {len(channel)} of the chunk on channel 5"):
-        defs.check_chunk(chunk, 0, len(chunk), 99, read_schema, read_channel)
+        defs.check_chunk(parsed(chunk, 0, len(chunk), read_schema, read_channel), 99)
     assert 4 not in defs.channels  # the chunk's own definitions went to a copy
 
 
