@@ -8,7 +8,7 @@ their messages ``(log_time_ns, extra channel index, payload)`` sorted by time; e
 before the first original message with a later log time (:class:`MergedCopy`, shared with the ROS
 bag copies of :mod:`lanecast.io_adapters.logs.rosbag.copy`), so the output stays in log-time
 order wherever the input was. Memory is bounded: one chunk in and one chunk out at a time. A
-damaged log (``annotate --salvage``) is copied by :mod:`mcap_salvage_copy` instead.
+damaged log (``annotate --salvage``) is copied by :mod:`~lanecast.io_adapters.logs.mcap.salvage_copy` instead.
 """
 
 from __future__ import annotations
@@ -273,6 +273,14 @@ def start_copy(
     return info, stats, writer, copying, schema_ids, channel_ids
 
 
+def finish_copy(writer: IdWriter, copying: MergedCopy, out: BinaryIO) -> None:
+    """Write the extra messages left, the summary and footer; report the rest of the progress."""
+    copying.before(None)
+    writer.finish()
+    copying.done()
+    copying.stats.bytes_out = out.tell()
+
+
 def _not_reserved(kind: str, ident: int, reserved: list[int], has_summary: bool) -> None:
     """ValueError for a record of the log whose id is one given to an extra channel or its schema."""
     if ident in reserved:
@@ -366,8 +374,5 @@ def copy_mcap(
         if hashing is not None:
             while f.read(1 << 20):  # the trailing magic the record stream leaves unread
                 pass
-        copying.before(None)
-        writer.finish()
-        copying.done()
-    stats.bytes_out = out.tell()
+        finish_copy(writer, copying, out)
     return stats

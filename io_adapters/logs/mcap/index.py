@@ -1,6 +1,6 @@
 """What an MCAP's summary and indexes say, checked against the data section the walk reads.
 
-The data section is the truth (:mod:`mcap_walk`): chunk indexes, message indexes, summary offsets,
+The data section is the truth (:mod:`~lanecast.io_adapters.logs.mcap.walk`): chunk indexes, message indexes, summary offsets,
 the footer's offsets and the summary's copies of schemas and channels are collected in a
 :class:`Layout` while the walk goes, and :meth:`Layout.problems` says each way they disagree with
 the records found. Message indexes also give the offsets of a chunk's messages

@@ -31,6 +31,7 @@ from lanecast.io_adapters.logs.mcap.copy import (
     Merge,
     MergedCopy,
     check_new_topics,
+    finish_copy,
     start_copy,
 )
 from lanecast.io_adapters.logs.mcap.definitions import Definitions, parsed
@@ -158,8 +159,5 @@ def copy_mcap_salvaged(
             if digest is not None:
                 digest.update(mm)
     stats.schemas, stats.channels = len(sink.schemas), len(sink.channels)
-    copying.before(None)
-    writer.finish()
-    copying.done()
-    stats.bytes_out = out.tell()
+    finish_copy(writer, copying, out)
     return stats

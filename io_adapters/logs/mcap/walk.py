@@ -4,7 +4,7 @@
 (chunks, data section, summary) and hands Schema, Channel, Message and Metadata records, and the
 decompressed records of each chunk, to a :class:`RecordSink` (the decoder of
 :mod:`lanecast.io_adapters.logs.mcap.reader`). A truncated file, a corrupt chunk or a bad record
-raises :class:`LogError` with the byte offset; with ``salvage`` damaged chunks are skipped
+raises an McapError (a LogError) of its kind with the byte offset; with ``salvage`` damaged chunks are skipped
 (resynchronising on the next intact chunk) and the loss is counted in :class:`ReadStats`. Chunk
 sizes are bounded before any allocation, so a chunk that lies about its size costs no more memory
 than it declares.
@@ -183,6 +183,11 @@ def _crc_damage(stored: int, buf: Any, start: int, end: int, at: int, what: str)
     )
 
 
+def _invalid(op: int, pos: int) -> LogDamage:
+    """An opcode no record has (0) or one the specification reserves (0x10-0x7F)."""
+    return LogDamage(pos, f"invalid record opcode {op:#04x}", "an MCAP record", True)
+
+
 class _Walk:
     """One walk over the top-level records of a file: what it has seen, and where to go on."""
 
@@ -202,7 +207,7 @@ class _Walk:
                 self.dec.offset = self.pos = pos
                 self.skip_to = None
                 if op == 0 or (MAX_OP <= op < 0x80):
-                    raise LogDamage(pos, f"invalid record opcode {op:#04x}", "an MCAP record", True)
+                    raise _invalid(op, pos)
                 if self.record(op, pos, body, nxt):
                     return
         except RecordOverrun as over:
@@ -217,7 +222,7 @@ class _Walk:
                 pos, "the file is truncated inside a record header", _COMPLETE, True, TruncatedFile
             )
         if op == 0 or (MAX_OP <= op < 0x80):
-            return LogDamage(pos, f"invalid record opcode {op:#04x}", "an MCAP record", True)
+            return _invalid(op, pos)
         if self.ends_with_magic:
             return LogDamage(
                 pos,
