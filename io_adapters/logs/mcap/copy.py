@@ -8,15 +8,13 @@ their messages ``(log_time_ns, extra channel index, payload)`` sorted by time; e
 before the first original message with a later log time (:class:`MergedCopy`, shared with the ROS
 bag copies of :mod:`lanecast.io_adapters.logs.rosbag.copy`), so the output stays in log-time
 order wherever the input was. Memory is bounded: one chunk in and one chunk out at a time. A
-damaged log (``annotate --salvage``) is copied by :mod:`mcap_salvage_copy` instead.
+damaged log (``annotate --salvage``) is copied by :mod:`~lanecast.io_adapters.logs.mcap.salvage_copy` instead.
 """
 
 from __future__ import annotations
 
 import io
-import mmap
 import os
-import re
 import struct
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
@@ -30,10 +28,8 @@ from mcap.writer import CompressionType, IndexType, Writer
 
 from lanecast.io_adapters.errors import LogError
 from lanecast.io_adapters.logs.forecast_messages import ChannelSpec
-from lanecast.io_adapters.logs.mcap.walk import (
-    CountingSink,
-    walk,
-)
+from lanecast.io_adapters.logs.mcap.errors import IndexMismatch
+from lanecast.io_adapters.logs.mcap.walk import check_file
 
 ExtraMessage = tuple[int, int, bytes]  # (log_time_ns, index into the extra channels, payload)
 Progress = Callable[[int, int], None]  # (messages copied since last call, input bytes since last call)
@@ -138,22 +134,15 @@ class McapSummaryInfo:
 
 
 def check_records(path: Path) -> None:
-    """LogError naming the offset of the first damaged record of MCAP ``path`` (the reader's checked
-    walk), or of the first index record that disagrees with the data section, for a copy the mcap
-    library refused with a message and no offset; returns if there is neither."""
-    with open(path, "rb") as f:
-        if os.fstat(f.fileno()).st_size == 0:
-            raise LogError(path, "the file is empty", offset=0, expected="an MCAP file")
-        sink = CountingSink()
-        with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
-            walk(mm, path, sink, False)
-    for note in sink.stats.index:
-        at = re.match(r"offset (\d+): (.*)", note)
-        if at:
-            raise LogError(
+    """The McapError naming the offset of the first damaged record of MCAP ``path`` (the reader's
+    checked walk), or of the first index record that disagrees with the data section, for a copy
+    the mcap library refused with a message and no offset; returns if there is neither."""
+    for offset, problem in check_file(path):
+        if offset is not None:
+            raise IndexMismatch(
                 path,
-                f"an index record the mcap library cannot read: {at.group(2)}",
-                offset=int(at.group(1)),
+                f"an index record the mcap library cannot read: {problem}",
+                offset=offset,
                 expected="index records that agree with the data section (lanecast convert reads this log)",
             )
 
@@ -263,6 +252,46 @@ def zstd_writer(out: BinaryIO, chunk_size: int = CHUNK_SIZE) -> IdWriter:
     )
 
 
+def start_copy(
+    src: Path, out: BinaryIO, merge: Merge, info: McapSummaryInfo | None, chunk_size: int
+) -> tuple[McapSummaryInfo, CopyStats, IdWriter, MergedCopy, list[int], list[int]]:
+    """What every copy of an MCAP starts with: the log's summary (``info``, read if None) checked for
+    the topics to add; schema and channel ids for the extra channels above the log's own (without a
+    summary, counted down from 65535, and a clash with a later original id is an error); the writer
+    and the merge of the extra messages."""
+    info = info or summary_info(src)
+    check_new_topics(src, info.topics, merge.channels)
+    stats = CopyStats(profile=info.profile)
+    n = len(merge.channels)
+    schema_ids = [info.max_schema_id + 1 + i if info.has_summary else 0xFFFF - i for i in range(n)]
+    channel_ids = [info.max_channel_id + 1 + i if info.has_summary else 0xFFFF - i for i in range(n)]
+    stats.extra_channel_ids = channel_ids
+    writer = zstd_writer(out, chunk_size)
+    copying = MergedCopy(
+        merge, stats, lambda item: writer.add_message(channel_ids[item[1]], item[0], item[2], item[0], 0)
+    )
+    return info, stats, writer, copying, schema_ids, channel_ids
+
+
+def finish_copy(writer: IdWriter, copying: MergedCopy, out: BinaryIO) -> None:
+    """Write the extra messages left, the summary and footer; report the rest of the progress."""
+    copying.before(None)
+    writer.finish()
+    copying.done()
+    copying.stats.bytes_out = out.tell()
+
+
+def _not_reserved(kind: str, ident: int, reserved: list[int], has_summary: bool) -> None:
+    """ValueError for a record of the log whose id is one given to an extra channel or its schema."""
+    if ident in reserved:
+        raise ValueError(
+            f"{kind} id {ident} of the data section is one the summary left free for the forecasts "
+            f"(its {kind}s end at {min(reserved) - 1}: a stale summary)"
+            if has_summary
+            else f"{kind} id {ident} clashes with a forecast {kind} id"
+        )
+
+
 class _HashingRaw(io.RawIOBase):
     """An unbuffered file that hashes every block read from it: behind a ``BufferedReader`` the
     record stream's many small reads cost nothing extra, and the file is read once for the copy
@@ -302,22 +331,7 @@ def copy_mcap(
     """
     src = Path(src)
     merge = merge or Merge()
-    channels = merge.channels
-    info = info or summary_info(src)
-    check_new_topics(src, info.topics, channels)
-    stats = CopyStats(profile=info.profile)
-    if info.has_summary:
-        schema_ids = [info.max_schema_id + 1 + i for i in range(len(channels))]
-        channel_ids = [info.max_channel_id + 1 + i for i in range(len(channels))]
-    else:
-        schema_ids = [0xFFFF - i for i in range(len(channels))]
-        channel_ids = [0xFFFF - i for i in range(len(channels))]
-    stats.extra_channel_ids = channel_ids
-    reserved_schemas, reserved_channels = set(schema_ids), set(channel_ids)
-    writer = zstd_writer(out, chunk_size)
-    copying = MergedCopy(
-        merge, stats, lambda item: writer.add_message(channel_ids[item[1]], item[0], item[2], item[0], 0)
-    )
+    info, stats, writer, copying, schema_ids, channel_ids = start_copy(src, out, merge, info, chunk_size)
     with open(src, "rb", buffering=0) as raw:
         stats.bytes_in = os.fstat(raw.fileno()).st_size
         hashing = _HashingRaw(raw, digest) if digest is not None else None
@@ -332,25 +346,13 @@ def copy_mcap(
                     copying.copied(f.tell)
                 elif isinstance(record, Header):
                     writer.start(profile=record.profile, library=LIBRARY)
-                    writer.put_extra(channels, schema_ids, channel_ids)
+                    writer.put_extra(merge.channels, schema_ids, channel_ids)
                 elif isinstance(record, Schema):
-                    if record.id in reserved_schemas:
-                        raise ValueError(
-                            f"schema id {record.id} of the data section is one the summary left free for "
-                            f"the forecasts (its schemas end at {min(reserved_schemas) - 1}: a stale summary)"
-                            if info.has_summary
-                            else f"schema id {record.id} clashes with a forecast schema id"
-                        )
+                    _not_reserved("schema", record.id, schema_ids, info.has_summary)
                     stats.schemas += writer.put_schema(record)
                 elif isinstance(record, Channel):
-                    if record.id in reserved_channels:
-                        raise ValueError(
-                            f"channel id {record.id} of the data section is one the summary left free for "
-                            f"the forecasts (its channels end at {min(reserved_channels) - 1}: a stale summary)"
-                            if info.has_summary
-                            else f"channel id {record.id} clashes with a forecast channel id"
-                        )
-                    check_new_topics(src, [record.topic], channels)
+                    _not_reserved("channel", record.id, channel_ids, info.has_summary)
+                    check_new_topics(src, [record.topic], merge.channels)
                     stats.channels += writer.put_channel(record)
                 elif isinstance(record, Attachment):
                     writer.add_attachment(
@@ -372,8 +374,5 @@ def copy_mcap(
         if hashing is not None:
             while f.read(1 << 20):  # the trailing magic the record stream leaves unread
                 pass
-        copying.before(None)
-        writer.finish()
-        copying.done()
-    stats.bytes_out = out.tell()
+        finish_copy(writer, copying, out)
     return stats

@@ -1,6 +1,6 @@
 """What an MCAP's summary and indexes say, checked against the data section the walk reads.
 
-The data section is the truth (:mod:`mcap_walk`): chunk indexes, message indexes, summary offsets,
+The data section is the truth (:mod:`~lanecast.io_adapters.logs.mcap.walk`): chunk indexes, message indexes, summary offsets,
 the footer's offsets and the summary's copies of schemas and channels are collected in a
 :class:`Layout` while the walk goes, and :meth:`Layout.problems` says each way they disagree with
 the records found. Message indexes also give the offsets of a chunk's messages
@@ -10,39 +10,45 @@ the records found. Message indexes also give the offsets of a chunk's messages
 from __future__ import annotations
 
 import struct
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from mcap.opcode import Opcode
 
 from lanecast.io_adapters.logs.mcap.records import (
     MSG_HEAD,
-    OP_MESSAGE,
-    OP_MESSAGE_INDEX,
-    OP_NAMES,
-    OP_SCHEMA,
-    OP_SUMMARY_OFFSET,
-    REC_HEAD,
+    RecordOverrun,
+    op_name,
     read_channel,
     read_ints,
     read_schema,
+    records,
 )
+
+
+def message_indexes(buf: Any, pos: int, size: int) -> Iterator[tuple[int, int, int, int]]:
+    """(offset, channel id, bytes of entries, record end) of each MessageIndex record of the run
+    that starts at pos (the records after a chunk); the run ends at any other record or damage."""
+    try:
+        for op, at, body, nxt in records(buf, pos, size):
+            if op != Opcode.MESSAGE_INDEX or body + 6 > size:
+                return
+            yield at, *struct.unpack_from("<HI", buf, body), nxt
+    except RecordOverrun:
+        return
 
 
 def index_offsets(buf: Any, pos: int, size: int) -> np.ndarray | None:
     """Message offsets [n] (int64) listed by the MessageIndex records starting at pos, or None."""
     parts = []
-    while pos + 15 <= size:
-        op, length = REC_HEAD.unpack_from(buf, pos)
-        if op != OP_MESSAGE_INDEX or pos + 9 + length > size:
-            break
-        (n,) = struct.unpack_from("<I", buf, pos + 11)
-        if n % 16 or 6 + n > length:
+    for at, _cid, n, nxt in message_indexes(buf, pos, size):
+        if n % 16 or at + 15 + n > nxt:
             return None
-        pairs = np.frombuffer(buf, dtype="<u8", count=n // 8, offset=pos + 15)
+        pairs = np.frombuffer(buf, dtype="<u8", count=n // 8, offset=at + 15)
         parts.append(pairs[1::2].astype(np.int64))
         del pairs  # no view of the mmap may outlive the read
-        pos += 9 + length
     return np.concatenate(parts) if parts else None
 
 
@@ -62,17 +68,9 @@ def verified_offsets(raw: np.ndarray, end: int, hint: np.ndarray) -> np.ndarray 
     return at
 
 
-def index_count(buf: Any, pos: int, size: int) -> tuple[int, int]:
-    """Messages listed by the MessageIndex records starting at pos; returns (count, end)."""
-    count = 0
-    while pos + 9 <= size:
-        op, length = REC_HEAD.unpack_from(buf, pos)
-        if op != OP_MESSAGE_INDEX or pos + 9 + length > size:
-            break
-        (n,) = struct.unpack_from("<I", buf, pos + 11)
-        count += n // 16
-        pos += 9 + length
-    return count, pos
+def index_count(buf: Any, pos: int, size: int) -> int:
+    """Messages listed by the MessageIndex records starting at pos."""
+    return sum(n // 16 for _at, _cid, n, _nxt in message_indexes(buf, pos, size))
 
 
 def message_index_problem(
@@ -82,33 +80,28 @@ def message_index_problem(
     hold count messages) disagree with the chunk: each entry must point at a Message record of its
     channel and log time, every message listed once; None if they agree (or there are none)."""
     raw = np.frombuffer(data, dtype=np.uint8)
-    listed = 0
-    while pos + 15 <= size:
-        op, length = REC_HEAD.unpack_from(buf, pos)
-        if op != OP_MESSAGE_INDEX or pos + 9 + length > size:
-            break
-        layout.message_indexes.add(pos)
-        cid, n = struct.unpack_from("<HI", buf, pos + 9)
-        if n % 16 or 6 + n > length:
-            return f"offset {pos}: a MessageIndex record whose entries ({n} bytes) do not fit it"
-        pairs = np.frombuffer(buf, dtype="<u8", count=n // 8, offset=pos + 15).copy()
-        times, at = pairs[0::2], pairs[1::2]
-        listed += at.size
-        if (at + 9 + MSG_HEAD.size > raw.size).any():
-            return f"offset {pos}: a MessageIndex entry points past the end of the chunk at {chunk_at}"
-        at = at.astype(np.int64)
+    listed, end = 0, pos
+    for at, cid, n, end in message_indexes(buf, pos, size):
+        layout.message_indexes.add(at)
+        if n % 16 or at + 15 + n > end:
+            return f"offset {at}: a MessageIndex record whose entries ({n} bytes) do not fit it"
+        pairs = np.frombuffer(buf, dtype="<u8", count=n // 8, offset=at + 15).copy()
+        times, offsets = pairs[0::2], pairs[1::2]
+        listed += offsets.size
+        if (offsets + 9 + MSG_HEAD.size > raw.size).any():
+            return f"offset {at}: a MessageIndex entry points past the end of the chunk at {chunk_at}"
+        offsets = offsets.astype(np.int64)
         if (
-            (raw[at] != OP_MESSAGE).any()
-            or (read_ints(raw, at + 9, "<u2") != cid).any()
-            or (read_ints(raw, at + 9 + 6, "<u8") != times).any()
+            (raw[offsets] != Opcode.MESSAGE).any()
+            or (read_ints(raw, offsets + 9, "<u2") != cid).any()
+            or (read_ints(raw, offsets + 9 + 6, "<u8") != times).any()
         ):
             return (
-                f"offset {pos}: a MessageIndex entry of channel {cid} points at no message of that channel "
+                f"offset {at}: a MessageIndex entry of channel {cid} points at no message of that channel "
                 f"and log time in the chunk at {chunk_at}"
             )
-        pos += 9 + length
     if listed and listed != count:
-        return f"offset {pos}: the MessageIndex records list {listed} messages, the chunk at {chunk_at} holds {count}"
+        return f"offset {end}: the MessageIndex records list {listed} messages, the chunk at {chunk_at} holds {count}"
     return None
 
 
@@ -184,10 +177,10 @@ class Layout:
         for at, op, start, length in self.groups:
             if length and (self.summary_records.get(start) != op or start + length not in ends):
                 out.append(
-                    f"offset {at}: a SummaryOffset puts the records of opcode {op:#04x} at offset {start} "
+                    f"offset {at}: a SummaryOffset puts the {op_name(op)} records at offset {start} "
                     f"({length} bytes), where no such group is"
                 )
-        groups = [o for o, op in self.summary_records.items() if op == OP_SUMMARY_OFFSET]
+        groups = [o for o, op in self.summary_records.items() if op == Opcode.SUMMARY_OFFSET]
         if offset_start and offset_start != (groups[0] if groups else footer_at):
             out.append(
                 f"offset {footer_at}: the footer puts the summary offsets at {offset_start}, they start at "
@@ -207,13 +200,13 @@ def summary_definition(buf: Any, pos: int, body: int, end: int, op: int, dec: An
     """What is wrong with a Schema or Channel record of the summary, which must repeat the data
     section's record of its id; None if it does."""
     try:
-        ident, record = (read_schema if op == OP_SCHEMA else read_channel)(buf, body, end)
+        ident, record = (read_schema if op == Opcode.SCHEMA else read_channel)(buf, body, end)
     except (ValueError, struct.error) as exc:
-        return f"offset {pos}: a summary {OP_NAMES[op]} record that cannot be read ({exc})"
-    known = getattr(dec, "schemas" if op == OP_SCHEMA else "channels", None)
+        return f"offset {pos}: a summary {op_name(op)} record that cannot be read ({exc})"
+    known = getattr(dec, "schemas" if op == Opcode.SCHEMA else "channels", None)
     if known is None:
         return None
-    kind = OP_NAMES[op].lower()
+    kind = op_name(op).lower()
     if ident in known and known[ident] != record:  # one unknown: a channel without messages
         return f"offset {pos}: the summary's {kind} {ident} ({record}) is not the data section's ({known[ident]})"
     return None

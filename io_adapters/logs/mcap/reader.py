@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import json
 import mmap
-import struct
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -24,6 +23,7 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
+from mcap.opcode import Opcode
 
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.errors import LogError
@@ -32,30 +32,23 @@ from lanecast.io_adapters.logs import conventions as conv
 from lanecast.io_adapters.logs import coordinate_frames as frame_transforms
 from lanecast.io_adapters.logs import object_columns as to
 from lanecast.io_adapters.logs.foxglove import scene_update_decode as wire
+from lanecast.io_adapters.logs.mcap.definitions import Definitions, parsed
+from lanecast.io_adapters.logs.mcap.errors import NotMcap
 from lanecast.io_adapters.logs.mcap.index import verified_offsets
 from lanecast.io_adapters.logs.mcap.records import (
-    LEN,
     MAGIC,
     MSG_HEAD,
-    OP_CHANNEL,
-    OP_MESSAGE,
-    OP_SCHEMA,
-    REC_HEAD,
     ChannelRecord,
+    RecordOverrun,
     SchemaRecord,
     read_channel,
     read_ints,
     read_schema,
     read_string,
     read_string_map,
+    records,
 )
-from lanecast.io_adapters.logs.mcap.walk import (
-    LogDamage,
-    ReadStats,
-    check_chunk_definitions,
-    redefined,
-    walk,
-)
+from lanecast.io_adapters.logs.mcap.walk import ReadStats, walk
 from lanecast.io_adapters.logs.messages import ros_types
 
 FORMAT = "mcap"
@@ -94,8 +87,9 @@ class _LogDecoder:
     def __init__(self, path: Path, topic: str | None) -> None:
         self.path = path
         self.topic = topic
-        self.schemas: dict[int, SchemaRecord] = {}
-        self.channels: dict[int, ChannelRecord] = {}
+        self.defs = Definitions()
+        self.schemas: dict[int, SchemaRecord] = self.defs.schemas
+        self.channels: dict[int, ChannelRecord] = self.defs.channels
         self.handlers: dict[int, Callable[[Any, int], None] | None] = {}
         self.topics: dict[str, log_assembly.TopicData] = {}
         self.transforms = frame_transforms.Transforms()
@@ -105,22 +99,6 @@ class _LogDecoder:
         self.foreign: dict[str, LogError] = {}  # the --topic's channels that hold no objects
 
     # -- records
-    def schema(self, buf: Any, pos: int, end: int) -> None:
-        """A Schema record whose body is buf[pos:end]."""
-        sid, schema = read_schema(buf, pos, end)
-        known = self.schemas.get(sid)
-        if known is not None and known != schema:
-            raise redefined(self.offset, "schema", sid, known, schema)
-        self.schemas[sid] = schema
-
-    def channel(self, buf: Any, pos: int, end: int) -> None:
-        """A Channel record whose body is buf[pos:end] (a repeat of a known one: nothing)."""
-        cid, channel = read_channel(buf, pos, end)
-        known = self.channels.get(cid)
-        if known is not None and known != channel:
-            raise redefined(self.offset, "channel", cid, known, channel)
-        self.channels[cid] = channel
-
     def metadata(self, buf: Any, pos: int, end: int) -> None:
         """A Metadata record whose body is buf[pos:end]."""
         name, pos = read_string(buf, pos, end)
@@ -132,27 +110,13 @@ class _LogDecoder:
     def handler(self, cid: int) -> Callable[[Any, int], None] | None:
         if cid in self.handlers:
             return self.handlers[cid]
-        ch = self.channels.get(cid)
-        if ch is None:
-            raise LogDamage(
-                self.offset,
-                f"message on channel {cid}, which was never defined",
-                "a Channel record first",
-                False,
-            )
+        ch = self.defs.channel_of(self.offset, cid)
         h = self._make_handler(ch)
         self.handlers[cid] = h
         return h
 
     def _make_handler(self, ch: ChannelRecord) -> Callable[[Any, int], None] | None:
         schema = self.schemas.get(ch.schema_id) if ch.schema_id else None
-        if ch.schema_id and schema is None:
-            raise LogDamage(
-                self.offset,
-                f"topic {ch.topic!r} refers to schema {ch.schema_id}, which the file does not define",
-                "a Schema record for every channel",
-                False,
-            )
         name = schema.name if schema else ""
         name = _ROS_NAMES.get(name, name)
         if self.topic is not None and ch.topic == self.topic and name not in OBJECT_TYPES:
@@ -273,23 +237,15 @@ class _LogDecoder:
             count = self._batched_chunk(buf, end, hint)
             if count is not None:
                 return count
-            check_chunk_definitions(buf, end, self.schemas, self.channels, self.offset)
-        pos = start
+            self.defs.check_chunk(parsed(buf, 0, end, read_schema, read_channel), self.offset)
         count = 0
-        unpack_head, unpack_msg = REC_HEAD.unpack_from, MSG_HEAD.unpack_from
-        handler, handlers = self.handler, self.handlers
+        unpack_msg, message = MSG_HEAD.unpack_from, Opcode.MESSAGE
+        handler, handlers, defs = self.handler, self.handlers, self.defs
         spans: dict[wire.SceneUpdateBatch, tuple[list[int], list[int], list[int]]] = {}
-        while pos < end:
-            if pos + 9 > end:
-                raise ValueError(f"record header at {pos - start} runs past the end")
-            op, length = unpack_head(buf, pos)
-            body = pos + 9
-            nxt = body + length
-            if nxt > end:
-                raise ValueError(f"record at {pos - start} declares {length} bytes, only {end - body} left")
-            if op == OP_MESSAGE:
-                if length < MSG_HEAD.size:
-                    raise ValueError(f"a Message record of {length} bytes, shorter than its header")
+        for op, pos, body, nxt in records(buf, start, end):
+            if op == message:
+                if nxt - body < MSG_HEAD.size:
+                    raise ValueError(f"a Message record of {nxt - body} bytes, shorter than its header")
                 cid, _seq, log_time, _pub = unpack_msg(buf, body)
                 if log_time > MAX_LOG_TIME:
                     raise LogError(
@@ -310,13 +266,14 @@ class _LogDecoder:
                     else:
                         self._call(h, cid, buf[body + 22 : nxt], log_time)
                 count += 1
-            elif op == OP_SCHEMA:
-                self.schema(buf, body, nxt)
-            elif op == OP_CHANNEL:
-                self.channel(buf, body, nxt)
-            elif in_chunk and op <= 0x0F:  # 0x00 or one the spec keeps out of chunks (later ones: skipped)
+            elif op == Opcode.SCHEMA:
+                defs.schema(self.offset, *read_schema(buf, body, nxt))
+            elif op == Opcode.CHANNEL:
+                defs.channel(self.offset, *read_channel(buf, body, nxt))
+            elif (
+                in_chunk and op <= Opcode.DATA_END
+            ):  # 0x00 or one the spec keeps out of chunks (later: skipped)
                 raise ValueError(f"a record of opcode {op:#04x} at byte {pos - start} {_ONLY}")
-            pos = nxt
         if spans:
             data = buf.obj if in_chunk and start == 0 else bytes(buf[start:end])
             for batch, lists in spans.items():
@@ -331,27 +288,22 @@ class _LogDecoder:
         in batches, whose spans go to the batches; None (nothing done) for any other chunk.
 
         The record offsets are the chunk's MessageIndex offsets (``hint``) where they check out as
-        the exact chain of records, else one Python step per record; the record headers are then
+        the exact chain of records, else those of the record walk; the record headers are then
         read with numpy.
         """
         data = buf.obj
         raw = np.frombuffer(data, dtype=np.uint8)
         at = verified_offsets(raw, end, hint) if hint is not None else None
         if at is None:
-            positions: list[int] = []
-            append, unpack_len = positions.append, LEN.unpack_from
-            pos = 0
             try:
-                while pos < end:
-                    append(pos)
-                    pos += 9 + unpack_len(buf, pos + 1)[0]
-            except struct.error:
+                positions = [pos for _op, pos, _body, _nxt in records(buf, 0, end)]
+            except RecordOverrun:
                 return None
-            if pos != end or not positions:
+            if not positions:
                 return None
             at = np.asarray(positions, dtype=np.int64)
         nxt = np.append(at[1:], end)
-        if (raw[at] != OP_MESSAGE).any() or (nxt - at < 9 + 22).any():
+        if (raw[at] != Opcode.MESSAGE).any() or (nxt - at < 9 + 22).any():
             return None
         cids = read_ints(raw, at + 9, "<u2")
         handlers: dict[int, wire.SceneUpdateBatch | None] = {}
@@ -435,7 +387,7 @@ def read_log(
     try:
         with path.open("rb") as f:
             if path.stat().st_size == 0:
-                raise LogError(path, "the file is empty", offset=0, expected="an MCAP file")
+                raise NotMcap(path, "the file is empty", offset=0, expected="an MCAP file")
             with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
                 walk(mm, path, dec, salvage)
                 dec.finish()

@@ -1,49 +1,75 @@
-"""The MCAP wire format: record opcodes and layouts, and the checked decoding of the records
-lanecast reads itself (strings, Schema and Channel records, chunk payloads, attachments).
+"""The MCAP wire format: opcodes, the one walk over records, and the checked decoding of the
+records lanecast reads itself (strings, Schema and Channel records, chunk payloads, attachments).
 
-Every reader of :mod:`mcap_walk` and the copies of :mod:`lanecast.io_adapters.annotations` share
-these definitions: a length or CRC that does not hold raises ``ValueError`` with what is wrong,
-and the walk turns it into a located error. Chunk sizes are bounded before any allocation.
+:func:`records` is the only loop over MCAP record headers in lanecast: the file walk of
+:mod:`~lanecast.io_adapters.logs.mcap.walk`, the chunk decoders, the index checks, the salvage copy
+and the ROS 2 storage checks all go through it. Opcodes are ``mcap``'s own :class:`Opcode`.
+``mcap``'s record parsers read a stream without bounds (a short read is not an error), so the
+records lanecast decodes are parsed here against their record's end: a length or CRC that does not
+hold raises ``ValueError`` saying what is wrong, and the walk turns it into a located error. Chunk
+sizes are bounded before any allocation.
 """
 
 from __future__ import annotations
 
 import struct
 import zlib
+from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from mcap.opcode import Opcode
 
 MAGIC = b"\x89MCAP0\r\n"
-
-
-OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06
-
-
-OP_MESSAGE_INDEX, OP_ATTACHMENT, OP_STATISTICS, OP_METADATA, OP_DATA_END = 0x07, 0x09, 0x0B, 0x0C, 0x0F
-
-
-OP_CHUNK_INDEX, OP_SUMMARY_OFFSET = 0x08, 0x0E
-
-
-MAX_OP = 0x10
-
-
-OP_NAMES = {OP_SCHEMA: "Schema", OP_CHANNEL: "Channel", OP_MESSAGE: "Message", OP_METADATA: "Metadata"}
-
-
+MAX_OP = 0x10  # opcodes 0x10-0x7F are reserved; 0x80 and above are private records, skipped
 # Records read with fixed-size fields: the least length their fields take.
-FIXED_SIZE = {OP_DATA_END: 4, OP_STATISTICS: 8, OP_FOOTER: 20, OP_CHUNK: 28}
-
-
+FIXED_SIZE: dict[int, int] = {Opcode.DATA_END: 4, Opcode.STATISTICS: 8, Opcode.FOOTER: 20, Opcode.CHUNK: 28}
 MSG_HEAD = struct.Struct("<HIQQ")
-
-
 REC_HEAD = struct.Struct("<BQ")
-
-
 LEN = struct.Struct("<Q")
+
+
+def op_name(op: int) -> str:
+    """The record's name as the MCAP specification writes it ("ChunkIndex"), or its opcode."""
+    try:
+        return Opcode(op).name.title().replace("_", "")
+    except ValueError:
+        return f"opcode {op:#04x}"
+
+
+class RecordOverrun(ValueError):
+    """A record header (``op`` None) or a record that runs past the end of its region."""
+
+    def __init__(self, pos: int, start: int, end: int, op: int | None = None, length: int = 0) -> None:
+        self.pos, self.op, self.length, self.left = pos, op, length, end - pos - 9
+        at = pos - start
+        super().__init__(
+            f"record header at {at} runs past the end"
+            if op is None
+            else f"record at {at} declares {length} bytes, only {self.left} left"
+        )
+
+
+class CrcError(ValueError):
+    """A chunk or attachment whose stored CRC is not that of its bytes."""
+
+
+def records(buf: Any, start: int, end: int) -> Iterator[tuple[int, int, int, int]]:
+    """(opcode, offset, body, end) of each record of buf[start:end], in order: the one MCAP record
+    walk. :class:`RecordOverrun` for a record that runs past ``end``."""
+    unpack = REC_HEAD.unpack_from
+    pos = start
+    while pos < end:
+        body = pos + 9
+        if body > end:
+            raise RecordOverrun(pos, start, end)
+        op, length = unpack(buf, pos)
+        nxt = body + length
+        if nxt > end:
+            raise RecordOverrun(pos, start, end, op, length)
+        yield op, pos, body, nxt
+        pos = nxt
 
 
 def read_string(buf: Any, pos: int, end: int) -> tuple[str, int]:
@@ -176,7 +202,7 @@ def chunk_payload(buf: Any, body: int, end: int) -> bytes:
         said = "more than" if len(data) > size else f"{len(data)} bytes,"
         raise ValueError(f"decompressed to {said} the {size} bytes the chunk says")
     if crc and zlib.crc32(data) != crc:
-        raise ValueError(f"CRC mismatch (stored {crc:#010x}, computed {zlib.crc32(data):#010x})")
+        raise CrcError(f"CRC mismatch (stored {crc:#010x}, computed {zlib.crc32(data):#010x})")
     return data
 
 
@@ -194,7 +220,7 @@ def check_attachment(buf: Any, body: int, end: int) -> None:
         raise ValueError(f"{n:,} bytes of data and a CRC do not fill the record's {end - pos - 8:,} bytes")
     (crc,) = struct.unpack_from("<I", buf, pos + 8 + n)
     if crc and crc32_of(buf, body, pos + 8 + n) != crc:
-        raise ValueError(
+        raise CrcError(
             f"CRC mismatch (stored {crc:#010x}, computed {crc32_of(buf, body, pos + 8 + n):#010x})"
         )
 

@@ -17,6 +17,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, BinaryIO
 
+from mcap.opcode import Opcode
 from mcap.records import Channel, Schema
 
 from lanecast.io_adapters.errors import LogError
@@ -30,26 +31,17 @@ from lanecast.io_adapters.logs.mcap.copy import (
     Merge,
     MergedCopy,
     check_new_topics,
-    summary_info,
-    zstd_writer,
+    finish_copy,
+    start_copy,
 )
+from lanecast.io_adapters.logs.mcap.definitions import Definitions, parsed
 from lanecast.io_adapters.logs.mcap.records import (
     MSG_HEAD,
-    OP_CHANNEL,
-    OP_MESSAGE,
-    OP_SCHEMA,
-    REC_HEAD,
     read_schema,
     read_string,
     read_string_map,
 )
-from lanecast.io_adapters.logs.mcap.walk import (
-    LogDamage,
-    ReadStats,
-    walk,
-)
-
-_INTACT = "a chunk whose records define every channel and schema they use"
+from lanecast.io_adapters.logs.mcap.walk import ReadStats, walk
 
 
 class _CopySink:
@@ -70,73 +62,28 @@ class _CopySink:
         self.extra = extra
         self.stats = ReadStats()
         self.src, self.writer, self.copying, self.reserved = src, writer, copying, reserved
-        self.schemas: dict[int, Schema] = {}
-        self.channels: dict[int, Channel] = {}
+        self.defs = Definitions()
+        self.schemas: dict[int, Schema] = self.defs.schemas
+        self.channels: dict[int, Channel] = self.defs.channels
 
     def records(self, buf: Any, start: int, end: int, in_chunk: bool, hint: Any = None) -> int:
-        parsed: list[Schema | Channel | tuple[int, int, int, int, bytes]] = []
-        pos = start
-        while pos < end:
-            if pos + 9 > end:
-                raise ValueError(f"record header at {pos - start} runs past the end")
-            op, length = REC_HEAD.unpack_from(buf, pos)
-            body, nxt = pos + 9, pos + 9 + length
-            if nxt > end:
-                raise ValueError(f"record at {pos - start} declares {length} bytes, only {end - body} left")
-            if op == OP_SCHEMA:
-                sid, rec = read_schema(buf, body, nxt)
-                parsed.append(Schema(id=sid, name=rec.name, encoding=rec.encoding, data=rec.data))
-            elif op == OP_CHANNEL:
-                parsed.append(_channel(buf, body, nxt))
-            elif op == OP_MESSAGE:
-                if length < MSG_HEAD.size:
-                    raise ValueError(f"a Message record of {length} bytes, shorter than its header")
-                cid, seq, log_time, publish_time = MSG_HEAD.unpack_from(buf, body)
-                parsed.append((cid, seq, log_time, publish_time, bytes(buf[body + MSG_HEAD.size : nxt])))
-            pos = nxt
-        self._check(parsed)
+        items = list(parsed(buf, start, end, _schema, _channel))
+        self.defs.check_chunk(items, self.offset)
         count = 0
-        for item in parsed:
-            if isinstance(item, Schema):
-                self._put_schema(item)
-            elif isinstance(item, Channel):
-                self._put_channel(item)
+        for op, _pos, body, nxt, value in items:
+            if op == Opcode.SCHEMA:
+                self._put_schema(value[1])
+            elif op == Opcode.CHANNEL:
+                self._put_channel(value[1])
             else:
-                cid, seq, log_time, publish_time, data = item
+                cid, seq, log_time, publish_time = value
                 self.copying.before(log_time)
-                self.writer.add_message(cid, log_time, data, publish_time, seq)
+                self.writer.add_message(
+                    cid, log_time, bytes(buf[body + MSG_HEAD.size : nxt]), publish_time, seq
+                )
                 self.copying.copied()
                 count += 1
         return count
-
-    def _check(self, parsed: list[Schema | Channel | tuple[int, int, int, int, bytes]]) -> None:
-        """LogDamage (the chunk is lost) for a message on a channel, or a channel of a schema, defined
-        neither before nor earlier in the chunk, or an id given other content."""
-        schemas, channels = dict(self.schemas), dict(self.channels)
-        for item in parsed:
-            if isinstance(item, Schema):
-                if schemas.get(item.id, item) != item:
-                    raise LogDamage(
-                        self.offset, f"schema {item.id} defined again with other content", "", True
-                    )
-                schemas[item.id] = item
-            elif isinstance(item, Channel):
-                if channels.get(item.id, item) != item:
-                    raise LogDamage(
-                        self.offset, f"channel {item.id} defined again with other content", "", True
-                    )
-                if item.schema_id and item.schema_id not in schemas:
-                    raise LogDamage(
-                        self.offset,
-                        f"channel {item.id} refers to schema {item.schema_id}, never defined",
-                        "",
-                        True,
-                    )
-                channels[item.id] = item
-            elif item[0] not in channels:
-                raise LogDamage(
-                    self.offset, f"message on channel {item[0]}, which was never defined", "", True
-                )
 
     def _put_schema(self, schema: Schema) -> None:
         if schema.id in self.reserved[0]:
@@ -170,7 +117,12 @@ class _CopySink:
         self.copying.stats.attachments += 1
 
 
-def _channel(buf: Any, body: int, end: int) -> Channel:
+def _schema(buf: Any, body: int, end: int) -> tuple[int, Schema]:
+    sid, rec = read_schema(buf, body, end)
+    return sid, Schema(id=sid, name=rec.name, encoding=rec.encoding, data=rec.data)
+
+
+def _channel(buf: Any, body: int, end: int) -> tuple[int, Channel]:
     """The Channel record whose body is buf[body:end] (with its metadata, which the copy keeps)."""
     if body + 4 > end:
         raise ValueError("a Channel record too short for its ids")
@@ -178,7 +130,7 @@ def _channel(buf: Any, body: int, end: int) -> Channel:
     topic, pos = read_string(buf, body + 4, end)
     encoding, pos = read_string(buf, pos, end)
     metadata, _ = read_string_map(buf, pos, end)
-    return Channel(id=cid, topic=topic, message_encoding=encoding, schema_id=sid, metadata=metadata)
+    return cid, Channel(id=cid, topic=topic, message_encoding=encoding, schema_id=sid, metadata=metadata)
 
 
 def copy_mcap_salvaged(
@@ -196,18 +148,7 @@ def copy_mcap_salvaged(
     complete MCAP with a summary made from what it holds."""
     src = Path(src)
     merge = merge or Merge()
-    info = info or summary_info(src)
-    check_new_topics(src, info.topics, merge.channels)
-    stats = CopyStats(profile=info.profile)
-    top = (info.max_schema_id, info.max_channel_id) if info.has_summary else None
-    n = len(merge.channels)
-    schema_ids = [top[0] + 1 + i if top else 0xFFFF - i for i in range(n)]
-    channel_ids = [top[1] + 1 + i if top else 0xFFFF - i for i in range(n)]
-    stats.extra_channel_ids = channel_ids
-    writer = zstd_writer(out, chunk_size)
-    copying = MergedCopy(
-        merge, stats, lambda item: writer.add_message(channel_ids[item[1]], item[0], item[2], item[0], 0)
-    )
+    info, stats, writer, copying, schema_ids, channel_ids = start_copy(src, out, merge, info, chunk_size)
     writer.start(profile=info.profile, library=LIBRARY)
     writer.put_extra(merge.channels, schema_ids, channel_ids)
     sink = _CopySink(src, writer, copying, (set(schema_ids), set(channel_ids)), merge.channels)
@@ -218,8 +159,5 @@ def copy_mcap_salvaged(
             if digest is not None:
                 digest.update(mm)
     stats.schemas, stats.channels = len(sink.schemas), len(sink.channels)
-    copying.before(None)
-    writer.finish()
-    copying.done()
-    stats.bytes_out = out.tell()
+    finish_copy(writer, copying, out)
     return stats

@@ -28,11 +28,11 @@ from lanecast.io_adapters.logs.mcap.copy import (
     MergedCopy,
     check_new_topics,
     copy_mcap,
+    finish_copy,
     zstd_writer,
 )
 from lanecast.io_adapters.logs.messages import ros_types
-from lanecast.io_adapters.logs.rosbag.damage import located
-from lanecast.io_adapters.logs.rosbag.reader import check_storage
+from lanecast.io_adapters.logs.rosbag.reader import check_storage, located
 from lanecast.io_adapters.logs.rosbag.ros2_metadata import check_metadata
 
 
@@ -106,9 +106,7 @@ def copy_ros1_to_mcap(
         raise
     except Exception as exc:  # rosbags' reading: ReaderError, a corrupt bz2/lz4 chunk, …
         raise unreadable(src, exc, "ROS 1") from exc
-    writer.finish()
-    copying.done()
-    stats.bytes_out = out.tell()
+    finish_copy(writer, copying, out)
     return stats
 
 

@@ -21,14 +21,15 @@ from lanecast.io_adapters.logs import assembly as log_assembly
 from lanecast.io_adapters.logs import conventions as conv
 from lanecast.io_adapters.logs import coordinate_frames as frame_transforms
 from lanecast.io_adapters.logs import object_columns as to
-from lanecast.io_adapters.logs.mcap.crc import verify_crcs, verify_index
+from lanecast.io_adapters.logs.mcap.errors import IndexMismatch
+from lanecast.io_adapters.logs.mcap.walk import check_file
 from lanecast.io_adapters.logs.messages import ros_types
 from lanecast.io_adapters.logs.rosbag import damage as bag_damage
 from lanecast.io_adapters.logs.rosbag import ros2_metadata as bag_metadata
 from lanecast.io_adapters.logs.rosbag import ros2_open_damage
+from lanecast.io_adapters.logs.rosbag.ros1_damage import ROS1_MAGIC, ros1_damage
 
 FORMAT = "rosbag"
-ROS1_MAGIC = b"#ROSBAG V2.0\n"
 ROS1_PREFIX = b"#ROSBAG V"  # any version: recognised as a ROS 1 bag, refused unless 2.0
 OBJECT_TYPES = (*ros_types.TRACKED_OBJECT_TYPES, ros_types.MARKER_ARRAY)
 SUPPORTED = ros_types.OBJECT_MESSAGES
@@ -207,11 +208,19 @@ def _chunk_listed_twice(reader: Any) -> bool:
 
 def check_storage(target: Path) -> None:
     """A ROS 2 bag directory's metadata.yaml and storage files, before rosbags reads them: MCAP
-    CRCs (rosbags checks none), a sqlite3 file cut short (it may still open) and its tables."""
+    files walked with every check (rosbags checks no CRC, and reads through the chunk indexes, so
+    it would skip or repeat chunks where they lie, without a word), a sqlite3 file cut short (it
+    may still open) and its tables."""
     listed = bag_metadata.check_metadata(target)  # other files in the directory are not the bag's
     for storage_file in (f for f in listed if f.suffix == ".mcap"):
-        verify_crcs(storage_file)
-        verify_index(storage_file)
+        for offset, problem in check_file(storage_file)[:1]:
+            raise IndexMismatch(
+                storage_file,
+                f"the file's index disagrees with its data section: {problem}; rosbags reads the bag "
+                "through the index and would read other messages than the file holds",
+                offset=offset,
+                expected="indexes that match the data section (mcap recover writes them anew)",
+            )
     for storage_file in (f for f in listed if f.suffix == ".db3"):
         cut = bag_damage.sqlite_truncation(storage_file)
         if cut is not None:
@@ -248,9 +257,25 @@ def damage_of(target: Path) -> LogError | None:
         return exc
 
 
+def located(files: Sequence[Path], ros1: bool) -> LogError | None:
+    """The error naming the file, byte offset and what is wrong of the first of a bag's storage
+    ``files`` whose structure shows damage (a ROS 1 bag's records, a sqlite3 file's header and
+    pages; MCAP storage is left to its checked walk), else None: rosbags' own errors give no offset."""
+    for file in files:
+        if not ros1 and file.suffix != ".db3":
+            continue
+        try:
+            found = ros1_damage(file) if ros1 else bag_damage.sqlite_damage(file)
+        except OSError:
+            continue
+        if found is not None:
+            return LogError(file, found[1], offset=found[0], expected="an intact ROS bag")
+    return None
+
+
 def _located_damage(target: Path, ros1: bool) -> LogError | None:
     files = _storage_files(target, ros1)
-    return bag_damage.located(files, ros1) or (None if ros1 else ros2_open_damage.located(files))
+    return located(files, ros1) or (None if ros1 else ros2_open_damage.located(files))
 
 
 def _storage_files(target: Path, ros1: bool) -> list[Path]:

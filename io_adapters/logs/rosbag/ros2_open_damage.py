@@ -18,15 +18,11 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from mcap.opcode import Opcode
+
 from lanecast.io_adapters.errors import LogError
-from lanecast.io_adapters.logs.mcap.records import (
-    MAGIC,
-    OP_CHANNEL,
-    OP_DATA_END,
-    OP_FOOTER,
-    OP_SCHEMA,
-    read_string,
-)
+from lanecast.io_adapters.logs.mcap.records import MAGIC, RecordOverrun, read_schema, read_string, records
+from lanecast.io_adapters.logs.rosbag.damage import short_error as _short
 
 _FOOTER = 1 + 8 + 20  # opcode, length, summary_start, summary_offset_start, summary_crc
 _DEFINITION_ENCODINGS = ("ros2msg", "ros2idl", "omgidl", "")
@@ -58,38 +54,31 @@ def mcap_problem(path: Path) -> LogError | None:
     if len(data) < len(MAGIC) * 2 + _FOOTER or not data.startswith(MAGIC):
         return None
     footer = len(data) - len(MAGIC) - _FOOTER
-    if data[footer] != OP_FOOTER:
+    if data[footer] != Opcode.FOOTER:
         return None
     (summary_start,) = struct.unpack_from("<Q", data, footer + 9)
-    pos = summary_start if 0 < summary_start < footer else len(MAGIC)
-    while pos + 9 <= footer:
-        op, n = struct.unpack_from("<BQ", data, pos)
-        body = pos + 9
-        if body + n > footer or op == OP_DATA_END:
-            break
-        record = data[body : body + n]
-        try:
-            problem = (
-                _schema_problem(record)
-                if op == OP_SCHEMA
-                else _channel_problem(record)
-                if op == OP_CHANNEL
-                else None
-            )
-        except (ValueError, struct.error, UnicodeDecodeError) as exc:
-            problem = f"a {'schema' if op == OP_SCHEMA else 'channel'} record that cannot be read ({exc})"
-        if problem is not None:
-            return LogError(path, problem, offset=pos, expected=_EXPECTED)
-        pos = body + n
+    try:
+        for op, pos, body, nxt in records(data, summary_start if 0 < summary_start < footer else 8, footer):
+            if op == Opcode.DATA_END:
+                break
+            if op not in (Opcode.SCHEMA, Opcode.CHANNEL):
+                continue
+            try:
+                problem = (_schema_problem if op == Opcode.SCHEMA else _channel_problem)(data[body:nxt])
+            except (ValueError, struct.error, UnicodeDecodeError) as exc:
+                problem = (
+                    f"a {'schema' if op == Opcode.SCHEMA else 'channel'} record that cannot be read ({exc})"
+                )
+            if problem is not None:
+                return LogError(path, problem, offset=pos, expected=_EXPECTED)
+    except RecordOverrun:  # the walk of the storage file names it
+        pass
     return None
 
 
 def _schema_problem(record: bytes) -> str | None:
-    (sid,) = struct.unpack_from("<H", record, 0)
-    name, pos = read_string(record, 2, len(record))
-    encoding, pos = read_string(record, pos, len(record))
-    (n,) = struct.unpack_from("<I", record, pos)
-    text = record[pos + 4 : pos + 4 + n].decode("utf-8")
+    sid, schema = read_schema(record, 0, len(record))
+    name, encoding, text = schema.name, schema.encoding, schema.data.decode("utf-8")
     if encoding not in _DEFINITION_ENCODINGS:
         return (
             f"schema {sid} ({name!r}) has encoding {encoding!r}, which ROS 2 bags do not use "
@@ -200,8 +189,3 @@ def _rihs01(msgtype: str, text: str, *, idl: bool) -> str | None:
         return str(store.hash_rihs01(msgtype))
     except Exception:  # a type the definition uses is not in it: rosbags' own error stands
         return None
-
-
-def _short(exc: Exception) -> str:
-    text = " ".join(f"{type(exc).__name__}: {exc}".split())
-    return text if len(text) <= 160 else text[:157] + "..."
