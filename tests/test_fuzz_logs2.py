@@ -534,10 +534,7 @@ def test_a_json_field_of_the_wrong_type_is_said_to_be_one(tmp_path: Path, edit: 
     log = json_log(tmp_path / "wrong-type.mcap", messages)
     with pytest.raises(LogError) as err:
         mcap_reader.read(log)
-    assert (
-        f"message at log time {6 * 10**8} cannot be decoded: {says}"
-        in str(err.value)
-    )
+    assert f"message at log time {6 * 10**8} cannot be decoded: {says}" in str(err.value)
     assert err.value.path == str(log) and err.value.offset is not None
 
 

@@ -18,6 +18,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
+from lanecast.io_adapters.contracts import recording_names
 from lanecast.io_adapters.contracts.track_runs import lane_change_starts, run_bounds, run_starts
 from lanecast.io_adapters.contracts.track_schema import (
     FIELDS_BY_NAME,
@@ -378,6 +379,13 @@ def concat(tables: Iterable[pa.Table], sources: Sequence[str] | None = None) -> 
     tables = list(tables)
     if not tables:
         raise TrackTableError("nothing to concatenate")
+    labels = (
+        list(sources)
+        if sources is not None
+        else [", ".join(read_meta(t).source_files) or f"input {i + 1}" for i, t in enumerate(tables)]
+    )
+    renames = recording_names.distinct_names([read_meta(t) for t in tables], labels)
+    tables = [recording_names.rename_recordings(t, r) for t, r in zip(tables, renames, strict=True)]
     meta = merge_meta([read_meta(t) for t in tables], sources)
     with_neighbours = any(NEIGHBOUR_COLUMNS[0] in t.column_names for t in tables)
     target = schema(with_neighbours)
