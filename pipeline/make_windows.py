@@ -24,7 +24,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.contracts import recording_names, track_table
 from lanecast.io_adapters.contracts.track_runs import run_bounds
 from lanecast.io_adapters.contracts.windows import (
     CHANNEL_UNITS,
@@ -675,6 +675,15 @@ def _numbered_shard(item: tuple[int, Piece], options: WindowOptions, shard_root:
     return piece_shard(piece, options, shard_root, number)
 
 
+def _rename_piece(part: PieceWindows, renames: dict[str, str]) -> None:
+    """A piece's recordings renamed wherever the piece names them (``renames``: old → new)."""
+    if not renames:
+        return
+    part.names = [renames.get(n, n) for n in part.names]
+    for field in ("max_track", "methods", "skipped"):
+        setattr(part, field, {renames.get(k, k): v for k, v in getattr(part, field).items()})
+
+
 def _index_and_manifest(
     parts: list[PieceWindows], options: WindowOptions, allow_empty: bool, sources: dict[str, Any] | None
 ) -> tuple[pa.Table, Callable[[Windows], dict[str, Any]]]:
@@ -682,10 +691,16 @@ def _index_and_manifest(
     # a recording cut in chunks gives its metadata once (another repeat is an input given twice)
     first_chunks = {p.chunk_of: id(p) for p in reversed(parts) if p.chunk_of}
     given = [p for p in parts if not p.chunk_of or first_chunks[p.chunk_of] == id(p)]
-    meta = track_table.merge_meta(
-        [track_table.TableMeta.from_json(p.meta_json) for p in given],
-        [p.label or "an input" for p in given],
-    )
+    labels = [p.label or "an input" for p in given]
+    metas = [track_table.TableMeta.from_json(p.meta_json) for p in given]
+    renames = recording_names.distinct_names(metas, labels)  # two inputs' highd-01-upper kept apart
+    if any(renames):
+        of_chunk = {p.chunk_of: r for p, r in zip(given, renames, strict=True) if p.chunk_of}
+        of_piece = {id(p): r for p, r in zip(given, renames, strict=True)}
+        for p in parts:
+            _rename_piece(p, of_chunk.get(p.chunk_of, {}) if p.chunk_of else of_piece.get(id(p), {}))
+        metas = [recording_names.rename_meta(m, r) for m, r in zip(metas, renames, strict=True)]
+    meta = track_table.merge_meta(metas, labels)
     max_track: dict[str, int] = {}
     for p in parts:  # chunks of one recording each saw part of its tracks
         for name, largest in p.max_track.items():

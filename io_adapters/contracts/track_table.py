@@ -353,7 +353,7 @@ def merge_meta(metas: Iterable[TableMeta], sources: Sequence[str] | None = None)
         if clash:
             raise TrackTableError(
                 f"{here}: recording names {clash} occur in more than one input (also in {origin[clash[0]]}); "
-                "expected inputs with distinct recording names (rename a file)"
+                "expected inputs with distinct recording names"
             )
         recordings.update(m.recordings)
         origin.update(dict.fromkeys(m.recordings, here))

@@ -23,7 +23,7 @@ from typing import Any
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.contracts import recording_names, track_table
 from lanecast.io_adapters.datasets.highd import reader as highd
 from lanecast.io_adapters.datasets.highd import stream as highd_stream
 from lanecast.io_adapters.datasets.ngsim import stream as ngsim_stream
@@ -142,6 +142,7 @@ class TrackTableWriter:
         self.out, self.directory = Path(out), directory
         self.rows = self.tracks = 0
         self._metas: list[track_table.TableMeta] = []
+        self._renames: dict[str, str] = {}  # of the last new recording: its pieces that follow keep it
         self._sources: list[str] = []
         self._stack = contextlib.ExitStack()
         self._tmp: Path | None = None
@@ -178,6 +179,7 @@ class TrackTableWriter:
         """Append one validated piece (its metadata names its recordings; ``source`` names the
         input in errors); ``continues``: more whole tracks of the previous piece's recording."""
         assert self._tmp is not None, "use TrackTableWriter as a context manager"
+        table = self._distinct(table, source, continues)
         self._account(table, source, continues)
         if self.directory:
             if not continues:
@@ -204,12 +206,26 @@ class TrackTableWriter:
         table = track_table.read_parquet(path)
         if self.directory and not (continues or continued):
             self._close_part()
+            table = self._distinct(table, source, False)
             self._account(table, source)
-            path.replace(self.part_path(self._parts))
+            if self._renames:  # the part's recordings renamed: written anew, not moved
+                track_table.write_parquet(table, self.part_path(self._parts))
+                path.unlink()
+            else:
+                path.replace(self.part_path(self._parts))
             self._parts += 1
         else:
             self.write(table, source, continues=continues)
             path.unlink()
+
+    def _distinct(self, table: pa.Table, source: str, continues: bool) -> pa.Table:
+        """``table`` with its recordings renamed where an earlier input holds the same names
+        (``contracts.recording_names``); the pieces that continue a recording keep its rename."""
+        if not continues:
+            meta = track_table.read_meta(table)
+            labels = [*self._sources, source or ", ".join(meta.source_files)]
+            self._renames = recording_names.distinct_names([*self._metas, meta], labels)[-1]
+        return recording_names.rename_recordings(table, self._renames)
 
     def _close_part(self) -> None:
         if self.directory and self._writer is not None:

@@ -14,13 +14,12 @@ from typing import Any
 
 import pyarrow as pa
 
-from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.contracts import recording_names, track_table
 from lanecast.io_adapters.datasets.highd.columns import NEIGHBOURS, TRACKS_COLUMNS, TRACKS_META_COLUMNS
 from lanecast.io_adapters.datasets.highd.convert import concat, convert_tracks
 from lanecast.io_adapters.datasets.highd.meta import Meta, read_recording_meta
 from lanecast.io_adapters.datasets.highd.parse import read_csv
 from lanecast.io_adapters.datasets.highd.sniff import Recording, check_present, recordings, sniff
-from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import progress
 
 __all__ = ["FORMAT", "NEIGHBOURS", "TRACKS_COLUMNS", "Recording", "read", "recordings", "sniff"]
@@ -47,17 +46,19 @@ def read(paths: Sequence[str | Path], *, recording_prefix: str = "highd", **_: A
     recs = recordings(paths)
     parts = []
     recording_meta: dict[str, track_table.RecordingMeta] = {}
+    read_metas: list[track_table.TableMeta] = []
     for rec in progress(recs, desc="highD", total=len(recs), unit="recording"):
         meta, meta_table = read_companions(rec)
         tracks = read_csv(rec.path("tracks"), TRACKS_COLUMNS, "tracks")
         columns, metas = convert_tracks(rec, recording_prefix, meta, meta_table, tracks)
-        clash = set(metas) & set(recording_meta)
-        if clash:
-            raise InputError(
-                rec.path("tracks"),
-                f"recording name {sorted(clash)[0]!r} is given by two inputs",
-                expected="highD recordings with distinct numbers",
-            )
+        # two folders of one recording number (two simulations): the later one's names qualified
+        read_metas.append(track_table.TableMeta(FORMAT, metas, []))
+        labels = [str(r.path("tracks")) for r in recs[: len(read_metas)]]
+        renames = recording_names.distinct_names(read_metas, labels)[-1]
+        if renames:
+            read_metas[-1] = recording_names.rename_meta(read_metas[-1], renames)
+            metas = read_metas[-1].recordings
+            columns["recording_names"] = [renames.get(n, n) for n in columns["recording_names"]]
         recording_meta.update(metas)
         parts.append(columns)
     table = track_table.build_table(
