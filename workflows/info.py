@@ -37,12 +37,21 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    formats = sorted({args.format or registry.detect(p) for p in args.paths})
+    """One summary per input (a folder of drive logs is its logs): two logs of one simulation, or
+    two recordings that share a name, are each described, not merged."""
+    inputs = [[p] for p in registry.expand(args.paths)] if args.format is None else [args.paths]
+    for paths in inputs:
+        summarise_input(paths, args)
+    return 0
+
+
+def summarise_input(paths: list[Path], args: argparse.Namespace) -> None:
+    formats = sorted({args.format or registry.detect(p) for p in paths})
     table = registry.read_any(
-        args.paths, fmt=args.format, **({"location": args.location} if args.location else {})
+        paths, fmt=args.format, **({"location": args.location} if args.location else {})
     )
     meta = track_table.read_meta(table)
-    print(f"{', '.join(str(Path(p)) for p in args.paths)}")
+    print(f"{', '.join(str(Path(p)) for p in paths)}")
     print(f"  format: {', '.join(formats)} (source: {meta.source_format}); units: m, m/s, m/s^2, rad, ns")
     rows = summarise(table)
     header = f"  {'recording':<28}{'tracks':>8}{'frames':>9}{'duration':>11}{'rate':>8}{'lane chg':>10}  vehicles by class"
@@ -73,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
             f"lat. acc. {lateral}; "
             f"{st['speed_dips_per_vehicle_min']:.2f} speed dips per vehicle-minute"
         )
-    for path in map(Path, args.paths):
+    for path in map(Path, paths):
         if path.suffix.lower() in (".mcap", ".bag") or (path / "metadata.yaml").is_file():
             print_topics(path)
     total_tracks = sum(int(r["tracks"]) for r in rows)  # type: ignore[call-overload]
@@ -81,7 +90,6 @@ def run(args: argparse.Namespace) -> int:
     print(
         f"  total: {len(rows)} recordings, {total_tracks:,} tracks, {table.num_rows:,} rows, {total_changes:,} lane changes"
     )
-    return 0
 
 
 def print_topics(path: Path) -> None:

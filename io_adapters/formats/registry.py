@@ -204,7 +204,7 @@ def detect(path: str | Path) -> str:
             expected=f"{expected}; a model goes to --model or --init",
         )
     if path.is_dir() and not (path / "metadata.yaml").exists():
-        storage = sorted(p.name for p in path.iterdir() if p.suffix in (".db3", ".mcap") and p.is_file())
+        storage = sorted(p.name for p in path.iterdir() if p.suffix == ".db3" and p.is_file())
         if storage:  # the files of a ROS 2 bag without the index that says what they hold
             raise FormatNotRecognisedError(
                 path,
@@ -223,11 +223,43 @@ def detect(path: str | Path) -> str:
     raise FormatNotRecognisedError(path, "format not recognised", expected=expected)
 
 
-def group_by_format(paths: Sequence[str | Path], fmt: str | None = None) -> dict[str, list[Path]]:
-    """``paths`` by format (detected per path unless ``fmt``), each checked by :func:`check_input`
-    before any reader opens it (a FIFO would block)."""
-    groups: dict[str, list[Path]] = {}
+LOG_SUFFIXES = (".mcap", ".bag")
+
+
+def logs_in(folder: Path) -> list[Path]:
+    """The drive logs in a folder that is no dataset or log itself (``logs/``, an annotate
+    ``--out``): its MCAP files, ROS 1 bags and ROS 2 bag directories, searched recursively in name
+    order; empty for a folder any reader takes as a whole (a highD folder, a ROS 2 bag)."""
+    if (
+        not folder.is_dir()
+        or (folder / "metadata.yaml").exists()
+        or any(e.sniff(folder) for e in READERS.values())
+    ):
+        return []
+    found: list[Path] = []
+    for entry in sorted(folder.iterdir()):
+        if entry.name.startswith("."):
+            continue
+        if entry.is_dir():
+            found += [entry] if (entry / "metadata.yaml").is_file() else logs_in(entry)
+        elif entry.suffix.lower() in LOG_SUFFIXES and entry.is_file():
+            found.append(entry)
+    return found
+
+
+def expand(paths: Sequence[str | Path]) -> list[Path]:
+    """``paths`` with each folder of drive logs replaced by the logs in it (:func:`logs_in`)."""
+    out: list[Path] = []
     for p in map(check_input, paths):
+        out += logs_in(p) or [p]
+    return out
+
+
+def group_by_format(paths: Sequence[str | Path], fmt: str | None = None) -> dict[str, list[Path]]:
+    """``paths`` by format (detected per path unless ``fmt``; a folder of drive logs is its logs),
+    each checked by :func:`check_input` before any reader opens it (a FIFO would block)."""
+    groups: dict[str, list[Path]] = {}
+    for p in expand(paths) if fmt is None else map(check_input, paths):
         groups.setdefault(reader(fmt).name if fmt else detect(p), []).append(p)
     return groups
 
