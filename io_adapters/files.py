@@ -351,12 +351,31 @@ def activity(desc: str) -> Iterator[None]:
         shown.close()
 
 
+_outer_bars = 0  # bars of a whole job open in this process: the bars of its parts stay quiet
+
+
+@contextlib.contextmanager
+def job_progress(*, desc: str, total: int, unit: str) -> Iterator[tqdm]:
+    """One bar for a whole job of ``total`` parts (convert's pieces, say): the bars the parts would
+    show of their own (a reader's "0/1 recording") are not shown while it is open."""
+    global _outer_bars
+    with bar(desc=desc, total=total, unit=unit) as shown:
+        _outer_bars += 1
+        try:
+            yield shown
+        finally:
+            _outer_bars -= 1
+
+
 def bar(
     *, desc: str, total: int | float | None = None, unit: str = "it", bar_format: str | None = None
 ) -> tqdm:
-    """A manual progress bar (``update(n)``): a bar on a terminal, a line every few seconds otherwise."""
+    """A manual progress bar (``update(n)``): a bar on a terminal, a line every few seconds otherwise;
+    none while a :func:`job_progress` bar is open."""
     cls = tqdm if sys.stderr.isatty() else ProgressLines
     kwargs = _bar_kwargs(total)
+    if _outer_bars:
+        kwargs["disable"] = True
     if bar_format is not None:
         kwargs["bar_format"] = bar_format
     return cls(desc=desc, total=total, unit=unit, **kwargs)

@@ -29,7 +29,7 @@ from lanecast.io_adapters.datasets.highd import stream as highd_stream
 from lanecast.io_adapters.datasets.ngsim import stream as ngsim_stream
 from lanecast.io_adapters.datasets.parquet import tables as parquet_format
 from lanecast.io_adapters.errors import InputError
-from lanecast.io_adapters.files import atomic_path
+from lanecast.io_adapters.files import atomic_path, job_progress
 from lanecast.io_adapters.formats import registry
 from lanecast.io_adapters.formats.pieces import MAX_ROWS, Piece, parquet_pieces
 from lanecast.io_adapters.formats.registry import Pieces
@@ -297,8 +297,10 @@ def convert(
     the driver appends in order (the same output as one process). Returns (rows, tracks)."""
     with TrackTableWriter(out, directory=directory) as writer:
         if ordered_map is None:
-            for piece in pieces:
-                writer.write(piece.read(), piece.paths[0], continues=piece.continues)
+            with job_progress(desc="convert", total=len(pieces), unit="piece") as shown:
+                for piece in pieces:
+                    writer.write(piece.read(), piece.paths[0], continues=piece.continues)
+                    shown.update(1)
         else:
             with SpillDirectory(Path(out), "parts") as parts:
                 task = functools.partial(write_part, root=str(parts.path))

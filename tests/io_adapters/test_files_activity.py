@@ -46,3 +46,16 @@ def test_a_terminal_without_a_size_still_gets_a_visible_bar(monkeypatch: pytest.
     finally:
         os.close(leader)
         os.close(follower)
+
+
+def test_a_job_bar_keeps_the_bars_of_its_parts_quiet(capsys: pytest.CaptureFixture[str]) -> None:
+    with files.job_progress(desc="convert", total=3, unit="piece") as job:
+        for _ in range(3):
+            for _ in files.progress(range(1), desc="highD", unit="recording"):
+                pass
+            job.update(1)
+    err = capsys.readouterr().err
+    assert "highD" not in err and "convert: 3/3 piece" in err
+    for _ in files.progress(range(1), desc="highD", unit="recording"):  # alone again: shown
+        pass
+    assert "highD: 1/1 recording" in capsys.readouterr().err
