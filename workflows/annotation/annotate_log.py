@@ -31,7 +31,7 @@ from rosbags.rosbag2 import Reader as Reader2
 from lanecast.io_adapters.contracts import forecasts as forecasts_contract
 from lanecast.io_adapters.contracts.track_table import read_meta
 from lanecast.io_adapters.errors import InputError, LogError
-from lanecast.io_adapters.files import atomic_path, check_input, checksum
+from lanecast.io_adapters.files import activity, atomic_path, check_input, checksum
 from lanecast.io_adapters.formats import registry
 from lanecast.io_adapters.logs import forecast_messages as fm
 from lanecast.io_adapters.logs.autoware import predicted_objects_encode as autoware_encode
@@ -256,7 +256,8 @@ def annotate_log(
     )
     read_here = tracks is None and need_tracks
     if read_here:
-        tracks = read_tracks(src, options.topic, salvage=options.salvage and kind == "mcap")
+        with activity(f"annotate: {src.name}: reading its tracks"):
+            tracks = read_tracks(src, options.topic, salvage=options.salvage and kind == "mcap")
     read_s = time.perf_counter() - started
     what_ifs: pa.Table | None = None
     if options.explain:
@@ -271,7 +272,8 @@ def annotate_log(
         what_ifs = what_if_table(windows, forecaster)
     if forecasts is None:
         assert tracks is not None
-        forecasts = predict(tracks, options, validated=read_here)
+        with activity(f"annotate: {src.name}: forecasting"):
+            forecasts = predict(tracks, options, validated=read_here)
     model_s = time.perf_counter() - started - read_s
 
     frame_ids: str | dict[str, str] = options.frame_id

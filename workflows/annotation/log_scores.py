@@ -26,7 +26,7 @@ from rosbags.highlevel import AnyReader
 from lanecast.io_adapters.contracts.window_frame import to_window_frame
 from lanecast.io_adapters.contracts.windows import MANEUVERS
 from lanecast.io_adapters.errors import InputError, LanecastError, LogError
-from lanecast.io_adapters.files import progress, staged_files
+from lanecast.io_adapters.files import activity, progress, staged_files
 from lanecast.io_adapters.formats import registry
 from lanecast.io_adapters.logs.forecast_batch import N_STEPS
 from lanecast.io_adapters.logs.forecast_messages import PREDICTION_TOPIC
@@ -406,7 +406,8 @@ def _write_reports(paths: list[Path], out: Path, topic: str | None, examples: in
     links: list[tuple[str, str]] = []
     for log in progress(logs, desc="report", total=len(logs), unit="log"):
         try:
-            part = score_log(log, topic)
+            with activity(f"report: {log.name}: reading its tracks and forecasts, scoring"):
+                part = score_log(log, topic)
         except InputError as exc:
             if len(logs) == 1:  # the one log's own error, with its place, is the command's
                 raise
@@ -422,14 +423,15 @@ def _write_reports(paths: list[Path], out: Path, topic: str | None, examples: in
             "scored": len(part["future"]),
             "always_straight": always_straight_of([part]),
         }
-        page = write(
-            out / "logs" / names[log],
-            metrics_of([part]),
-            meta,
-            example_scenes([part], examples),
-            title=f"lanecast report: {log.name}",
-            links=[("all logs", os.path.relpath(out / "report.html", out / "logs" / names[log]))],
-        )
+        with activity(f"report: {log.name}: writing its page"):
+            page = write(
+                out / "logs" / names[log],
+                metrics_of([part]),
+                meta,
+                example_scenes([part], examples),
+                title=f"lanecast report: {log.name}",
+                links=[("all logs", os.path.relpath(out / "report.html", out / "logs" / names[log]))],
+            )
         links.append(
             (f"{log.name}: {len(part['future']):,} forecasts scored", page.relative_to(out).as_posix())
         )
