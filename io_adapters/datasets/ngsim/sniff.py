@@ -44,8 +44,14 @@ def sniff(path: Path) -> bool:
     tokens = first.split()
     if len(tokens) != len(TXT_COLUMNS):
         return False
+    # 18 fields, nearly all numbers: a .txt whose first row has a bad cell or two is still one (the
+    # reader names the cell by line and column, as it does on any other line)
+    return sum(_is_number(t) for t in tokens) >= len(TXT_COLUMNS) - 2
+
+
+def _is_number(token: str) -> bool:
     try:
-        [float(t) for t in tokens]
+        float(token)
     except ValueError:
         return False
     return True
