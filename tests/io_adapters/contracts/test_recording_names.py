@@ -50,7 +50,8 @@ def test_two_recordings_of_one_number_window_convert_and_summarise_together(
     capsys.readouterr()
     assert main(["info", str(tmp_path / "a.parquet"), str(tmp_path / "b.parquet")]) == 0
     out = capsys.readouterr().out  # info describes each input on its own
-    assert out.count("  highd-01-lower ") == 2 and "@" not in out
+    blocks = [line for line in out.splitlines() if not line.startswith(" ")]
+    assert blocks == [str(tmp_path / "a.parquet"), str(tmp_path / "b.parquet")] and "@" not in out
     assert main(["info", str(tmp_path / "both.parquet")]) == 0
     assert "highd-01-lower@sim2 " in capsys.readouterr().out
     for inputs, out_dir in (([sim1, sim2], "w1"), ([tmp_path / "a.parquet", tmp_path / "b.parquet"], "w2")):
