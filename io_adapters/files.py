@@ -357,8 +357,13 @@ _outer_bars = 0  # bars of a whole job open in this process: the bars of its par
 @contextlib.contextmanager
 def job_progress(*, desc: str, total: int, unit: str) -> Iterator[tqdm]:
     """One bar for a whole job of ``total`` parts (convert's pieces, say): the bars the parts would
-    show of their own (a reader's "0/1 recording") are not shown while it is open."""
+    show of their own (a reader's "0/1 recording") are not shown while it is open. A job of one
+    part shows that part's bars instead."""
     global _outer_bars
+    if total <= 1:  # one part: its own bar says more (a reader's recordings), and nothing is doubled
+        with tqdm(total=total, disable=True) as silent:
+            yield silent
+        return
     with bar(desc=desc, total=total, unit=unit) as shown:
         _outer_bars += 1
         try:
