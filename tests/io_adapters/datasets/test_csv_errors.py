@@ -57,9 +57,6 @@ def test_values_beyond_float32_are_refused_at_their_line(tmp_path: Path) -> None
     assert (err.value.line, err.value.column) == (5, "v_Acc")
 
 
-# ------------------------------------------------------------------------------- wave 8: tables
-
-
 def _cell_edit(column: str, value: str) -> Callable[[str], str]:
     """An edit for :func:`_quoted` replacing the (unquoted) ``column`` of a highD tracks or NGSIM CSV line."""
 

@@ -1,6 +1,6 @@
 """Property-based hostile inputs (hypothesis): valid files of every format, mutated, must give a
 clean refusal naming the file or a correct reading; never another exception, a hang or a silent
-change (issue 13).
+change.
 
 Seeds: the highD triple, NGSIM .txt and CSV, a Parquet track table, MCAP (chunked protobuf with
 CRCs; unchunked JSON), ROS 1 bags, ROS 2 bags (sqlite3 and MCAP storage) and a model card.
@@ -22,7 +22,7 @@ The oracle per format (what "correct" means for an accepted mutant):
 
 Every example runs under a time bound (``LANECAST_FUZZ_SECONDS``, default 30 s). CI runs
 ``LANECAST_FUZZ_EXAMPLES`` examples per format (default 12); the long campaign is
-``LANECAST_FUZZ_EXAMPLES=500 pytest -m slow tests/test_fuzz_inputs.py``.
+``LANECAST_FUZZ_EXAMPLES=500 pytest -m slow tests/io_adapters/formats/test_formats_fuzz.py``.
 """
 
 from __future__ import annotations

@@ -329,8 +329,8 @@ def _seeded_model(directory: Path) -> Path:
 def test_forecast_in_annotated_log_matches_batch_prediction(tmp_path: Path) -> None:
     """The forecast written for a vehicle equals what batch prediction gives for the same window,
     and reading the annotated log back gives the original tracks (forecasts are not objects)."""
-    forecast = pytest.importorskip("lanecast.workflows.annotation.track_forecasts")
     from lanecast.io_adapters.formats import registry
+    from lanecast.workflows.annotation import track_forecasts as forecast
 
     model = _seeded_model(tmp_path / "model")
     n_frames, rate = 120, 10.0  # 12 s at 10 Hz, two vehicles side by side
@@ -388,7 +388,6 @@ def test_forecast_in_annotated_log_matches_batch_prediction(tmp_path: Path) -> N
 @pytest.mark.parametrize("fmt", ["ros2", "ros1"])
 def test_bags_written_by_lanecast_are_annotated_end_to_end(tmp_path: Path, fmt: str) -> None:
     """Pass 1 through the registry's bag reader, the model, pass 2 into a ROS 2 bag / an MCAP."""
-    pytest.importorskip("lanecast.workflows.annotation.track_forecasts")
     from rosbags.highlevel import AnyReader
     from ruamel.yaml import YAML  # rosbags' own YAML library
 

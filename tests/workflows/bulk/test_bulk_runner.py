@@ -1,6 +1,6 @@
 """Bulk annotation: manifest, resume after failure and after SIGKILL, worker processes, Ray.
 
-The logs are real MCAP files (tests/test_annotate.make_mcap) with precomputed forecasts tables
+The logs are real MCAP files (conftest.make_mcap) with precomputed forecasts tables
 (``--forecasts DIR``), so that these tests exercise the runner and not the model.
 """
 

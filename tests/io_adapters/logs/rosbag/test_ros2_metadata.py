@@ -63,7 +63,7 @@ def test_ros2_metadata_naming_qos_profiles_rosbags_cannot_parse_names_its_line(
 ) -> None:
     """offered_qos_profiles: 'junk' was 'cannot read the bag: AnyReaderError: Invalid bag metadata:
     string indices must be integers, not 'str'': neither metadata.yaml nor a line (found by
-    tests/test_fuzz_logs.py). Now metadata.yaml, the line and the key."""
+    tests/io_adapters/logs/test_logs_fuzz.py). Now metadata.yaml, the line and the key."""
     from lanecast.io_adapters.logs.rosbag import writer as rosbag_writer
 
     bag = rosbag_writer.write(table, tmp_path / "b", "ros2", storage="mcap")
