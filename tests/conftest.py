@@ -1,12 +1,30 @@
 """Shared fixtures and factories for the whole test session.
 
-Factories (plain functions, imported by the test modules with ``from conftest import …``):
+The tests mirror the code: ``tests/<package>/<subpackage>/test_<module>.py`` (a format's hostile
+inputs in ``test_<format>_checks.py`` beside its reader's tests, a command's in
+``tests/workflows/test_cli_<command>.py``). Test folders have no ``__init__.py`` and every test
+module has a basename of its own across the tree; pytest's default import mode puts this folder on
+``sys.path``, so test modules import these factories with ``from conftest import …``. For that
+reason there is one conftest.py, here: a second one below would take the name ``conftest``.
+
+Factories (plain functions) and fixtures, by section:
+- paths: :data:`TESTS` (this folder), :data:`REPO`, the fixture files :data:`HIGHD`,
+  :data:`US101`, :data:`PEACHTREE`;
 - track tables: :func:`make_track_table` (columns → a validated one-recording table, defaults
   filled), :func:`table_of` and :func:`straight` (vehicles at 30 m/s in lanes), the seven-neighbour
-  scene :data:`SEVEN` with its expected slots;
-- windows datasets: :func:`synthetic_windows` (straight and lane-changing targets with a leader);
+  scene :data:`SEVEN` with its expected slots; copies of a Parquet table with one edit;
+- windows datasets: :func:`synthetic_windows` (straight and lane-changing targets with a leader),
+  damaged copies (:func:`windows_copy`);
 - drive logs and forecasts: :func:`make_mcap`, :func:`forecasts_for`, :func:`records`,
-  :func:`assert_all_original_records_equal`.
+  :func:`assert_all_original_records_equal`; MCAP records byte by byte (:func:`mcap_record_spans`,
+  :func:`chunk_records`, :func:`fix_crcs`) and logs of JSON SceneUpdates (:func:`json_log`); ROS 1
+  bag records (:func:`_ros1_records`) and the ``table``/``log`` fixtures of the damage tests;
+- highD recordings and NGSIM exports with one cell or line changed; model cards with one field
+  changed; command-line runs that must be refused in one line (:func:`refused`, :func:`cli`).
+
+Size: over 500 lines because every factory more than one test module uses lives here (pytest
+offers no other place that test modules share without a package); the sections above keep it
+navigable.
 """
 
 from __future__ import annotations
@@ -399,6 +417,9 @@ def assert_all_original_records_equal(src: Path, dst: Path) -> tuple[dict[int, C
     return b["channels"], added
 
 
+# ------------------------ MCAP records, byte by byte (offsets, opcodes, CRCs) for the damage tests
+
+
 OP_CHUNK, OP_MESSAGE_INDEX, OP_CHUNK_INDEX, OP_SUMMARY_OFFSET, OP_FOOTER = 0x06, 0x07, 0x08, 0x0E, 0x02
 
 
@@ -489,188 +510,6 @@ def _summary_channel(d: bytearray) -> tuple[int, str]:
     return at, "is not the data section's"
 
 
-HEADER = (
-    "Vehicle_ID,Frame_ID,Total_Frames,Global_Time,Local_X,Local_Y,Global_X,Global_Y,v_length,v_Width,"
-    "v_Class,v_Vel,v_Acc,Lane_ID,O_Zone,D_Zone,Int_ID,Section_ID,Direction,Movement,Preceding,Following,"
-    "Space_Headway,Time_Headway,Location"
-)
-
-
-EPOCH = 1118846980000  # US-101's first period (ms)
-
-
-def _rows(
-    vehicle: int, frames: range, y0: float, step: float, epoch: int = EPOCH, loc: str = "us-101"
-) -> list[str]:
-    """CSV-export rows of one vehicle whose Local_Y moves ``step`` ft per frame."""
-    return [
-        f"{vehicle},{f},{len(frames)},{epoch + 100 * f},18.0,{y0 + step * (f - frames[0]):.3f},"
-        f"6451155.641,1873444.255,15.0,6.0,2,40.0,0.0,2,,,,,,,0,0,0.0,0.0,{loc}"
-        for f in frames
-    ]
-
-
-def _export(tmp_path: Path, rows: list[str]) -> Path:
-    path = tmp_path / "export.csv"
-    path.write_text("\n".join([HEADER, *rows]) + "\n")
-    return path
-
-
-HIGHD = TESTS / "data" / "highd"
-
-
-HIGHD_HEADER = (
-    "frame,id,x,y,width,height,xVelocity,yVelocity,xAcceleration,yAcceleration,frontSightDistance,"
-    "backSightDistance,dhw,thw,ttc,precedingXVelocity,precedingId,followingId,leftPrecedingId,"
-    "leftAlongsideId,leftFollowingId,rightPrecedingId,rightAlongsideId,rightFollowingId,laneId"
-)
-
-
-def _highd(tmp_path: Path, *, velocity: float = 1.0, position: float = 1.0, frame_rate: str = "25") -> Path:
-    """A highD recording of two cars, 2.4 s at 30 m/s each way (25 Hz), velocities scaled by
-    ``velocity``, positions by ``position``, recordingMeta's frameRate ``frame_rate``."""
-    rows = []
-    for vid, vx, y, lane in ((1, 30.0, 15.2, 6), (2, -30.0, 5.0, 2)):
-        for k in range(60):
-            x = (100.0 + vx * k / 25) * position
-            rows.append(
-                f"{k + 1},{vid},{x:.3f},{y * position:.3f},4.50,2.00,{vx * velocity:.3f},0.00,0.00,0.00,"
-                f"0,0,0,0,0,0,0,0,0,0,0,0,0,0,{lane}"
-            )
-    (tmp_path / "01_tracks.csv").write_text("\n".join([HIGHD_HEADER, *rows]) + "\n")
-    meta = (HIGHD / "01_tracksMeta.csv").read_text().splitlines()[0]
-    (tmp_path / "01_tracksMeta.csv").write_text(
-        f"{meta}\n1,4.50,2.00,1,60,60,Car,2,58.8,30,30,30,0,0,-1,0\n2,4.50,2.00,1,60,60,Car,1,58.8,-30,-30,-30,0,0,-1,0\n"
-    )
-    recording_meta = (HIGHD / "01_recordingMeta.csv").read_text().splitlines()
-    cells = recording_meta[1].split(",")
-    cells[1] = frame_rate
-    (tmp_path / "01_recordingMeta.csv").write_text("\n".join([recording_meta[0], ",".join(cells)]) + "\n")
-    return tmp_path / "01_tracks.csv"
-
-
-def run(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str]:
-    """Exit status and the last line of stderr (progress lines come before it)."""
-    status = main(args)
-    err = capsys.readouterr().err.strip()
-    assert "Traceback" not in err
-    return status, err.splitlines()[-1] if err else ""
-
-
-def refused(args: list[str], capsys: pytest.CaptureFixture[str], *names: str) -> str:
-    """Run a command that must refuse its input: status 2, one error line naming ``names``."""
-    status, line = run(args, capsys)
-    assert status == 2, line
-    assert line.startswith(f"lanecast {args[0]}: error: "), line
-    for name in names:
-        assert name in line, line
-    return line
-
-
-def highd_copy(tmp_path: Path, kind: str = "", edit: Callable[[list[str]], list[str]] | None = None) -> Path:
-    """The highD fixture in ``tmp_path/rec`` with ``01_<kind>.csv`` edited line by line."""
-    rec = tmp_path / "rec"
-    rec.mkdir()
-    for src in HIGHD.glob("01_*.csv"):
-        shutil.copy(src, rec / src.name)
-    if edit is not None:
-        path = rec / f"01_{kind}.csv"
-        path.write_text("".join(line + "\n" for line in edit(path.read_text().splitlines())))
-    return rec
-
-
-def set_cell(
-    column: str, value: str | Callable[[str], str], lines: set[int] | None = None
-) -> Callable[[list[str]], list[str]]:
-    """An edit setting ``column`` on the given 1-based ``lines`` (every data line by default)."""
-
-    def edit(rows: list[str]) -> list[str]:
-        index = rows[0].split(",").index(column)
-        out = [rows[0]]
-        for number, row in enumerate(rows[1:], start=2):
-            cells = row.split(",")
-            if lines is None or number in lines:
-                cells[index] = value(cells[index]) if callable(value) else value
-            out.append(",".join(cells))
-        return out
-
-    return edit
-
-
-def no_output(out: Path) -> None:
-    assert not out.exists()
-    assert not [p for p in out.parent.iterdir() if p.name.startswith(f".{out.name}")]
-
-
-def convert_refused(source: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], *names: str) -> str:
-    """``lanecast convert SOURCE --out tmp_path/out.parquet`` must refuse its input (see
-    :func:`refused`) and leave no output, not even a temporary one."""
-    out = tmp_path / "out.parquet"
-    line = refused(["convert", str(source), "--out", str(out)], capsys, *names)
-    no_output(out)
-    return line
-
-
-# ------------------------------------------------------------------------------------------ NGSIM
-
-US101 = TESTS / "data" / "ngsim" / "us-101" / "trajectories-fixture.txt"
-
-
-# ---------------------------------------------------------------------------------------- Parquet
-
-
-def track_table_copy(tmp_path: Path, edit: Callable[[pa.Table], pa.Table] | None = None) -> Path:
-    """The highD fixture as a Parquet track table (``edit``ed, written as is) in ``tmp_path``."""
-    from lanecast.io_adapters.formats import registry
-
-    table = registry.read_any([HIGHD])
-    path = tmp_path / "table.parquet"
-    pq.write_table(table if edit is None else edit(table), path)
-    return path
-
-
-def _set_row(name: str, row: int, value: float) -> Callable[[pa.Table], pa.Table]:
-    def edit(table: pa.Table) -> pa.Table:
-        values = table.column(name).to_numpy().copy()
-        values[row] = value
-        index = table.schema.get_field_index(name)
-        return table.set_column(
-            index, table.schema.field(name), pa.array(values, table.schema.field(name).type)
-        )
-
-    return edit
-
-
-# -------------------------------------------------------------------------------- windows datasets
-
-
-def windows_copy(tmp_path: Path, damage: Callable[[Path], object]) -> Path:
-    """A small windows dataset in ``tmp_path/win``, then ``damage``d."""
-    from conftest import synthetic_windows
-
-    from lanecast.io_adapters.windows_store.dataset import save_windows
-
-    directory = save_windows(synthetic_windows(60), tmp_path / "win")
-    damage(directory)
-    return directory
-
-
-def _edit_npy(name: str, edit: Callable[[np.ndarray], np.ndarray]) -> Callable[[Path], None]:
-    def damage(directory: Path) -> None:
-        path = directory / f"{name}.npy"
-        np.save(path, edit(np.load(path)))
-
-    return damage
-
-
-def _set_first(value: float) -> Callable[[np.ndarray], np.ndarray]:
-    def edit(array: np.ndarray) -> np.ndarray:
-        array.reshape(-1)[7] = value
-        return array
-
-    return edit
-
-
 def _s(text: str | bytes) -> bytes:
     raw = text.encode() if isinstance(text, str) else text
     return struct.pack("<I", len(raw)) + raw
@@ -678,6 +517,61 @@ def _s(text: str | bytes) -> bytes:
 
 def _record(op: int, body: bytes) -> bytes:
     return bytes([op]) + struct.pack("<Q", len(body)) + body
+
+
+def chunk_layout(path: Path) -> list[tuple[int, int, set[int]]]:
+    """(offset, length, log times of its messages) of every chunk, from the mcap library's summary."""
+    from mcap.data_stream import ReadDataStream
+    from mcap.reader import make_reader
+    from mcap.records import Chunk, Message
+    from mcap.stream_reader import breakup_chunk
+
+    with path.open("rb") as f:
+        summary = make_reader(f).get_summary()
+        assert summary is not None
+        out = []
+        for ci in summary.chunk_indexes:
+            f.seek(ci.chunk_start_offset + 9)
+            chunk = Chunk.read(ReadDataStream(f))
+            times = {r.log_time for r in breakup_chunk(chunk) if isinstance(r, Message)}
+            out.append((ci.chunk_start_offset, ci.chunk_length, times))
+    return out
+
+
+def rewrite_mcap(
+    clean: Path,
+    bad: Path,
+    edit: Callable[[int, int, int, bytes], bytes | None] | None = None,
+    log_time_of: Callable[[int, int], int] | None = None,
+    **writer_options: Any,
+) -> None:
+    """``clean`` rewritten to ``bad`` by the mcap library (valid CRCs; ``writer_options`` for its
+    Writer), every message's data passed through ``edit(index, number of messages, log_time,
+    data)`` (None: unchanged) and its log time through ``log_time_of(index, log_time)``."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    with clean.open("rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        assert summary is not None
+        messages = [(ch.id, m.log_time, m.publish_time, m.data) for _s, ch, m in reader.iter_messages()]
+    with bad.open("wb") as f:
+        w = Writer(f, **writer_options)
+        w.start()
+        sids = {i: w.register_schema(s.name, s.encoding, s.data) for i, s in summary.schemas.items()}
+        cids = {
+            i: w.register_channel(c.topic, c.message_encoding, sids[c.schema_id], c.metadata)
+            for i, c in summary.channels.items()
+        }
+        for k, (cid, log_time, publish_time, data) in enumerate(messages):
+            edited = None if edit is None else edit(k, len(messages), log_time, data)
+            new_time = log_time if log_time_of is None else log_time_of(k, log_time)
+            w.add_message(cids[cid], new_time, data if edited is None else edited, publish_time)
+        w.finish()
+
+
+# ------------------------------------------------------------------ MCAP logs of JSON SceneUpdates
 
 
 def _entity(track: int, x: float, sec: int = 0, nsec: int = 0) -> dict[str, object]:
@@ -724,89 +618,7 @@ def straight_messages(topic: str = "/objects", n: int = 20) -> list[tuple[str, i
     return [(topic, (i + 1) * 100_000_000, [_entity(1, 2.0 * i), _entity(2, 50 + 2.0 * i)]) for i in range(n)]
 
 
-def cli(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str]:
-    status = main(args)
-    err = capsys.readouterr().err.strip()
-    return status, err
-
-
-def assert_one_line_error(status: int, err: str, command: str, name: str) -> None:
-    assert status == 2
-    lines = err.splitlines()
-    assert len(lines) == 1 and lines[0].startswith(f"lanecast {command}: error: "), err
-    assert name in lines[0]
-
-
-# ----------------------------------------------------------------------------------------- Parquet
-
-
-def _parquet(tmp_path: Path) -> tuple[Path, pa.Table]:
-    table = mcap_reader.read(json_log(tmp_path / "src.mcap", straight_messages()))
-    return track_table.write_parquet(table, tmp_path / "t.parquet"), table
-
-
-def _highd_variant(tmp_path: Path, line: int, column: str, value: str) -> Path:
-    """A copy of the highD fixture with one cell of 01_tracks.csv replaced (line 1 = header)."""
-    for kind in ("tracks", "tracksMeta", "recordingMeta"):
-        (tmp_path / f"01_{kind}.csv").write_bytes((HIGHD / f"01_{kind}.csv").read_bytes())
-    path = tmp_path / "01_tracks.csv"
-    lines = path.read_text().splitlines()
-    header = lines[0].split(",")
-    cells = lines[line - 1].split(",")
-    cells[header.index(column)] = value
-    lines[line - 1] = ",".join(cells)
-    path.write_text("\n".join(lines) + "\n")
-    return path
-
-
-PEACHTREE = TESTS / "data" / "ngsim" / "peachtree_sample.csv"
-
-
-def _txt_variant(tmp_path: Path, edits: dict[tuple[int, int], str]) -> Path:
-    """The US-101 fixture with cells replaced: (1-based line, 0-based field) → text."""
-    lines = [line.split() for line in US101.read_text().splitlines()]
-    for (line, field), value in edits.items():
-        lines[line - 1][field] = value
-    path = tmp_path / "us-101" / "trajectories-edit.txt"
-    path.parent.mkdir(exist_ok=True)
-    path.write_text("\n".join("  ".join(cells) for cells in lines) + "\n")
-    return path
-
-
-def _quoted(source: Path, target: Path, line: int, edit: Callable[[str], str]) -> Path:
-    """A copy of ``source`` (its first 200 lines) with ``edit`` applied to ``line`` (1 = header)."""
-    lines = source.read_text().splitlines()[:200]
-    lines[line - 1] = edit(lines[line - 1])
-    target.write_text("\n".join(lines) + "\n")
-    return target
-
-
-# ------------------------------------------------------------------------------------- model cards
-
-
-def _model_copy(tmp_path: Path, edit: object = None) -> Path:
-    from lanecast.models.card import SHIPPED_STEM, WEIGHTS_DIR
-
-    out = tmp_path / "model"
-    out.mkdir()
-    for suffix in (".safetensors", ".json"):
-        (out / f"stcnn{suffix}").write_bytes((WEIGHTS_DIR / f"{SHIPPED_STEM}{suffix}").read_bytes())
-    if edit is not None:
-        card = json.loads((out / "stcnn.json").read_text())
-        edit(card)  # type: ignore[operator]
-        (out / "stcnn.json").write_text(json.dumps(card))
-    return out
-
-
-def _set(path: str, value: object) -> object:
-    def edit(card: dict[str, object]) -> None:
-        *parents, last = path.split(".")
-        node = card
-        for key in parents:
-            node = node[key]  # type: ignore[index, assignment]
-        node[last] = value  # type: ignore[index]
-
-    return edit
+# ----------------------------------------------------- the logs and ROS 1 bags of the damage tests
 
 
 RATE = 25.0
@@ -822,25 +634,6 @@ def table() -> pa.Table:
 def log(tmp_path_factory: pytest.TempPathFactory, table: pa.Table) -> Path:
     """The table as an MCAP with many small chunks."""
     return mcap_writer.write(table, tmp_path_factory.mktemp("log") / "log.mcap", "mcap", chunk_size=3000)
-
-
-def chunk_layout(path: Path) -> list[tuple[int, int, set[int]]]:
-    """(offset, length, log times of its messages) of every chunk, from the mcap library's summary."""
-    from mcap.data_stream import ReadDataStream
-    from mcap.reader import make_reader
-    from mcap.records import Chunk, Message
-    from mcap.stream_reader import breakup_chunk
-
-    with path.open("rb") as f:
-        summary = make_reader(f).get_summary()
-        assert summary is not None
-        out = []
-        for ci in summary.chunk_indexes:
-            f.seek(ci.chunk_start_offset + 9)
-            chunk = Chunk.read(ReadDataStream(f))
-            times = {r.log_time for r in breakup_chunk(chunk) if isinstance(r, Message)}
-            out.append((ci.chunk_start_offset, ci.chunk_length, times))
-    return out
 
 
 def _ros1_records(
@@ -960,6 +753,9 @@ def _ros1_damage(kind: str, data: bytearray) -> tuple[int, str]:
     return header[0], f"puts the index at offset {chunks[1][0] + 7}, where no record starts"
 
 
+# ---------------------------------------------------------------------------------- annotated logs
+
+
 def _prediction_doc() -> dict[str, object]:
     target = {
         "track_id": 4,
@@ -979,34 +775,272 @@ def _prediction_doc() -> dict[str, object]:
     }
 
 
-def rewrite_mcap(
-    clean: Path,
-    bad: Path,
-    edit: Callable[[int, int, int, bytes], bytes | None] | None = None,
-    log_time_of: Callable[[int, int], int] | None = None,
-    **writer_options: Any,
-) -> None:
-    """``clean`` rewritten to ``bad`` by the mcap library (valid CRCs; ``writer_options`` for its
-    Writer), every message's data passed through ``edit(index, number of messages, log_time,
-    data)`` (None: unchanged) and its log time through ``log_time_of(index, log_time)``."""
-    from mcap.reader import make_reader
-    from mcap.writer import Writer
+# -------------------------------------------------------------------------------- highD recordings
 
-    with clean.open("rb") as f:
-        reader = make_reader(f)
-        summary = reader.get_summary()
-        assert summary is not None
-        messages = [(ch.id, m.log_time, m.publish_time, m.data) for _s, ch, m in reader.iter_messages()]
-    with bad.open("wb") as f:
-        w = Writer(f, **writer_options)
-        w.start()
-        sids = {i: w.register_schema(s.name, s.encoding, s.data) for i, s in summary.schemas.items()}
-        cids = {
-            i: w.register_channel(c.topic, c.message_encoding, sids[c.schema_id], c.metadata)
-            for i, c in summary.channels.items()
-        }
-        for k, (cid, log_time, publish_time, data) in enumerate(messages):
-            edited = None if edit is None else edit(k, len(messages), log_time, data)
-            new_time = log_time if log_time_of is None else log_time_of(k, log_time)
-            w.add_message(cids[cid], new_time, data if edited is None else edited, publish_time)
-        w.finish()
+
+HIGHD = TESTS / "data" / "highd"
+
+
+HIGHD_HEADER = (
+    "frame,id,x,y,width,height,xVelocity,yVelocity,xAcceleration,yAcceleration,frontSightDistance,"
+    "backSightDistance,dhw,thw,ttc,precedingXVelocity,precedingId,followingId,leftPrecedingId,"
+    "leftAlongsideId,leftFollowingId,rightPrecedingId,rightAlongsideId,rightFollowingId,laneId"
+)
+
+
+def _highd(tmp_path: Path, *, velocity: float = 1.0, position: float = 1.0, frame_rate: str = "25") -> Path:
+    """A highD recording of two cars, 2.4 s at 30 m/s each way (25 Hz), velocities scaled by
+    ``velocity``, positions by ``position``, recordingMeta's frameRate ``frame_rate``."""
+    rows = []
+    for vid, vx, y, lane in ((1, 30.0, 15.2, 6), (2, -30.0, 5.0, 2)):
+        for k in range(60):
+            x = (100.0 + vx * k / 25) * position
+            rows.append(
+                f"{k + 1},{vid},{x:.3f},{y * position:.3f},4.50,2.00,{vx * velocity:.3f},0.00,0.00,0.00,"
+                f"0,0,0,0,0,0,0,0,0,0,0,0,0,0,{lane}"
+            )
+    (tmp_path / "01_tracks.csv").write_text("\n".join([HIGHD_HEADER, *rows]) + "\n")
+    meta = (HIGHD / "01_tracksMeta.csv").read_text().splitlines()[0]
+    (tmp_path / "01_tracksMeta.csv").write_text(
+        f"{meta}\n1,4.50,2.00,1,60,60,Car,2,58.8,30,30,30,0,0,-1,0\n2,4.50,2.00,1,60,60,Car,1,58.8,-30,-30,-30,0,0,-1,0\n"
+    )
+    recording_meta = (HIGHD / "01_recordingMeta.csv").read_text().splitlines()
+    cells = recording_meta[1].split(",")
+    cells[1] = frame_rate
+    (tmp_path / "01_recordingMeta.csv").write_text("\n".join([recording_meta[0], ",".join(cells)]) + "\n")
+    return tmp_path / "01_tracks.csv"
+
+
+def highd_copy(tmp_path: Path, kind: str = "", edit: Callable[[list[str]], list[str]] | None = None) -> Path:
+    """The highD fixture in ``tmp_path/rec`` with ``01_<kind>.csv`` edited line by line."""
+    rec = tmp_path / "rec"
+    rec.mkdir()
+    for src in HIGHD.glob("01_*.csv"):
+        shutil.copy(src, rec / src.name)
+    if edit is not None:
+        path = rec / f"01_{kind}.csv"
+        path.write_text("".join(line + "\n" for line in edit(path.read_text().splitlines())))
+    return rec
+
+
+def set_cell(
+    column: str, value: str | Callable[[str], str], lines: set[int] | None = None
+) -> Callable[[list[str]], list[str]]:
+    """An edit setting ``column`` on the given 1-based ``lines`` (every data line by default)."""
+
+    def edit(rows: list[str]) -> list[str]:
+        index = rows[0].split(",").index(column)
+        out = [rows[0]]
+        for number, row in enumerate(rows[1:], start=2):
+            cells = row.split(",")
+            if lines is None or number in lines:
+                cells[index] = value(cells[index]) if callable(value) else value
+            out.append(",".join(cells))
+        return out
+
+    return edit
+
+
+def _highd_variant(tmp_path: Path, line: int, column: str, value: str) -> Path:
+    """A copy of the highD fixture with one cell of 01_tracks.csv replaced (line 1 = header)."""
+    for kind in ("tracks", "tracksMeta", "recordingMeta"):
+        (tmp_path / f"01_{kind}.csv").write_bytes((HIGHD / f"01_{kind}.csv").read_bytes())
+    path = tmp_path / "01_tracks.csv"
+    lines = path.read_text().splitlines()
+    header = lines[0].split(",")
+    cells = lines[line - 1].split(",")
+    cells[header.index(column)] = value
+    lines[line - 1] = ",".join(cells)
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+# ----------------------------------------------------------------------------------- NGSIM exports
+
+
+HEADER = (
+    "Vehicle_ID,Frame_ID,Total_Frames,Global_Time,Local_X,Local_Y,Global_X,Global_Y,v_length,v_Width,"
+    "v_Class,v_Vel,v_Acc,Lane_ID,O_Zone,D_Zone,Int_ID,Section_ID,Direction,Movement,Preceding,Following,"
+    "Space_Headway,Time_Headway,Location"
+)
+
+
+EPOCH = 1118846980000  # US-101's first period (ms)
+
+
+def _rows(
+    vehicle: int, frames: range, y0: float, step: float, epoch: int = EPOCH, loc: str = "us-101"
+) -> list[str]:
+    """CSV-export rows of one vehicle whose Local_Y moves ``step`` ft per frame."""
+    return [
+        f"{vehicle},{f},{len(frames)},{epoch + 100 * f},18.0,{y0 + step * (f - frames[0]):.3f},"
+        f"6451155.641,1873444.255,15.0,6.0,2,40.0,0.0,2,,,,,,,0,0,0.0,0.0,{loc}"
+        for f in frames
+    ]
+
+
+def _export(tmp_path: Path, rows: list[str]) -> Path:
+    path = tmp_path / "export.csv"
+    path.write_text("\n".join([HEADER, *rows]) + "\n")
+    return path
+
+
+US101 = TESTS / "data" / "ngsim" / "us-101" / "trajectories-fixture.txt"
+
+
+PEACHTREE = TESTS / "data" / "ngsim" / "peachtree_sample.csv"
+
+
+def _txt_variant(tmp_path: Path, edits: dict[tuple[int, int], str]) -> Path:
+    """The US-101 fixture with cells replaced: (1-based line, 0-based field) → text."""
+    lines = [line.split() for line in US101.read_text().splitlines()]
+    for (line, field), value in edits.items():
+        lines[line - 1][field] = value
+    path = tmp_path / "us-101" / "trajectories-edit.txt"
+    path.parent.mkdir(exist_ok=True)
+    path.write_text("\n".join("  ".join(cells) for cells in lines) + "\n")
+    return path
+
+
+def _quoted(source: Path, target: Path, line: int, edit: Callable[[str], str]) -> Path:
+    """A copy of ``source`` (its first 200 lines) with ``edit`` applied to ``line`` (1 = header)."""
+    lines = source.read_text().splitlines()[:200]
+    lines[line - 1] = edit(lines[line - 1])
+    target.write_text("\n".join(lines) + "\n")
+    return target
+
+
+# -------------------------------------------------------------------------- track tables (Parquet)
+
+
+def track_table_copy(tmp_path: Path, edit: Callable[[pa.Table], pa.Table] | None = None) -> Path:
+    """The highD fixture as a Parquet track table (``edit``ed, written as is) in ``tmp_path``."""
+    from lanecast.io_adapters.formats import registry
+
+    table = registry.read_any([HIGHD])
+    path = tmp_path / "table.parquet"
+    pq.write_table(table if edit is None else edit(table), path)
+    return path
+
+
+def _set_row(name: str, row: int, value: float) -> Callable[[pa.Table], pa.Table]:
+    def edit(table: pa.Table) -> pa.Table:
+        values = table.column(name).to_numpy().copy()
+        values[row] = value
+        index = table.schema.get_field_index(name)
+        return table.set_column(
+            index, table.schema.field(name), pa.array(values, table.schema.field(name).type)
+        )
+
+    return edit
+
+
+def _parquet(tmp_path: Path) -> tuple[Path, pa.Table]:
+    table = mcap_reader.read(json_log(tmp_path / "src.mcap", straight_messages()))
+    return track_table.write_parquet(table, tmp_path / "t.parquet"), table
+
+
+# ----------------------------------------------------------------------- windows datasets, damaged
+
+
+def windows_copy(tmp_path: Path, damage: Callable[[Path], object]) -> Path:
+    """A small windows dataset in ``tmp_path/win``, then ``damage``d."""
+    from conftest import synthetic_windows
+
+    from lanecast.io_adapters.windows_store.dataset import save_windows
+
+    directory = save_windows(synthetic_windows(60), tmp_path / "win")
+    damage(directory)
+    return directory
+
+
+def _edit_npy(name: str, edit: Callable[[np.ndarray], np.ndarray]) -> Callable[[Path], None]:
+    def damage(directory: Path) -> None:
+        path = directory / f"{name}.npy"
+        np.save(path, edit(np.load(path)))
+
+    return damage
+
+
+def _set_first(value: float) -> Callable[[np.ndarray], np.ndarray]:
+    def edit(array: np.ndarray) -> np.ndarray:
+        array.reshape(-1)[7] = value
+        return array
+
+    return edit
+
+
+# ------------------------------------------------------------------------------------- model cards
+
+
+def _model_copy(tmp_path: Path, edit: object = None) -> Path:
+    from lanecast.models.card import SHIPPED_STEM, WEIGHTS_DIR
+
+    out = tmp_path / "model"
+    out.mkdir()
+    for suffix in (".safetensors", ".json"):
+        (out / f"stcnn{suffix}").write_bytes((WEIGHTS_DIR / f"{SHIPPED_STEM}{suffix}").read_bytes())
+    if edit is not None:
+        card = json.loads((out / "stcnn.json").read_text())
+        edit(card)  # type: ignore[operator]
+        (out / "stcnn.json").write_text(json.dumps(card))
+    return out
+
+
+def _set(path: str, value: object) -> object:
+    def edit(card: dict[str, object]) -> None:
+        *parents, last = path.split(".")
+        node = card
+        for key in parents:
+            node = node[key]  # type: ignore[index, assignment]
+        node[last] = value  # type: ignore[index]
+
+    return edit
+
+
+# ------------------------------------------------------------------------------- command-line runs
+
+
+def run(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str]:
+    """Exit status and the last line of stderr (progress lines come before it)."""
+    status = main(args)
+    err = capsys.readouterr().err.strip()
+    assert "Traceback" not in err
+    return status, err.splitlines()[-1] if err else ""
+
+
+def refused(args: list[str], capsys: pytest.CaptureFixture[str], *names: str) -> str:
+    """Run a command that must refuse its input: status 2, one error line naming ``names``."""
+    status, line = run(args, capsys)
+    assert status == 2, line
+    assert line.startswith(f"lanecast {args[0]}: error: "), line
+    for name in names:
+        assert name in line, line
+    return line
+
+
+def no_output(out: Path) -> None:
+    assert not out.exists()
+    assert not [p for p in out.parent.iterdir() if p.name.startswith(f".{out.name}")]
+
+
+def convert_refused(source: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], *names: str) -> str:
+    """``lanecast convert SOURCE --out tmp_path/out.parquet`` must refuse its input (see
+    :func:`refused`) and leave no output, not even a temporary one."""
+    out = tmp_path / "out.parquet"
+    line = refused(["convert", str(source), "--out", str(out)], capsys, *names)
+    no_output(out)
+    return line
+
+
+def cli(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str]:
+    status = main(args)
+    err = capsys.readouterr().err.strip()
+    return status, err
+
+
+def assert_one_line_error(status: int, err: str, command: str, name: str) -> None:
+    assert status == 2
+    lines = err.splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"lanecast {command}: error: "), err
+    assert name in lines[0]

@@ -15,7 +15,7 @@ import pytest
 from conftest import (
     HEADER,
     HIGHD,
-    TESTS,
+    PEACHTREE,
     US101,
     _export,
     _parquet,
@@ -83,9 +83,6 @@ def test_other_text_files_in_an_ngsim_folder_are_named_on_stderr(
     assert main(["convert", str(folder), "--out", str(out)]) == 0
     assert f"{folder / 'README.txt'}: not an NGSIM file, left out" in capsys.readouterr().err
     assert out.is_file()
-
-
-PEACHTREE = TESTS / "data" / "ngsim" / "peachtree_sample.csv"
 
 
 @pytest.mark.parametrize(("extra", "named"), [("Local_Y", "Local_Y"), ("vehicle_id", "vehicle_id")])
