@@ -397,6 +397,32 @@ def records(path: Path) -> dict[str, Any]:
     return out
 
 
+def assert_same_table(
+    a: pa.Table, b: pa.Table, *, acceleration_atol: tuple[float, float] = (1e-5, 1e-5)
+) -> None:
+    """Same rows of a track table written and read back: ids, frames, times, classes and lanes
+    equal, positions within 1 mm, sizes, headings and velocities within 1e-5, the accelerations
+    ``ax``, ``ay`` within ``acceleration_atol`` (a log that carries none gives them back as
+    differences of the velocities); the same recordings, frame rates, coordinate frames and
+    source files."""
+    assert a.num_rows == b.num_rows
+    for name in ("recording", "object_class"):
+        assert a.column(name).cast(pa.string()).to_pylist() == b.column(name).cast(pa.string()).to_pylist()
+    for name in ("track_id", "frame", "time_ns"):
+        np.testing.assert_array_equal(a.column(name).to_numpy(), b.column(name).to_numpy())
+    assert a.column("lane_id").to_pylist() == b.column("lane_id").to_pylist()
+    for name in ("x", "y"):
+        np.testing.assert_allclose(a.column(name).to_numpy(), b.column(name).to_numpy(), atol=1e-3, rtol=0)
+    for name in ("length", "width", "heading", "vx", "vy"):
+        np.testing.assert_allclose(a.column(name).to_numpy(), b.column(name).to_numpy(), atol=1e-5, rtol=0)
+    for name, atol in zip(("ax", "ay"), acceleration_atol, strict=True):
+        np.testing.assert_allclose(a.column(name).to_numpy(), b.column(name).to_numpy(), atol=atol, rtol=0)
+    ra, rb = track_table.read_meta(a).recordings, track_table.read_meta(b).recordings
+    assert {n: (r.frame_rate, r.coordinate_frame, r.source_files) for n, r in ra.items()} == {
+        n: (r.frame_rate, r.coordinate_frame, r.source_files) for n, r in rb.items()
+    }
+
+
 def assert_all_original_records_equal(src: Path, dst: Path) -> tuple[dict[int, Channel], list[Message]]:
     """Every original schema, channel (same id), message (bytes, times, sequence, order), attachment
     and metadata record of ``src`` is in ``dst``; returns (dst channels, forecast messages)."""

@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 import pytest
+from conftest import assert_same_table as same_table
 
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.errors import FrameError, LogError
@@ -72,24 +73,7 @@ def assert_same_table(a: pa.Table, b: pa.Table) -> None:
     inside a track for this table's linear vx; within 1e-2 m/s² for its sinusoidal vy, one-sided
     at the track ends).
     """
-    assert a.num_rows == b.num_rows
-    for name in ("recording", "object_class"):
-        assert a.column(name).cast(pa.string()).to_pylist() == b.column(name).cast(pa.string()).to_pylist()
-    for name in ("track_id", "frame", "time_ns"):
-        np.testing.assert_array_equal(a.column(name).to_numpy(), b.column(name).to_numpy())
-    assert a.column("lane_id").to_pylist() == b.column("lane_id").to_pylist()
-    for name in ("x", "y"):
-        np.testing.assert_allclose(a.column(name).to_numpy(), b.column(name).to_numpy(), atol=1e-3, rtol=0)
-    for name in ("length", "width", "heading", "vx", "vy"):
-        np.testing.assert_allclose(a.column(name).to_numpy(), b.column(name).to_numpy(), atol=1e-5, rtol=0)
-    np.testing.assert_allclose(a.column("ax").to_numpy(), b.column("ax").to_numpy(), atol=2e-3, rtol=0)
-    np.testing.assert_allclose(a.column("ay").to_numpy(), b.column("ay").to_numpy(), atol=1e-2, rtol=0)
-    ma, mb = track_table.read_meta(a), track_table.read_meta(b)
-    assert set(ma.recordings) == set(mb.recordings)
-    for name, rec in ma.recordings.items():
-        assert mb.recordings[name].frame_rate == rec.frame_rate
-        assert mb.recordings[name].coordinate_frame == rec.coordinate_frame
-        assert mb.recordings[name].source_files == rec.source_files
+    same_table(a, b, acceleration_atol=(2e-3, 1e-2))
 
 
 @pytest.mark.parametrize("encoding", ["protobuf", "json"])

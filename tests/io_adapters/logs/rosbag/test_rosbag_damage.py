@@ -14,21 +14,12 @@ from conftest import (
     _ros1_damage,
     _ros1_records,
     _small_chunks_ros1_bag,
-    staggered_cars,
 )
 
 from lanecast.io_adapters.errors import LogError
 from lanecast.io_adapters.formats import registry
 from lanecast.io_adapters.logs.rosbag import reader as rosbag_reader
 from lanecast.io_adapters.logs.rosbag import writer as rosbag_writer
-
-
-@pytest.fixture(scope="module")
-def ros1_bag(tmp_path_factory: pytest.TempPathFactory) -> bytes:
-    """The bytes of a ROS 1 bag lanecast wrote (3 cars, 30 frames)."""
-    table = staggered_cars(3, 30, stagger=4, step_m=2.5, speed=25.0, rate=10.0)
-    return rosbag_writer.write(table, tmp_path_factory.mktemp("ros1") / "b.bag", "ros1").read_bytes()
-
 
 # --------------------------------------------------------------------------------------- ROS bags
 
@@ -37,7 +28,6 @@ def test_ros2_mcap_bags_are_written_with_crcs_and_checked(tmp_path: Path) -> Non
     from mcap.reader import make_reader
 
     from lanecast.io_adapters.logs.rosbag import reader as rosbag_reader
-    from lanecast.io_adapters.logs.rosbag import writer as rosbag_writer
 
     table = registry.read_any([US101])
     bag = rosbag_writer.write(table, tmp_path / "bag", "ros2", storage="mcap")
@@ -64,7 +54,6 @@ def test_own_bags_without_checksums_carry_a_payload_digest(
 ) -> None:
     """ROS 1 and sqlite3 bags have no checksum: lanecast's metadata holds one of every message."""
     from lanecast.io_adapters.logs.rosbag import reader as rosbag_reader
-    from lanecast.io_adapters.logs.rosbag import writer as rosbag_writer
 
     table = registry.read_any([US101])
     bag = rosbag_writer.write(table, tmp_path / name, fmt, storage=storage)
@@ -91,7 +80,6 @@ def test_truncated_bag_names_file_and_offset(
 ) -> None:
     """A bag cut short was 'cannot read the bag: Bag index looks damaged' (ROS 1), 'database disk
     image is malformed' (sqlite3) or 'not a complete MCAP file' (ROS 2 MCAP storage): no offset."""
-    from lanecast.io_adapters.logs.rosbag import writer as rosbag_writer
 
     bag = rosbag_writer.write(table, tmp_path / name, fmt, **({"storage": storage} if storage else {}))
     data_file = bag if bag.is_file() else next(p for p in bag.iterdir() if p.suffix in (".db3", ".mcap"))
@@ -112,8 +100,6 @@ def test_bad_sqlite3_message_names_where_reading_stopped(
     """An empty or text payload or a text timestamp in a sqlite3 bag: 'cannot read the bag:
     AnyReaderError: Invalid or unsupported CDR encapsulation', no message, topic or time."""
     import sqlite3
-
-    from lanecast.io_adapters.logs.rosbag import writer as rosbag_writer
 
     bag = rosbag_writer.write(table, tmp_path / "b", "ros2", storage="sqlite3")
     with sqlite3.connect(bag / "b.db3") as con:
@@ -148,7 +134,6 @@ def test_undecodable_message_in_a_sqlite3_page_names_its_offset_and_page(
     """A message whose bytes on its page were damaged (sqlite's quick_check sees only the b-trees)
     was 'cannot read the bag at message 2 … or the next: … Invalid string length' naming the bag
     directory and no offset; now the .db3, the message's byte offset and its page."""
-    from lanecast.io_adapters.logs.rosbag import writer as rosbag_writer
 
     bag = rosbag_writer.write(table, tmp_path / "b", "ros2", storage="sqlite3")
     offset = _damage_first_message(bag, "/tracked_objects", 12, b"\xf0\xff\xff\x7f")  # frame_id's length
@@ -167,7 +152,6 @@ def test_changed_message_bytes_that_still_decode_name_the_sqlite3_file(
 ) -> None:
     """A changed byte of a message that still decodes was caught by lanecast's payload checksum only,
     naming the bag directory; now the .db3 whose bytes changed, and that sqlite3 finds it intact."""
-    from lanecast.io_adapters.logs.rosbag import writer as rosbag_writer
 
     bag = rosbag_writer.write(table, tmp_path / "b", "ros2", storage="sqlite3")
     _damage_first_message(bag, "/tracked_objects", 4, b"\x01")  # the header's stamp (seconds)
@@ -241,8 +225,6 @@ def test_a_sqlite3_type_definition_rosbags_refuses_names_its_table_and_row(
     table and row."""
     import sqlite3
 
-    from lanecast.io_adapters.logs.rosbag import writer as rosbag_writer
-
     bag = rosbag_writer.write(table, tmp_path / "b", "ros2", storage="sqlite3")
     with sqlite3.connect(bag / "b.db3") as con:
         con.execute(sql)
@@ -260,8 +242,6 @@ def test_ros2_mcap_channel_with_garbage_qos_metadata_names_its_record(
     crash, no file, record or topic. Now the channel record's offset and topic."""
     from mcap.reader import make_reader
     from mcap.writer import Writer
-
-    from lanecast.io_adapters.logs.rosbag import writer as rosbag_writer
 
     bag = rosbag_writer.write(table, tmp_path / "b", "ros2", storage="mcap")
     storage = next(bag.glob("*.mcap"))
@@ -294,8 +274,6 @@ def test_a_sqlite3_message_on_no_topic_is_refused_not_dropped(tmp_path: Path, ta
     table, row and column."""
     import sqlite3
 
-    from lanecast.io_adapters.logs.rosbag import writer as rosbag_writer
-
     bag = rosbag_writer.write(table, tmp_path / "b", "ros2", storage="sqlite3")
     with sqlite3.connect(bag / "b.db3") as con:  # another tool's bag: no lanecast checksum
         con.execute(
@@ -323,7 +301,6 @@ def test_an_orientation_that_is_no_unit_quaternion_is_refused(
     import sqlite3
 
     from lanecast.io_adapters.logs.messages import ros_types
-    from lanecast.io_adapters.logs.rosbag import writer as rosbag_writer
 
     bag = rosbag_writer.write(table, tmp_path / "b", "ros2", storage="sqlite3")
     store = ros_types.typestore(2)

@@ -16,6 +16,13 @@ from lanecast.io_adapters.logs.rosbag import reader as rosbag_reader
 from lanecast.io_adapters.logs.rosbag import writer as rosbag_writer
 
 
+@pytest.fixture(scope="module")
+def ros1_bag(tmp_path_factory: pytest.TempPathFactory) -> bytes:
+    """The bytes of a ROS 1 bag lanecast wrote (3 cars, 30 frames)."""
+    table = staggered_cars(3, 30, stagger=4, step_m=2.5, speed=25.0, rate=10.0)
+    return rosbag_writer.write(table, tmp_path_factory.mktemp("ros1") / "b.bag", "ros1").read_bytes()
+
+
 def _ros1_records(d: bytes) -> list[tuple[int, dict[bytes, tuple[int, bytes]]]]:
     """(offset, {field: (offset of its value, value)}) of the top-level records of a ROS 1 bag."""
     pos, out = d.index(b"\n") + 1, []

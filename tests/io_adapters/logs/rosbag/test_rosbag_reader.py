@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 import pytest
+from conftest import assert_same_table
 
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.errors import FrameError, LogError
@@ -55,23 +56,6 @@ def make_table(n_tracks: int = 3, n_frames: int = 25) -> pa.Table:
     table = track_table.build_table(columns, track_table.TableMeta("ros2", metas, ["drive.bag"]))
     track_table.validate(table)
     return table
-
-
-def assert_same_table(a: pa.Table, b: pa.Table) -> None:
-    assert a.num_rows == b.num_rows
-    for name in ("recording", "object_class"):
-        assert a.column(name).cast(pa.string()).to_pylist() == b.column(name).cast(pa.string()).to_pylist()
-    for name in ("track_id", "frame", "time_ns"):
-        np.testing.assert_array_equal(a.column(name).to_numpy(), b.column(name).to_numpy())
-    assert a.column("lane_id").to_pylist() == b.column("lane_id").to_pylist()
-    for name in ("x", "y"):
-        np.testing.assert_allclose(a.column(name).to_numpy(), b.column(name).to_numpy(), atol=1e-3, rtol=0)
-    for name in ("length", "width", "heading", "vx", "vy", "ax", "ay"):
-        np.testing.assert_allclose(a.column(name).to_numpy(), b.column(name).to_numpy(), atol=1e-5, rtol=0)
-    ra, rb = track_table.read_meta(a).recordings, track_table.read_meta(b).recordings
-    assert {n: (r.frame_rate, r.coordinate_frame) for n, r in ra.items()} == {
-        n: (r.frame_rate, r.coordinate_frame) for n, r in rb.items()
-    }
 
 
 CASES = [("ros2", "sqlite3", "bag2"), ("ros2", "mcap", "bag2m"), ("ros1", "sqlite3", "drive.bag")]
