@@ -15,8 +15,6 @@ from conftest import REPO, _model_copy, _record, _s, assert_one_line_error, cli,
 from lanecast.io_adapters.logs.mcap import reader as mcap_reader
 from lanecast.workflows.cli import main
 
-# ------------------------------------------------------------------------------- paths in and out
-
 
 def test_fifo_input_is_refused_without_opening_it(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     fifo = tmp_path / "log.mcap"

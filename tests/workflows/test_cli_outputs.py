@@ -12,8 +12,6 @@ from conftest import REPO, refused, track_table_copy
 
 from lanecast.workflows.cli import main
 
-# ---------------------------------------------------------------------------------------- outputs
-
 
 @pytest.mark.parametrize(
     "command",

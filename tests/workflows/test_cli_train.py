@@ -37,9 +37,6 @@ def test_training_on_a_huge_finite_input_is_refused_at_its_window(
     no_output(out)
 
 
-# ---------------------------------------------------------------------------------------- options
-
-
 @pytest.mark.parametrize(
     ("options", "config", "named"),
     [

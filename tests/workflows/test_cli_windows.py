@@ -7,8 +7,6 @@ from pathlib import Path
 import pytest
 from conftest import highd_copy, no_output, refused, set_cell, track_table_copy
 
-# ------------------------------------------------------------------------------------------ highD
-
 
 def test_windows_of_tracks_without_a_10hz_sample(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """At 1 kHz every track of the fixture lasts milliseconds: no sample at 10 Hz, so no windows

@@ -25,8 +25,6 @@ from lanecast.io_adapters.errors import LogError
 from lanecast.io_adapters.logs.mcap import reader as mcap_reader
 from lanecast.workflows.cli import main
 
-# ----------------------------------------------------------------- an index that disagrees with the data
-
 
 def _chunk_index_start(d: bytearray) -> tuple[int, str]:
     recs = mcap_record_spans(bytes(d))

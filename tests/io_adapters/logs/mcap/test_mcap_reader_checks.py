@@ -40,9 +40,6 @@ def test_a_json_field_of_the_wrong_type_is_said_to_be_one(tmp_path: Path, edit: 
     assert err.value.path == str(log) and err.value.offset is not None
 
 
-# ------------------------------------------------------------------------------------------- logs
-
-
 @pytest.mark.parametrize("chunked", [True, False])
 def test_log_times_beyond_int64_are_refused(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], chunked: bool

@@ -92,9 +92,6 @@ def test_a_message_on_an_undefined_channel_loses_its_chunk_and_the_walk_goes_on(
     assert not set(table.column("time_ns").to_pylist()) & set(lost_times)
 
 
-# ------------------------------------------------------------------------------------------- MCAP
-
-
 def raw_log(path: Path, records: bytes) -> Path:
     """An unchunked MCAP: header, the given records, data end, footer, magic."""
     header = _record(0x01, _s("") + _s("test"))

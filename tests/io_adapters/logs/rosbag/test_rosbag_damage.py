@@ -21,8 +21,6 @@ from lanecast.io_adapters.formats import registry
 from lanecast.io_adapters.logs.rosbag import reader as rosbag_reader
 from lanecast.io_adapters.logs.rosbag import writer as rosbag_writer
 
-# --------------------------------------------------------------------------------------- ROS bags
-
 
 def test_ros2_mcap_bags_are_written_with_crcs_and_checked(tmp_path: Path) -> None:
     from mcap.reader import make_reader
