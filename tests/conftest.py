@@ -971,8 +971,6 @@ def _parquet(tmp_path: Path) -> tuple[Path, pa.Table]:
 
 def windows_copy(tmp_path: Path, damage: Callable[[Path], object]) -> Path:
     """A small windows dataset in ``tmp_path/win``, then ``damage``d."""
-    from conftest import synthetic_windows
-
     from lanecast.io_adapters.windows_store.dataset import save_windows
 
     directory = save_windows(synthetic_windows(60), tmp_path / "win")
