@@ -1,7 +1,7 @@
 """Encoding forecast messages: in bulk (lanecast) against the per-object encoders it replaced.
 
 The per-object encoders (foxglove protobuf classes, ``json.dumps`` of dicts, rosbags' CDR
-serializer) live in ``tests/test_forecast_messages.py`` as the bulk encoders' oracle; this script
+serializer) live in ``tests/io_adapters/logs/test_forecast_messages.py`` as the bulk encoders' oracle; this script
 times both on the same forecasts (the test's generator: two recordings, 1–30 targets per frame, 3
 alternatives), interleaved rounds, CPU seconds (the machine is shared: CPU time is steadier than wall).
 

@@ -41,7 +41,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 # scenario -> (training minutes, training seed, held-out seed); recording ids 1.. (train) and 51.. (test)
-# Twice the minutes of wave 5 (47 min, at most 10,000 windows a recording): on the same held-out
+# Twice the minutes of the recipe before (47 min, at most 10,000 windows a recording): on the same held-out
 # data, lane-change windows 4.85 vs 5.07 m at 5 s, macro-F1 0.600 vs 0.580 (BENCHMARKS.md).
 MIX: dict[str, tuple[float, int]] = {
     "free_flow": (16.0, 101),

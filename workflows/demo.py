@@ -85,7 +85,7 @@ def claim(out: Path) -> None:
 
 
 def made_by_an_earlier_demo(out: Path) -> bool:
-    """A demo's directory from before the mark (lanecast 0.1.0 of wave 6): its annotation manifest
+    """A demo's directory from before the mark (an earlier lanecast 0.1.0): its annotation manifest
     has the demo's log as its input, which a user's own folder does not."""
     try:
         inputs = Manifest(out / "annotated").latest()

@@ -444,7 +444,7 @@ def import_libsumo() -> ModuleType:
 
     libsumo bundles its own libarrow (23.0, under mangled names in ``libsumo.libs``) and prints a
     warning when pyarrow differs (here 26); both load side by side in one process, in either import
-    order, without crashing (checked by tests/test_simulate.py, which has pyarrow loaded first).
+    order, without crashing (checked by tests/io_adapters/sim/test_sim_recording.py, which has pyarrow loaded first).
     """
     with contextlib.redirect_stdout(io.StringIO()):
         import libsumo
