@@ -115,6 +115,9 @@ class ChannelSpec:
     schema_data: bytes
     message_encoding: str
     ros_msgtype: str | None = None  # for rosbags writers (cdr only)
+    #: MCAP channel metadata: which model made the forecasts (``model``, ``model_sha256``,
+    #: ``model_trained_on``), so that the log itself says it
+    metadata: tuple[tuple[str, str], ...] = ()
 
 
 def channel_specs(encoding: str) -> list[ChannelSpec]:

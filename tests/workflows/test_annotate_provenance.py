@@ -33,3 +33,32 @@ def test_the_annotate_summary_names_out_as_the_user_gave_it(
     assert main(["annotate", "sim.mcap", "--out", "annotated"]) == 0
     first = capsys.readouterr().out.splitlines()[0]
     assert first.endswith("-> annotated (manifest: annotated/manifest.jsonl)"), first
+
+
+def test_an_annotated_log_and_its_report_name_the_model(
+    tmp_path: Path, sim_recording_dir: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from mcap.reader import make_reader
+
+    log = tmp_path / "logs" / "sim.mcap"
+    assert main(["convert", str(sim_recording_dir), "--out", str(log)]) == 0
+    assert main(["annotate", str(log), "--out", str(tmp_path / "annotated")]) == 0
+    annotated = tmp_path / "annotated" / "sim.mcap"
+    with annotated.open("rb") as fh:
+        summary = make_reader(fh).get_summary()
+    assert summary is not None
+    forecast = next(c for c in summary.channels.values() if c.topic == "/lanecast/forecast")
+    prov = provenance(None)
+    assert forecast.metadata == {
+        "model": prov["model"],
+        "model_sha256": prov["sha256"],
+        "model_trained_on": prov["trained_on"],
+    }
+    capsys.readouterr()
+    assert main(["report", str(annotated), "--out", str(tmp_path / "report")]) == 0
+    assert (
+        f"forecasts by model: the shipped model (stcnn-sumo) (sha256 {prov['sha256'][:12]})"
+        in capsys.readouterr().out
+    )
+    page = (tmp_path / "report" / "report.html").read_text()
+    assert prov["sha256"] in page and prov["trained_on"] in page

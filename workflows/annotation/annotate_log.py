@@ -13,6 +13,7 @@ calls ``annotate_log`` for each log. This module is not a command: it has no ``r
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import heapq
 import os
@@ -40,6 +41,7 @@ from lanecast.io_adapters.logs.mcap import copy as mcap_copy
 from lanecast.io_adapters.logs.mcap import salvage_copy as mcap_salvage_copy
 from lanecast.io_adapters.logs.rosbag import copy as bag_copy
 from lanecast.io_adapters.logs.rosbag import reader as rosbag_reader
+from lanecast.models.card import provenance
 from lanecast.models.runtime import load_forecaster
 from lanecast.workflows.annotation.track_forecasts import (
     forecast_table,
@@ -282,6 +284,14 @@ def annotate_log(
     autoware = options.encoding == AUTOWARE  # the SceneUpdates as auto picks them, and PredictedObjects
     encoding = choose_encoding(kind, src, "auto" if autoware else options.encoding, info=info)
     specs = fm.channel_specs(encoding) + ([fm.explain_channel_spec(encoding)] if what_ifs is not None else [])
+    if options.forecasts is None:  # the log names the model that made its forecasts
+        prov = provenance(options.model_dir)
+        named = (
+            ("model", prov["model"]),
+            ("model_sha256", prov["sha256"]),
+            ("model_trained_on", prov["trained_on"]),
+        )
+        specs = [dataclasses.replace(s, metadata=named) for s in specs]
     specs += [autoware_encode.channel_spec()] if autoware else []
     n_frames = 0
 

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
-from mcap.reader import NonSeekingReader
+from mcap.reader import NonSeekingReader, make_reader
 from rosbags.highlevel import AnyReader
 
 from lanecast.io_adapters.contracts.window_frame import to_window_frame
@@ -29,7 +29,7 @@ from lanecast.io_adapters.errors import InputError, LanecastError, LogError
 from lanecast.io_adapters.files import activity, progress, staged_files
 from lanecast.io_adapters.formats import registry
 from lanecast.io_adapters.logs.forecast_batch import N_STEPS
-from lanecast.io_adapters.logs.forecast_messages import PREDICTION_TOPIC
+from lanecast.io_adapters.logs.forecast_messages import FORECAST_TOPIC, PREDICTION_TOPIC
 from lanecast.io_adapters.logs.messages.prediction_json import document_problem
 from lanecast.models.baselines import constant_acceleration, constant_velocity
 from lanecast.models.evaluation import speed_band_note, write_metrics
@@ -253,6 +253,7 @@ def score_log(log: Path, topic: str | None) -> dict[str, Any]:
     }
     return {
         "log": log,
+        "model": forecast_model(log),
         "n_forecasts": int(fc.track_id.size),
         "offsets": to_window_frame(fc.points[fc_rows], *origin),
         "candidates": to_window_frame(fc.alt_points[fc_rows], *origin) if fc.alt_points.shape[1] else None,
@@ -268,6 +269,24 @@ def score_log(log: Path, topic: str | None) -> dict[str, Any]:
         "probs": fc.probs[fc_rows],
         "alt_probs": fc.alt_probs[fc_rows],
     }
+
+
+def forecast_model(log: Path) -> dict[str, str]:
+    """The model an annotated MCAP names on its forecast channel (empty for other logs, or logs
+    annotated before lanecast named it)."""
+    if log.suffix.lower() != ".mcap":
+        return {}
+    try:
+        with log.open("rb") as fh:
+            summary = make_reader(fh).get_summary()
+    except Exception:  # the scoring itself names a damaged log; here it only goes unnamed
+        return {}
+    if summary is None:
+        return {}
+    for channel in summary.channels.values():
+        if channel.topic == FORECAST_TOPIC and channel.metadata.get("model"):
+            return {k: v for k, v in channel.metadata.items() if k.startswith("model")}
+    return {}
 
 
 def metrics_of(parts: list[dict[str, Any]]) -> dict[str, Any]:
@@ -419,6 +438,7 @@ def _write_reports(paths: list[Path], out: Path, topic: str | None, examples: in
         parts.append(part)
         meta = {
             "log": str(log),
+            **part["model"],
             "forecasts": part["n_forecasts"],
             "scored": len(part["future"]),
             "always_straight": always_straight_of([part]),
@@ -440,8 +460,10 @@ def _write_reports(paths: list[Path], out: Path, topic: str | None, examples: in
     if not parts:
         raise InputError(paths[0], "no log could be scored", expected="annotated logs with recorded futures")
     metrics = metrics_of(parts)
+    models = {json.dumps(p["model"], sort_keys=True) for p in parts if p["model"]}
     meta = {
         "logs": len(parts),
+        **(json.loads(models.pop()) if len(models) == 1 else {}),
         "forecasts_scored": int(sum(len(p["future"]) for p in parts)),
         "forecasts_in_logs": int(sum(p["n_forecasts"] for p in parts)),
         "ground_truth": "each target's recorded position at t0 + 1..5 s, in its window frame",
@@ -457,6 +479,10 @@ def _write_reports(paths: list[Path], out: Path, topic: str | None, examples: in
         "(those whose 5 s future is in the log)"
     )
     print(f"  RMSE 1-5 s (m): forecasts {rmse} | constant velocity {cv}")
+    if meta.get("model"):
+        print(
+            f"  forecasts by model: {meta['model']} (sha256 {meta['model_sha256'][:12]}), trained on {meta['model_trained_on']}"
+        )
     band_note = speed_band_note(metrics)
     if band_note is not None:
         print(f"  by target speed, the forecasts: {band_note}")

@@ -95,7 +95,7 @@ class IdWriter(Writer):
                     topic=spec.topic,
                     message_encoding=spec.message_encoding,
                     schema_id=sid,
-                    metadata={},
+                    metadata=dict(spec.metadata),
                 )
             )
 
