@@ -299,6 +299,9 @@ def _bar_kwargs(total: int | float | None) -> dict[str, Any]:
         return {"disable": None, "dynamic_ncols": True, "leave": False}
     return {
         "file": sys.stderr,
+        # every update looks at the clock: tqdm's adaptive count, learnt in a fast phase (a
+        # simulation's warm-up), let a slow phase after it go without a line for 15 s and more
+        "miniters": 1,
         "mininterval": LINE_INTERVAL_S,
         "maxinterval": max(LINE_INTERVAL_S, 10.0),
         "bar_format": LINE_FORMAT if total else LINE_FORMAT_NO_TOTAL,
