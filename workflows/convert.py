@@ -9,6 +9,7 @@ from pathlib import Path
 
 from lanecast.io_adapters import registry, streaming
 from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.datasets.csp import cli as csp_cli
 from lanecast.io_adapters.errors import InputError, OutputError, UsageError
 from lanecast.io_adapters.files import check_output, check_output_dir
 from lanecast.io_adapters.logs.log_conventions import BAG_FILES
@@ -41,7 +42,8 @@ def register(sub: argparse._SubParsersAction) -> None:
             "  lanecast convert sim-queue/01_tracks.csv --out queue.parquet   # a highD recording, by any of its files\n"
             "  lanecast convert lanecast-demo/highd/ --out highd/ --partition --workers 2   # the demo's, highD format\n"
             "with a dataset downloaded (NGSIM: data.transportation.gov; highD: levelxdata.com):\n"
-            "  lanecast convert ngsim/ --out us101.parquet   # trajectories-0750am-0805am.txt … are US-101"
+            "  lanecast convert ngsim/ --out us101.parquet   # trajectories-0750am-0805am.txt … are US-101\n"
+            "  lanecast convert ngsim/*.txt --to csp --out csp/   # TrainSet.mat … for CS-LSTM, PiP and kin"
         ),
         formatter_class=HelpFormatter,
     )
@@ -56,8 +58,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_location_option(p)
     p.add_argument(
         "--to",
-        choices=sorted(registry.WRITERS),
-        help="output format (default: from --out's suffix, else parquet)",
+        choices=sorted([*registry.WRITERS, "csp"]),
+        help="output format (default: from --out's suffix, else parquet); " + csp_cli.HELP,
     )
     p.add_argument(
         "--storage",
@@ -122,6 +124,8 @@ def check_replaceable(out: Path, fmt: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.to == "csp":  # research .mat sets, written by their own package
+        return csp_cli.run_csp(args)
     started = time.perf_counter()
     options: dict[str, object] = {}
     if args.topic:

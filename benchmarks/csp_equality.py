@@ -1,0 +1,118 @@
+"""lanecast's csp sets against conv-social-pooling's own ``preprocess_data.m`` under GNU Octave,
+element for element, on NGSIM-format input made from simulated traffic (benchmarks/csp_inputs.py).
+
+    .venv/bin/python benchmarks/csp_equality.py --script PATH/preprocess_data.m --work /tmp/csp [--minutes 2.5]
+
+runs both on the same six files and prints every difference in ``traj`` and ``tracks`` of the three
+sets (none: "equal"). ``--fixture tests/data/csp`` instead makes the small test fixture: six cropped
+files (ten vehicles over 40 frames each, ids renumbered 1–10) and the Octave-made sets beside them.
+The research script is not shipped with lanecast; without ``octave`` on the PATH the script says so
+and exits 0.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import csp_inputs as ci
+
+FIXTURE_FRAMES = 40
+FIXTURE_VEHICLES = 10
+
+
+def _renumbered(
+    cols: dict[str, np.ndarray], frames: tuple[int, int], first_ft: float
+) -> dict[str, np.ndarray] | None:
+    """Ten vehicles present over ``frames`` from ``first_ft`` on (ids 1–10 by position), or None."""
+    frame, track = cols["frame"].astype(np.int64), cols["track_id"].astype(np.int64)
+    inside = (frame >= frames[0]) & (frame < frames[1])
+    full = np.bincount(track[inside], minlength=track.max() + 1) == frames[1] - frames[0]
+    at_first = inside & (frame == frames[0]) & full[track]
+    front = cols["x"] / ci.FT
+    ahead = np.flatnonzero(at_first & (front >= first_ft))
+    if ahead.size < FIXTURE_VEHICLES:
+        return None
+    chosen = track[ahead[np.argsort(front[ahead])[:FIXTURE_VEHICLES]]]
+    new_id = np.zeros(track.max() + 1, np.int64)
+    new_id[chosen] = np.arange(1, FIXTURE_VEHICLES + 1)
+    keep = inside & (new_id[track] > 0)
+    out = {k: v[keep] for k, v in cols.items()}
+    out["track_id"] = new_id[track[keep]]
+    return out
+
+
+def _fits(path: Path) -> bool:
+    """A fixture file that reaches the last grid column and has a lane change and a braking row."""
+    from lanecast.io_adapters.datasets.csp import inputs, sets
+
+    ((_, _, ds),) = inputs.ngsim_datasets([path])
+    traj = np.concatenate([p.traj[0] for p in sets.dataset_parts(ds)])
+    return bool(traj.size and traj[:, -1].any() and (traj[:, 6] > 1).any())
+
+
+def make_fixture(out: Path, script: Path, work: Path) -> None:
+    """Six small NGSIM files cropped from the 2.5-minute simulations, and Octave's sets of them."""
+    out.mkdir(parents=True, exist_ok=True)
+    directions = []
+    for s, scenario in enumerate(ci.SCENARIOS, start=1):
+        name = f"sim-2.5min-{scenario or 'highway'}-{s}"
+        directions += ci.direction_rows(ci.simulate(work / name, 2.5, s, scenario))
+    for i, (name, cols) in enumerate(zip(ci.NAMES, directions, strict=True)):
+        path = out / name
+        frames = np.unique(cols["frame"].astype(np.int64))
+        done = False
+        for f0 in frames[300 : frames.size - FIXTURE_FRAMES : 20]:
+            for first_ft in np.arange(200.0, 2000.0, 100.0):
+                crop = _renumbered(cols, (int(f0), int(f0) + FIXTURE_FRAMES), float(first_ft))
+                if crop is None:
+                    break
+                ci.write_ngsim_txt(crop, path, lane_base=ci.US101_LANE_BASE if i < 3 else 1)
+                if _fits(path):
+                    done = True
+                    break
+            if done:
+                break
+        if not done:
+            raise SystemExit(f"no crop of {name} reaches the last grid cell with a lane change")
+        print(f"{path}: {sum(1 for _ in path.open())} rows")
+    took = ci.run_octave(script, [out / n for n in ci.NAMES], out)
+    print(f"octave: {took:.1f} s; sets in {out}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--script", type=Path, required=True, help="conv-social-pooling's preprocess_data.m")
+    ap.add_argument("--work", type=Path, default=Path(tempfile.gettempdir()) / "lanecast-csp")
+    ap.add_argument("--minutes", type=float, default=2.5, help="simulated minutes per simulation")
+    ap.add_argument("--fixture", type=Path, help="make the small test fixture in this directory instead")
+    args = ap.parse_args()
+    if shutil.which("octave") is None:
+        print("octave is not installed (Debian: apt-get install octave): nothing compared")
+        return
+    if args.fixture:
+        make_fixture(args.fixture, args.script, args.work)
+        return
+    inputs = ci.make_inputs(args.work, args.minutes)
+    theirs = args.work / f"octave-{args.minutes:g}min"
+    if not all((theirs / f"{s}.mat").exists() for s in ci.SETS):
+        print(f"octave: {ci.run_octave(args.script, inputs, theirs):.1f} s")
+    ours = args.work / f"lanecast-{args.minutes:g}min"
+    print(f"lanecast: {ci.run_lanecast(inputs, ours):.1f} s")
+    problems = ci.compare_sets(ours, theirs)
+    rows = {s: __import__("scipy.io").io.loadmat(ours / f"{s}.mat")["traj"].shape[0] for s in ci.SETS}
+    print(f"{sum(1 for p in inputs for _ in p.open()):,} input rows; rows per set: {rows}")
+    print("\n".join(problems) if problems else "equal: every element of traj and tracks in all three sets")
+    if problems:
+        raise SystemExit(1)
+
+
+if __name__ == "__main__":
+    main()
