@@ -5,7 +5,7 @@ element for element, on NGSIM-format input made from simulated traffic (benchmar
 
 runs both on the same six files and prints every difference in ``traj`` and ``tracks`` of the three
 sets (none: "equal"). ``--fixture tests/data/csp`` instead makes the small test fixture: six cropped
-files (ten vehicles over 40 frames each, ids renumbered 1–10) and the Octave-made sets beside them.
+files (twelve vehicles over 40 frames each, ids renumbered 1–12) and the Octave-made sets beside them.
 The research script is not shipped with lanecast; without ``octave`` on the PATH the script says so
 and exits 0.
 """
@@ -25,18 +25,18 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import csp_inputs as ci
 
 FIXTURE_FRAMES = 40
-FIXTURE_VEHICLES = 10
+FIXTURE_VEHICLES = 12
 
 
 def _renumbered(
     cols: dict[str, np.ndarray], frames: tuple[int, int], first_ft: float
 ) -> dict[str, np.ndarray] | None:
-    """Ten vehicles present over ``frames`` from ``first_ft`` on (ids 1–10 by position), or None."""
+    """Twelve vehicles present over ``frames`` from ``first_ft`` on (ids 1–12 by position), or None."""
     frame, track = cols["frame"].astype(np.int64), cols["track_id"].astype(np.int64)
     inside = (frame >= frames[0]) & (frame < frames[1])
     full = np.bincount(track[inside], minlength=track.max() + 1) == frames[1] - frames[0]
     at_first = inside & (frame == frames[0]) & full[track]
-    front = cols["x"] / ci.FT
+    front = (cols["x"] - cols["x"].min()) / ci.FT  # the upper direction runs at negative x
     ahead = np.flatnonzero(at_first & (front >= first_ft))
     if ahead.size < FIXTURE_VEHICLES:
         return None
@@ -49,13 +49,29 @@ def _renumbered(
     return out
 
 
-def _fits(path: Path) -> bool:
-    """A fixture file that reaches the last grid column and has a lane change and a braking row."""
-    from lanecast.io_adapters.datasets.csp import inputs, sets
+def _fits(path: Path, lane_change: bool) -> bool:
+    """A fixture file in which some row has a neighbour in the last grid column (else the script's
+    matrix of that file has fewer columns and its concatenation fails), and whose kept rows have a
+    lane change if ``lane_change``."""
+    from lanecast.io_adapters.datasets.csp import fields, inputs, sets
 
     ((_, _, ds),) = inputs.ngsim_datasets([path])
+    every = fields.neighbour_grid(ds.vehicle, ds.frame, ds.y, ds.lane, np.arange(ds.vehicle.size))
     traj = np.concatenate([p.traj[0] for p in sets.dataset_parts(ds)])
-    return bool(traj.size and traj[:, -1].any() and (traj[:, 6] > 1).any())
+    return bool(traj.size and every[:, -1].any() and (not lane_change or (traj[:, 6] > 1).any()))
+
+
+def _crop(cols: dict[str, np.ndarray], frames: np.ndarray, path: Path, lane_base: int, change: bool) -> bool:
+    """Write the first crop that fits (see :func:`_fits`) to ``path``; whether one did."""
+    for f0 in frames[300 : frames.size - FIXTURE_FRAMES : 10]:
+        for first_ft in np.arange(0.0, 2500.0, 50.0):
+            crop = _renumbered(cols, (int(f0), int(f0) + FIXTURE_FRAMES), float(first_ft))
+            if crop is None:
+                break
+            ci.write_ngsim_txt(crop, path, lane_base=lane_base)
+            if _fits(path, change):
+                return True
+    return False
 
 
 def make_fixture(out: Path, script: Path, work: Path) -> None:
@@ -68,20 +84,9 @@ def make_fixture(out: Path, script: Path, work: Path) -> None:
     for i, (name, cols) in enumerate(zip(ci.NAMES, directions, strict=True)):
         path = out / name
         frames = np.unique(cols["frame"].astype(np.int64))
-        done = False
-        for f0 in frames[300 : frames.size - FIXTURE_FRAMES : 20]:
-            for first_ft in np.arange(200.0, 2000.0, 100.0):
-                crop = _renumbered(cols, (int(f0), int(f0) + FIXTURE_FRAMES), float(first_ft))
-                if crop is None:
-                    break
-                ci.write_ngsim_txt(crop, path, lane_base=ci.US101_LANE_BASE if i < 3 else 1)
-                if _fits(path):
-                    done = True
-                    break
-            if done:
-                break
-        if not done:
-            raise SystemExit(f"no crop of {name} reaches the last grid cell with a lane change")
+        lane_base = ci.US101_LANE_BASE if i < 3 else 1
+        if not any(_crop(cols, frames, path, lane_base, change) for change in (True, False)):
+            raise SystemExit(f"no crop of {name} reaches the last grid cell")
         print(f"{path}: {sum(1 for _ in path.open())} rows")
     took = ci.run_octave(script, [out / n for n in ci.NAMES], out)
     print(f"octave: {took:.1f} s; sets in {out}")

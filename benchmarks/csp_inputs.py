@@ -278,3 +278,31 @@ def compare_sets(ours: Path, theirs: Path) -> list[str]:
                     f"{name} tracks{{{index[0] + 1},{index[1] + 1}}}: {x.dtype}{x.shape} vs {y.dtype}{y.shape}"
                 )
     return problems
+
+
+def tiled(paths: list[Path], out: Path, copies: int) -> list[Path]:
+    """Each file repeated ``copies`` times one after the other in time (frames, Global_Time and
+    vehicle ids shifted per copy): NGSIM-sized files from simulated ones (reused when made)."""
+    import pandas as pd
+
+    out.mkdir(parents=True, exist_ok=True)
+    made = []
+    for path in paths:
+        target = out / path.name
+        made.append(target)
+        if target.exists():
+            continue
+        rows = pd.read_csv(path, sep=r"\s+", header=None)
+        ids = int(rows[0].max())
+        span = int(rows[1].max() - rows[1].min()) + 100
+        parts = []
+        for c in range(copies):
+            part = rows.copy()
+            part[0] += c * ids
+            part[1] += c * span
+            part[3] += c * span * 100
+            parts.append(part)
+        tmp = target.with_suffix(".tmp")
+        pd.concat(parts).to_csv(tmp, sep=" ", header=False, index=False)
+        tmp.replace(target)
+    return made

@@ -287,3 +287,14 @@ def test_fixture_copy_reads_the_same(tmp_path: Path) -> None:
     ids = [d["id"] for d in write_csp(reversed_order, tmp_path / "out")["datasets"]]
     names = [Path(d["file"]).name for d in write_csp(reversed_order, tmp_path / "out")["datasets"]]
     assert ids == [1, 2, 3, 4, 5, 6] and names[:3] == sorted(n for n in names if n.startswith("us"))
+
+
+def test_workers_give_the_same_sets(tmp_path: Path) -> None:
+    a = _write_txt(tmp_path / "us-101.txt", _straight(1, range(1, 45), 2) + _straight(2, range(1, 45), 3, 130.0))
+    b = _write_txt(tmp_path / "i-80.txt", _straight(5, range(3, 50), 1) + _straight(3, range(1, 40), 2, 90.0))
+    one = write_csp([a, b], tmp_path / "one")
+    two = write_csp([b, a], tmp_path / "two", workers=2)
+    assert one["datasets"] == two["datasets"]
+    for name in SETS:
+        x, y = loadmat(tmp_path / "one" / f"{name}.mat"), loadmat(tmp_path / "two" / f"{name}.mat")
+        assert np.array_equal(x["traj"], y["traj"]) and x["tracks"].shape == y["tracks"].shape

@@ -36,7 +36,11 @@ def run_csp(args: argparse.Namespace) -> int:
     fmt = input_format(list(args.inputs), args.format)
     if os.path.realpath(args.out) in {os.path.realpath(p) for p in args.inputs}:
         raise InputError(args.out, "the output would overwrite an input", expected="a new output directory")
-    record = write_csp(args.inputs, args.out, fmt=fmt, location=args.location)
+    if getattr(args, "engine", "local") != "local":
+        raise UsageError(
+            "--engine", f"{args.engine}: --to csp reads on local processes", expected="--workers N"
+        )
+    record = write_csp(args.inputs, args.out, fmt=fmt, location=args.location, workers=args.workers)
     for ds in record["datasets"]:
         print(f"dataset {ds['id']}: {ds['file']} ({ds['source']}, {ds['rows']:,} rows)")
     counts = ", ".join(f"{name} {info['rows']:,} rows" for name, info in record["sets"].items())

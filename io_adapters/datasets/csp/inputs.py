@@ -47,57 +47,76 @@ def ngsim_files(paths: Sequence[Path]) -> list[Path]:
     return found
 
 
-def ngsim_datasets(paths: Sequence[Path], location: str | None = None) -> list[tuple[str, Path, Dataset]]:
-    """(location, file, dataset) per NGSIM file, in dataset id order."""
-    parsed = []
-    for path in ngsim_files(paths):
-        p = ngsim._parse_file(path, ngsim._normalise_location(location) if location else None)
-        if len(p.locations) != 1:
-            raise UsageError(
-                "--location",
-                f"{path} holds rows of {len(p.locations)} locations ({', '.join(p.locations)})",
-                expected="--location naming the one to convert",
-            )
-        parsed.append(p)
-    parsed.sort(key=lambda p: (_LOCATION_RANK.get(p.locations[0], 2), p.path.name, str(p.path)))
-    out = []
-    for ident, p in enumerate(parsed, start=1):
-        cols = p.columns
-        vehicle = cols["vehicle_id"]
-        bad = np.flatnonzero(vehicle < 1)
-        if bad.size:
-            header = 0 if p.path.suffix.lower() == ".txt" else 1
-            raise InputError(
-                p.path,
-                f"vehicle id {vehicle[bad[0]]:g}",
-                line=int(bad[0]) + 1 + header,
-                column="Vehicle_ID",
-                expected="ids of 1 or more (the .mat files index a cell array by them)",
-            )
-        lane = cols["lane_id"].astype(np.float32)
-        if p.locations[0] == "us-101":
-            lane[lane >= US101_LAST_LANE] = US101_LAST_LANE
-        ds = Dataset(
-            ident,
-            str(p.path),
-            vehicle.astype(np.float32),
-            cols["frame_id"].astype(np.float32),
-            cols["local_x"].astype(np.float32),
-            cols["local_y"].astype(np.float32),
-            lane,
+def ngsim_order(paths: Sequence[Path], location: str | None = None) -> list[tuple[Path, str]]:
+    """(file, location) of every NGSIM file, in dataset id order: by the location ``--location`` or
+    the file's name (or folder) gives, then by name."""
+    forced = ngsim._normalise_location(location) if location else None
+    files = [(p, forced or ngsim._location_from_path(p)[0]) for p in ngsim_files(paths)]
+    return sorted(files, key=lambda f: (_LOCATION_RANK.get(f[1], 2), f[0].name, str(f[0])))
+
+
+def ngsim_dataset(ident: int, path: Path, location: str | None = None) -> tuple[str, Dataset]:
+    """(location, dataset ``ident``) of one NGSIM file."""
+    p = ngsim._parse_file(path, ngsim._normalise_location(location) if location else None)
+    if len(p.locations) != 1:
+        raise UsageError(
+            "--location",
+            f"{path} holds rows of {len(p.locations)} locations ({', '.join(p.locations)})",
+            expected="--location naming the one to convert",
         )
-        out.append((p.locations[0], p.path, ds))
+    cols = p.columns
+    vehicle = cols["vehicle_id"]
+    bad = np.flatnonzero(vehicle < 1)
+    if bad.size:
+        header = 0 if p.path.suffix.lower() == ".txt" else 1
+        raise InputError(
+            p.path,
+            f"vehicle id {vehicle[bad[0]]:g}",
+            line=int(bad[0]) + 1 + header,
+            column="Vehicle_ID",
+            expected="ids of 1 or more (the .mat files index a cell array by them)",
+        )
+    lane = cols["lane_id"].astype(np.float32)
+    if p.locations[0] == "us-101":
+        lane[lane >= US101_LAST_LANE] = US101_LAST_LANE
+    f32 = np.float32
+    return p.locations[0], Dataset(
+        ident,
+        str(p.path),
+        vehicle.astype(f32),
+        cols["frame_id"].astype(f32),
+        cols["local_x"].astype(f32),
+        cols["local_y"].astype(f32),
+        lane,
+    )
+
+
+def ngsim_datasets(paths: Sequence[Path], location: str | None = None) -> list[tuple[str, Path, Dataset]]:
+    """(location, file, dataset) per NGSIM file, in dataset id order (read one after the other)."""
+    out = []
+    for ident, (path, _) in enumerate(ngsim_order(paths, location), start=1):
+        found, ds = ngsim_dataset(ident, path, location)
+        out.append((found, path, ds))
     return out
+
+
+def highd_order(paths: Sequence[Path]) -> list[Path]:
+    """The tracks files of the highD recordings named by ``paths``, in recording order."""
+    return [rec.path("tracks") for rec in sorted(highd.recordings(paths), key=lambda r: r.prefix)]
 
 
 def highd_datasets(paths: Sequence[Path]) -> list[tuple[str, Path, Dataset]]:
     """(recording direction, tracks file, dataset) per highD driving direction, by PiP's ids."""
+    return [d for r, path in enumerate(highd_order(paths), start=1) for d in highd_recording(r, path)]
+
+
+def highd_recording(r: int, tracks_csv: Path) -> list[tuple[str, Path, Dataset]]:
+    """The datasets 2r−1 (lower lanes) and 2r (upper lanes) of one highD recording."""
     from lanecast.io_adapters.contracts import track_table
     from lanecast.pipeline.resample import resample
 
-    recs = sorted(highd.recordings(paths), key=lambda r: r.prefix)
     out = []
-    for r, rec in enumerate(recs, start=1):
+    for rec in highd.recordings([tracks_csv]):
         table = resample(highd.read([rec.path("tracks")]))
         meta = track_table.read_meta(table)
         names = table.column("recording").to_numpy(zero_copy_only=False).astype(str)

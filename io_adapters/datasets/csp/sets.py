@@ -99,7 +99,11 @@ def tracks_cell(tracks: list[tuple[int, int, np.ndarray]]) -> np.ndarray:
 
 
 def traj_matrix(parts: SetParts) -> np.ndarray:
-    """One set's ``traj``: its datasets' blocks in id order."""
-    if not parts.traj:
-        return np.zeros((0, COLUMNS), dtype=np.float32)
-    return np.concatenate(parts.traj)
+    """One set's ``traj``: its datasets' blocks in id order, column-major as MATLAB stores it (the
+    writer then copies it as it is, not element by element)."""
+    traj = np.empty((parts.rows(), COLUMNS), dtype=np.float32, order="F")
+    at = 0
+    for block in parts.traj:
+        traj[at : at + block.shape[0]] = block
+        at += block.shape[0]
+    return traj

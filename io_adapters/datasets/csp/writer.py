@@ -1,8 +1,8 @@
 """``write_csp``: raw NGSIM files or highD recordings → conv-social-pooling's ``.mat`` sets.
 
 The output directory gets ``TrainSet.mat``, ``ValSet.mat`` and ``TestSet.mat`` (each ``traj`` and
-``tracks``, MATLAB 5 format as scipy writes it, zlib-compressed as MATLAB's default ``-v7`` save
-is; ``scipy.io.loadmat`` reads them) and ``lanecast-csp.json`` (the dataset ids given to the inputs,
+``tracks``, MATLAB 5 format, zlib-compressed as MATLAB's default ``-v7`` save is: see
+matfile.py; ``scipy.io.loadmat`` reads them) and ``lanecast-csp.json`` (the dataset ids given to the inputs,
 row counts, and the size and modification time of each set, by which a later run knows the files
 are its own). All files are staged beside the directory and moved in together: the directory gets
 all of a run's files or none. A file of those names that lanecast did not write is refused, never
@@ -14,13 +14,12 @@ from __future__ import annotations
 import json
 import os
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from lanecast.io_adapters.datasets.csp import inputs, sets
+from lanecast.io_adapters.datasets.csp import inputs, matfile, sets
 from lanecast.io_adapters.errors import InputError, OutputError
 from lanecast.io_adapters.files import check_output, progress, staged_files
 
@@ -66,25 +65,41 @@ def check_csp_output(out: str | Path) -> Path:
     return out
 
 
-def read_datasets(
-    paths: Sequence[str | Path], fmt: str, location: str | None
-) -> list[tuple[str, Path, sets.Dataset]]:
-    """The datasets of ``paths`` (``fmt`` "ngsim" or "highd"), in dataset id order."""
+Job = tuple[str, int, Path, "str | None"]
+Result = list[tuple[str, Path, int, int, list[sets.SetParts]]]
+
+
+def plan(paths: Sequence[str | Path], fmt: str, location: str | None) -> list[Job]:
+    """One job per NGSIM file or highD recording, in dataset id order."""
     given = [Path(p) for p in paths]
     if fmt == "ngsim":
-        return inputs.ngsim_datasets(given, location)
+        return [
+            ("ngsim", i, path, location) for i, (path, _) in enumerate(inputs.ngsim_order(given, location), 1)
+        ]
     if fmt == "highd":
-        return inputs.highd_datasets(given)
+        return [("highd", r, path, None) for r, path in enumerate(inputs.highd_order(given), start=1)]
     raise InputError(
-        ", ".join(map(str, paths)), f"{fmt} input", expected="raw NGSIM .txt files or highD recordings"
+        ", ".join(map(str, given)), f"{fmt} input", expected="raw NGSIM .txt files or highD recordings"
     )
 
 
-def _save(path: Path, traj: np.ndarray, tracks: np.ndarray, compress: bool) -> None:
-    from scipy.io import savemat
+def run_job(job: Job) -> Result:
+    """Read one job's datasets and compute their sets' pieces: (source, file, id, rows, pieces)."""
+    kind, number, path, location = job
+    if kind == "ngsim":
+        found, ds = inputs.ngsim_dataset(number, path, location)
+        datasets = [(found, path, ds)]
+    else:
+        datasets = inputs.highd_recording(number, path)
+    return [(src, p, ds.ident, int(ds.vehicle.size), sets.dataset_parts(ds)) for src, p, ds in datasets]
 
-    with path.open("wb") as fh:
-        savemat(fh, {"traj": traj, "tracks": tracks}, do_compression=compress, format="5")
+
+def _results(jobs: list[Job], workers: int) -> Iterator[Result]:
+    if workers <= 1 or len(jobs) <= 1:
+        yield from map(run_job, jobs)
+        return
+    with ProcessPoolExecutor(max_workers=min(workers, len(jobs))) as pool:
+        yield from pool.map(run_job, jobs)
 
 
 def write_csp(
@@ -93,21 +108,27 @@ def write_csp(
     *,
     fmt: str = "ngsim",
     location: str | None = None,
-    compress: bool = True,
+    level: int = 1,
+    workers: int = 1,
 ) -> dict[str, Any]:
-    """Write the three sets of ``paths`` into the directory ``out``; returns what the manifest holds."""
+    """Write the three sets of ``paths`` into the directory ``out``; returns what the manifest holds.
+
+    ``level``: zlib level of the .mat files (0: uncompressed); ``workers``: processes reading and
+    computing datasets in parallel (the result is the same)."""
     started = time.perf_counter()
     out = check_csp_output(out)
-    datasets = read_datasets(paths, fmt, location)
-    if not datasets:
+    jobs = plan(paths, fmt, location)
+    if not jobs:
         raise InputError(", ".join(map(str, paths)), "no rows", expected="at least one dataset to convert")
     parts = [sets.SetParts() for _ in sets.SET_NAMES]
     described = []
-    for source, path, ds in progress(datasets, desc="csp", unit="dataset"):
-        for whole, piece in zip(parts, sets.dataset_parts(ds), strict=True):
-            whole.traj += piece.traj
-            whole.tracks += piece.tracks
-        described.append({"id": ds.ident, "file": str(path), "source": source, "rows": int(ds.vehicle.size)})
+    unit = "file" if fmt == "ngsim" else "recording"
+    for result in progress(_results(jobs, workers), desc="csp", total=len(jobs), unit=unit):
+        for source, path, ident, rows, pieces in result:
+            for whole, piece in zip(parts, pieces, strict=True):
+                whole.traj += piece.traj
+                whole.tracks += piece.tracks
+            described.append({"id": ident, "file": str(path), "source": source, "rows": rows})
     record: dict[str, Any] = {
         "format": "csp",
         "convention": CONVENTIONS[fmt],
@@ -117,14 +138,21 @@ def write_csp(
         "files": {},
     }
     with staged_files(out) as stage:
-        for name, part in progress(
-            list(zip(sets.SET_NAMES, parts, strict=True)), desc="csp: writing", unit="set"
-        ):
+
+        def write(name: str, part: sets.SetParts) -> tuple[str, int, int]:
             traj = sets.traj_matrix(part)
             part.traj.clear()
-            _save(stage / f"{name}.mat", traj, sets.tracks_cell(part.tracks), compress)
-            record["sets"][name] = {"rows": int(traj.shape[0]), "vehicles": len(part.tracks)}
-            del traj
+            matfile.save(
+                stage / f"{name}.mat", {"traj": traj, "tracks": sets.tracks_cell(part.tracks)}, level
+            )
+            return name, int(traj.shape[0]), len(part.tracks)
+
+        named = list(zip(sets.SET_NAMES, parts, strict=True))
+        # threads: compression and copies release the GIL, so a set compresses while another is built
+        with ThreadPoolExecutor(max_workers=max(1, min(workers, len(named)))) as pool:
+            done = pool.map(lambda item: write(*item), named)
+            for name, rows, vehicles in progress(done, desc="csp: writing", total=len(named), unit="set"):
+                record["sets"][name] = {"rows": rows, "vehicles": vehicles}
         record["seconds"] = round(time.perf_counter() - started, 1)
         for name in record["sets"]:
             # the times the files will have in ``out``: os.replace keeps them
