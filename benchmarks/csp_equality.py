@@ -88,8 +88,8 @@ def make_fixture(out: Path, script: Path, work: Path) -> None:
         if not any(_crop(cols, frames, path, lane_base, change) for change in (True, False)):
             raise SystemExit(f"no crop of {name} reaches the last grid cell")
         print(f"{path}: {sum(1 for _ in path.open())} rows")
-    took = ci.run_octave(script, [out / n for n in ci.NAMES], out)
-    print(f"octave: {took:.1f} s; sets in {out}")
+    wall, cpu = ci.run_octave(script, [out / n for n in ci.NAMES], out)
+    print(f"octave: {wall:.1f} s ({cpu:.1f} s CPU); sets in {out}")
 
 
 def main() -> None:
@@ -108,9 +108,9 @@ def main() -> None:
     inputs = ci.make_inputs(args.work, args.minutes)
     theirs = args.work / f"octave-{args.minutes:g}min"
     if not all((theirs / f"{s}.mat").exists() for s in ci.SETS):
-        print(f"octave: {ci.run_octave(args.script, inputs, theirs):.1f} s")
+        print("octave: {:.1f} s ({:.1f} s CPU)".format(*ci.run_octave(args.script, inputs, theirs)))
     ours = args.work / f"lanecast-{args.minutes:g}min"
-    print(f"lanecast: {ci.run_lanecast(inputs, ours):.1f} s")
+    print("lanecast: {:.1f} s ({:.1f} s CPU)".format(*ci.run_lanecast(inputs, ours)))
     problems = ci.compare_sets(ours, theirs)
     rows = {s: __import__("scipy.io").io.loadmat(ours / f"{s}.mat")["traj"].shape[0] for s in ci.SETS}
     print(f"{sum(1 for p in inputs for _ in p.open()):,} input rows; rows per set: {rows}")

@@ -208,14 +208,21 @@ def octave_script(original: Path, inputs: list[Path], out: Path) -> str:
     return text
 
 
-def run_octave(original: Path, inputs: list[Path], out: Path) -> float:
-    """Run the research script under Octave (niced); the seconds it took."""
+def _cpu() -> float:
+    import resource
+
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
+def run_octave(original: Path, inputs: list[Path], out: Path) -> tuple[float, float]:
+    """Run the research script under Octave (niced); (wall seconds, CPU seconds) it took."""
     out.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="csp-octave-") as tmp:
         script = Path(tmp) / "preprocess_data_paths.m"
         script.write_text(octave_script(original, [p.resolve() for p in inputs], out.resolve()))
         (Path(tmp) / "parpool.m").write_text("function p = parpool(varargin)\n  p = [];\nend\n")
-        started = time.perf_counter()
+        started, cpu = time.perf_counter(), _cpu()
         done = subprocess.run(
             [
                 "nice",
@@ -232,20 +239,21 @@ def run_octave(original: Path, inputs: list[Path], out: Path) -> float:
             capture_output=True,
             text=True,
         )
-        took = time.perf_counter() - started
+        took = time.perf_counter() - started, _cpu() - cpu
     if not all((out / f"{s}.mat").exists() for s in SETS):
         raise SystemExit(f"octave failed ({done.returncode}):\n{done.stdout[-1500:]}\n{done.stderr[-1500:]}")
     return took
 
 
-def run_lanecast(inputs: list[Path], out: Path) -> float:
-    """``lanecast convert INPUTS --to csp --out OUT`` in its own process; the seconds it took."""
+def run_lanecast(inputs: list[Path], out: Path, *extra: str) -> tuple[float, float]:
+    """``lanecast convert INPUTS --to csp --out OUT [EXTRA]`` in its own process; (wall seconds,
+    CPU seconds of it and its workers) it took."""
     if out.exists():
         shutil.rmtree(out)
-    started = time.perf_counter()
-    cmd = lanecast_cmd("convert", *map(str, inputs), "--to", "csp", "--out", str(out))
+    started, cpu = time.perf_counter(), _cpu()
+    cmd = lanecast_cmd("convert", *map(str, inputs), "--to", "csp", "--out", str(out), *extra)
     subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=_env())
-    return time.perf_counter() - started
+    return time.perf_counter() - started, _cpu() - cpu
 
 
 def octave_found() -> bool:

@@ -8,12 +8,14 @@ lanecast alone on NGSIM-sized input.
 Sizes are simulated minutes per simulation: six NGSIM .txt files from three simulations
 (benchmarks/csp_inputs.py). Each repeat runs, size by size, ``lanecast convert … --to csp`` and
 the research script under Octave (niced), one after the other, so that both see the same load;
-medians and the ratio are printed. The script's cost grows faster than its input: a size whose
-predicted Octave time (from the growth fitted to the sizes measured, rows^k) exceeds
+medians of wall and CPU seconds are printed, and the ratio of CPU seconds (on a shared machine
+a niced process's wall time measures the other users more than itself). The script's cost grows faster than its input: a size whose
+predicted Octave CPU time (from the growth fitted to the sizes measured, rows^k) exceeds
 ``--octave-budget-s`` is not run but extrapolated, and printed as such.
 
 ``--ngsim-sized``: six files of about a million rows each (the 15-minute files repeated six times
-in time, ids shifted), converted once by lanecast in a fresh process: wall time and peak resident
+in time, ids shifted; ``--base-minutes``/``--copies`` choose others, ``--files`` names them),
+converted once by lanecast (``--workers 2``) in a fresh process: wall time and peak resident
 memory (ru_maxrss of the child).
 """
 
@@ -56,57 +58,56 @@ def growth(points: list[tuple[int, float]]) -> tuple[float, float] | None:
 def compare(args: argparse.Namespace) -> dict:
     inputs = {m: ci.make_inputs(args.work, m) for m in args.sizes}
     rows = {m: rows_of(p) for m, p in inputs.items()}
-    ours: dict[float, list[float]] = {m: [] for m in args.sizes}
-    theirs: dict[float, list[float]] = {m: [] for m in args.sizes}
+    ours: dict[float, list[tuple[float, float]]] = {m: [] for m in args.sizes}
+    theirs: dict[float, list[tuple[float, float]]] = {m: [] for m in args.sizes}
     for r in range(args.repeats):
         for m in args.sizes:
-            ours[m].append(ci.run_lanecast(inputs[m], args.work / f"lanecast-{m:g}min"))
-            measured = [(rows[s], statistics.median(t)) for s, t in theirs.items() if t]
+            out = args.work / f"lanecast-{m:g}min"
+            ours[m].append(ci.run_lanecast(inputs[m], out, "--workers", str(args.workers)))
+            measured = [(rows[s], statistics.median(c for _, c in t)) for s, t in theirs.items() if t]
             fit = growth(measured)
-            if measured and fit is None:
-                fit = (
-                    2.0,
-                    math.log(measured[0][1]) - 2.0 * math.log(measured[0][0]),
-                )  # quadratic until two sizes
+            if measured and fit is None:  # quadratic until two sizes are measured
+                fit = (2.0, math.log(measured[0][1]) - 2.0 * math.log(measured[0][0]))
             predicted = math.exp(fit[1]) * rows[m] ** fit[0] if fit else 0.0
             if r < args.octave_repeats and predicted <= args.octave_budget_s:
-                took = ci.run_octave(args.script, inputs[m], args.work / f"octave-{m:g}min-{r}")
-                theirs[m].append(took)
-            print(
-                f"repeat {r + 1}, {m:g} min ({rows[m]:,} rows): lanecast {ours[m][-1]:.1f} s"
-                + (f", octave {theirs[m][-1]:.1f} s" if len(theirs[m]) > r else ""),
-                flush=True,
-            )
-    measured = [(rows[m], statistics.median(t)) for m, t in theirs.items() if t]
+                theirs[m].append(ci.run_octave(args.script, inputs[m], args.work / f"octave-{m:g}min-{r}"))
+            line = f"repeat {r + 1}, {m:g} min ({rows[m]:,} rows): lanecast {ours[m][-1][0]:.1f} s"
+            line += f" ({ours[m][-1][1]:.1f} s CPU)"
+            if len(theirs[m]) > r:
+                line += f", octave {theirs[m][-1][0]:.1f} s ({theirs[m][-1][1]:.1f} s CPU)"
+            print(line, flush=True)
+    measured = [(rows[m], statistics.median(c for _, c in t)) for m, t in theirs.items() if t]
     fit = growth(measured)
-    result = {"load": os.getloadavg(), "sizes": []}
-    print(f"\n{'minutes':>8} {'rows':>9} {'lanecast s':>11} {'octave s':>12} {'ratio':>8}")
+    result: dict = {"load": os.getloadavg(), "sizes": []}
+    print(
+        f"\n{'minutes':>8} {'rows':>9} {'lanecast s':>11} {'CPU s':>7} {'octave CPU s':>13} {'ratio (CPU)':>12}"
+    )
     for m in args.sizes:
-        lc = statistics.median(ours[m])
+        wall, cpu = statistics.median(w for w, _ in ours[m]), statistics.median(c for _, c in ours[m])
         if theirs[m]:
-            oc, how = statistics.median(theirs[m]), "measured"
+            oc, how = statistics.median(c for _, c in theirs[m]), "measured"
         elif fit:
             oc, how = math.exp(fit[1]) * rows[m] ** fit[0], "extrapolated"
         else:
             oc, how = float("nan"), "not run"
-        print(
-            f"{m:>8g} {rows[m]:>9,} {lc:>11.2f} {oc:>11.1f}{'*' if how == 'extrapolated' else ' '} {oc / lc:>7.0f}x"
-        )
+        mark = "*" if how == "extrapolated" else " "
+        print(f"{m:>8g} {rows[m]:>9,} {wall:>11.2f} {cpu:>7.2f} {oc:>12.1f}{mark} {oc / cpu:>11.0f}x")
         result["sizes"].append(
             {
                 "minutes": m,
                 "rows": rows[m],
-                "lanecast_s": ours[m],
-                "octave_s": theirs[m],
-                "octave_median_s": oc,
+                "lanecast_wall_cpu_s": ours[m],
+                "octave_wall_cpu_s": theirs[m],
+                "octave_cpu_s": oc,
                 "octave": how,
-                "ratio": oc / lc,
+                "ratio_cpu": oc / cpu,
             }
         )
     if fit:
+        extrapolated = any(not theirs[m] for m in args.sizes)
         print(
-            f"octave grows as rows^{fit[0]:.2f} over the measured sizes"
-            + (" (* extrapolated)" if any(not theirs[m] for m in args.sizes) else "")
+            f"octave's CPU time grows as rows^{fit[0]:.2f} over the measured sizes"
+            + (" (* extrapolated with it)" if extrapolated else "")
         )
         result["octave_growth_exponent"] = fit[0]
     print(f"load average {os.getloadavg()}")
@@ -114,23 +115,30 @@ def compare(args: argparse.Namespace) -> dict:
 
 
 def ngsim_sized(args: argparse.Namespace) -> dict:
-    base = ci.make_inputs(args.work, 15.0)
-    big = ci.tiled(base, args.work / "ngsim-sized", args.copies)
+    if args.files:
+        big = args.files
+    else:
+        base = ci.make_inputs(args.work, args.base_minutes)
+        big = ci.tiled(base, args.work / f"ngsim-sized-{args.base_minutes:g}x{args.copies}", args.copies)
     rows = rows_of(big)
     out = args.work / "lanecast-ngsim-sized"
-    before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    before, cpu_before = usage.ru_maxrss, usage.ru_utime + usage.ru_stime
     started = time.perf_counter()
-    took = ci.run_lanecast(big, out)
-    peak_kb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+    took, _ = ci.run_lanecast(big, out, "--workers", str(args.workers))
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    peak_kb, cpu = usage.ru_maxrss, usage.ru_utime + usage.ru_stime - cpu_before
     elapsed = time.perf_counter() - started
     sizes = {p.name: p.stat().st_size for p in sorted(out.glob("*.mat"))}
     print(
-        f"{len(big)} files, {rows:,} rows: lanecast {took:.1f} s, peak RSS {peak_kb / 1024:.0f} MiB"
+        f"{len(big)} files, {rows:,} rows: lanecast {took:.1f} s wall, {cpu:.1f} s CPU (all its processes),"
+        f" peak RSS {peak_kb / 1024:.0f} MiB"
         f" (earlier children {before / 1024:.0f} MiB); outputs {sizes}; load average {os.getloadavg()}"
     )
     return {
         "rows": rows,
         "seconds": elapsed,
+        "cpu_seconds": cpu,
         "peak_rss_mib": peak_kb / 1024,
         "outputs": sizes,
         "load": os.getloadavg(),
@@ -146,7 +154,12 @@ def main() -> None:
     ap.add_argument("--octave-repeats", type=int, default=1, help="Octave runs per size")
     ap.add_argument("--octave-budget-s", type=float, default=1800.0)
     ap.add_argument("--ngsim-sized", action="store_true", help="lanecast alone on six ~1M-row files")
-    ap.add_argument("--copies", type=int, default=6, help="--ngsim-sized: repeats of each 15-minute file")
+    ap.add_argument("--copies", type=int, default=6, help="--ngsim-sized: repeats of each base file")
+    ap.add_argument(
+        "--base-minutes", type=float, default=15.0, help="--ngsim-sized: minutes of the base files"
+    )
+    ap.add_argument("--files", type=Path, nargs="+", help="--ngsim-sized: these NGSIM files instead")
+    ap.add_argument("--workers", type=int, default=2, help="lanecast's --workers")
     ap.add_argument("--json", type=Path, help="also write the figures here")
     args = ap.parse_args()
     if args.ngsim_sized:
