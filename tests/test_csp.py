@@ -290,7 +290,9 @@ def test_fixture_copy_reads_the_same(tmp_path: Path) -> None:
 
 
 def test_workers_give_the_same_sets(tmp_path: Path) -> None:
-    a = _write_txt(tmp_path / "us-101.txt", _straight(1, range(1, 45), 2) + _straight(2, range(1, 45), 3, 130.0))
+    a = _write_txt(
+        tmp_path / "us-101.txt", _straight(1, range(1, 45), 2) + _straight(2, range(1, 45), 3, 130.0)
+    )
     b = _write_txt(tmp_path / "i-80.txt", _straight(5, range(3, 50), 1) + _straight(3, range(1, 40), 2, 90.0))
     one = write_csp([a, b], tmp_path / "one")
     two = write_csp([b, a], tmp_path / "two", workers=2)
