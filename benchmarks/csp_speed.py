@@ -69,7 +69,7 @@ def compare(args: argparse.Namespace) -> dict:
             if measured and fit is None:  # quadratic until two sizes are measured
                 fit = (2.0, math.log(measured[0][1]) - 2.0 * math.log(measured[0][0]))
             predicted = math.exp(fit[1]) * rows[m] ** fit[0] if fit else 0.0
-            if r < args.octave_repeats and predicted <= args.octave_budget_s:
+            if r < args.octave_repeats and 0 < args.octave_budget_s and predicted <= args.octave_budget_s:
                 theirs[m].append(ci.run_octave(args.script, inputs[m], args.work / f"octave-{m:g}min-{r}"))
             line = f"repeat {r + 1}, {m:g} min ({rows[m]:,} rows): lanecast {ours[m][-1][0]:.1f} s"
             line += f" ({ours[m][-1][1]:.1f} s CPU)"
