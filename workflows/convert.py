@@ -8,12 +8,14 @@ import time
 from pathlib import Path
 
 from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.datasets.csp import cli as csp_cli
 from lanecast.io_adapters.errors import InputError, UsageError
 from lanecast.io_adapters.files import check_output, check_output_dir
 from lanecast.io_adapters.formats import registry, streaming
 from lanecast.io_adapters.logs.conventions import BAG_FILES
 from lanecast.io_adapters.logs.rosbag.writer import STORAGES
 from lanecast.io_adapters.ownership import check_replaceable_files, check_replaceable_output
+from lanecast.pipeline.resample import resample
 from lanecast.workflows.bulk import backends, freed_memory
 from lanecast.workflows.vocabulary import HelpFormatter, add_force_option, add_location_option
 
@@ -41,7 +43,8 @@ def register(sub: argparse._SubParsersAction) -> None:
             "  lanecast convert sim-queue/01_tracks.csv --out queue.parquet   # a highD recording, by any of its files\n"
             "  lanecast convert lanecast-demo/highd/ --out highd/ --partition --workers 2   # the demo's, highD format\n"
             "with a dataset downloaded (NGSIM: data.transportation.gov; highD: levelxdata.com):\n"
-            "  lanecast convert ngsim/ --out us101.parquet   # trajectories-0750am-0805am.txt … are US-101"
+            "  lanecast convert ngsim/ --out us101.parquet   # trajectories-0750am-0805am.txt … are US-101\n"
+            "  lanecast convert ngsim/*.txt --to csp --out csp/   # TrainSet.mat … for CS-LSTM, PiP and kin"
         ),
         formatter_class=HelpFormatter,
     )
@@ -56,8 +59,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_location_option(p)
     p.add_argument(
         "--to",
-        choices=sorted(registry.WRITERS),
-        help="output format (default: from --out's suffix, else parquet)",
+        choices=sorted([*registry.WRITERS, "csp"]),
+        help="output format (default: from --out's suffix, else parquet); " + csp_cli.HELP,
     )
     p.add_argument(
         "--storage",
@@ -106,6 +109,8 @@ def output_format(out: Path, to: str | None) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.to == "csp":  # research .mat sets, written by their own package
+        return csp_cli.run_csp(args, resample=resample)
     started = time.perf_counter()
     options: dict[str, object] = {}
     if args.topic:
