@@ -271,7 +271,7 @@ def finetune(
     training["data"]["distribution"] = merged_distribution(base_dist, n_base, added, len(train_rows))
     training["data"]["distribution_added"] = added
     training["data"]["distribution_base"] = base_dist
-    held = f"frozen: the new training windows hold {n_changes} with a lane change"
+    held = f"frozen: the new training windows hold {n_changes:,} with a lane change"
     why = (
         f"{held}; the base's kept (--classifier auto or train fine-tunes it)"
         if options.classifier == "freeze"
