@@ -17,8 +17,9 @@ from pathlib import Path
 from typing import Any
 
 from lanecast.io_adapters.errors import InputError
-from lanecast.io_adapters.files import progress, staged_files
+from lanecast.io_adapters.files import activity, progress, staged_files
 from lanecast.io_adapters.formats import registry
+from lanecast.io_adapters.ownership import GENERATOR, HTML_MARK, MARKDOWN_MARK
 from lanecast.models.predictor_metrics import predictor_summary
 from lanecast.models.runtime import load_forecaster
 from lanecast.workflows.annotation.log_scores import annotated_logs, per_log_names
@@ -87,14 +88,18 @@ def headline(topic: str, entry: dict[str, Any]) -> str:
     ratio = f", {r5 / cv5:.2f}× constant velocity ({cv5:.2f} m)" if cv5 else ""
     stcnn = f", lanecast ST-CNN {st5:.2f} m" if st5 is not None else ""
     return (
-        f"{topic}: RMSE@5 s {r5:.2f} m{ratio}{stcnn}, on {entry['scored']} predictions of "
-        f"{entry['distinct_objects']} objects ({entry['objects_predicted']} predicted: {lost} without a "
-        f"future in the log, {entry['unmatched'].get(NO_WINDOW, 0)} without a lanecast window)"
+        f"{topic}: RMSE@5 s {r5:.2f} m{ratio}{stcnn}, on {entry['scored']:,} predictions of "
+        f"{entry['distinct_objects']:,} objects ({entry['objects_predicted']:,} predicted: {lost:,} without a "
+        f"future in the log, {entry['unmatched'].get(NO_WINDOW, 0):,} without a lanecast window)"
     )
 
 
 def _fmt(v: Any) -> str:
-    return "–" if v is None else f"{v:.3f}" if isinstance(v, float) else str(v)
+    if v is None:
+        return "–"
+    if isinstance(v, float):
+        return f"{v:.3f}"
+    return f"{v:,}" if isinstance(v, int) and not isinstance(v, bool) else str(v)
 
 
 def sections(topic: str, entry: dict[str, Any]) -> list[tuple[str, list[str], list[list[str]]]]:
@@ -110,8 +115,8 @@ def sections(topic: str, entry: dict[str, Any]) -> list[tuple[str, list[str], li
         for n in names
     ]
     header = ["predictor", *(f"RMSE@{h} s" for h in range(1, 6)), "95 % CI @5 s", *keys]
-    matching = [[reason, str(n)] for reason, n in entry["unmatched"].items()]
-    matching += [[f"path refused: {reason}", str(n)] for reason, n in entry["refused_paths"].items()]
+    matching = [[reason, _fmt(n)] for reason, n in entry["unmatched"].items()]
+    matching += [[f"path refused: {reason}", _fmt(n)] for reason, n in entry["refused_paths"].items()]
     matching += [
         [
             f"stamp − nearest tracked sample ({name}), ms",
@@ -120,12 +125,12 @@ def sections(topic: str, entry: dict[str, Any]) -> list[tuple[str, list[str], li
         for name, o in entry["stamp_offset_ms"].items()
     ]
     by_class = [
-        [NAMES.get(n, n), c, str(row["n"]), _fmt((row["rmse"] or [None])[-1])]
+        [NAMES.get(n, n), c, _fmt(row["n"]), _fmt((row["rmse"] or [None])[-1])]
         for n in names
         for c, row in m[n]["per_class"].items()
     ]
     by_speed = [
-        [NAMES.get(n, n), band, str(row["n_windows"]), _fmt((row["rmse"] or [None])[-1])]
+        [NAMES.get(n, n), band, _fmt(row["n_windows"]), _fmt((row["rmse"] or [None])[-1])]
         for n in names
         for band, row in m[n]["per_speed_band"].items()
     ]
@@ -146,20 +151,27 @@ def sections(topic: str, entry: dict[str, Any]) -> list[tuple[str, list[str], li
 def write_documents(directory: Path, report: dict[str, Any], title: str) -> Path:
     """metrics.json, report.md and report.html of ``report``; returns the HTML's path."""
     directory.mkdir(parents=True, exist_ok=True)
-    (directory / "metrics.json").write_text(json.dumps(report, indent=2, allow_nan=False) + "\n")
+    doc = {**report, "generator": GENERATOR}  # lanecast's own: a rerun replaces it
+    (directory / "metrics.json").write_text(json.dumps(doc, indent=2, allow_nan=False) + "\n")
     lines = [report[t]["headline"] for t in report["predictor_topics"]]
     tables = [s for t in report["predictor_topics"] for s in sections(t, report[t])]
-    md = [f"# {title}", "", *(f"**{line}**" for line in lines), ""]
+    md = [MARKDOWN_MARK, f"# {title}", "", *(f"**{line}**" for line in lines), ""]
     page = [f"<h1>{html.escape(title)}</h1>", *(f"<p><b>{html.escape(line)}</b></p>" for line in lines)]
     for name, header, rows in tables:
         md += [f"## {name}", "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
         md += ["| " + " | ".join(r) + " |" for r in rows] + [""]
         cells = "".join(f"<th>{html.escape(h)}</th>" for h in header)
         body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>" for r in rows)
-        page += [f"<h2>{html.escape(name)}</h2>", f"<table border=1><tr>{cells}</tr>{body}</table>"]
+        page += [f"<h2>{html.escape(name)}</h2>", f"<table><tr>{cells}</tr>{body}</table>"]
     (directory / "report.md").write_text("\n".join(md))
-    doc = f"<!doctype html><meta charset=utf-8><title>{html.escape(title)}</title>" + "\n".join(page)
-    (directory / "report.html").write_text(doc + "\n")
+    head = (
+        f"<!doctype html><html><head><meta charset='utf-8'>{HTML_MARK}<title>{html.escape(title)}</title>"
+        "<style>body{font-family:sans-serif;max-width:1200px;margin:2em auto;color:#222}"
+        "table{border-collapse:collapse;margin:0.5em 0}td,th{border:1px solid #ccc;padding:3px 7px;"
+        "text-align:right;font-size:13px}th{background:#f3f3f3}td:first-child,th:first-child{text-align:left}"
+        "</style></head><body>"
+    )
+    (directory / "report.html").write_text(head + "\n".join(page) + "\n</body></html>\n")
     return directory / "report.html"
 
 
@@ -202,15 +214,17 @@ def report_predictors(
     with staged_files(out, force=force) as stage:
         for log in progress(logs, desc="report", total=len(logs), unit="log"):
             try:
-                tracks = registry.read_any([log], topic=topic) if topic else registry.read_any([log])
+                with activity(f"report: {log.name}: reading its tracks"):
+                    tracks = registry.read_any([log], topic=topic) if topic else registry.read_any([log])
                 per_log: dict[str, list[Scored]] = {}
-                for pred in read_predictions(log, predictions, checked=True):
-                    scored = score_predictor(pred, tracks)
-                    scored.log = names[log]
-                    no_window = add_lanecast(scored, tracks, [forecaster])
-                    if no_window:
-                        scored.unmatched[NO_WINDOW] = no_window
-                    per_log[pred.topic] = [scored]
+                with activity(f"report: {log.name}: scoring its recorded predictions"):
+                    for pred in read_predictions(log, predictions, checked=True):
+                        scored = score_predictor(pred, tracks)
+                        scored.log = names[log]
+                        no_window = add_lanecast(scored, tracks, [forecaster])
+                        if no_window:
+                            scored.unmatched[NO_WINDOW] = no_window
+                        per_log[pred.topic] = [scored]
             except InputError as exc:
                 if len(logs) == 1:
                     raise
