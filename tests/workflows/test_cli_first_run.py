@@ -196,6 +196,7 @@ def test_help_examples_run_in_order_on_what_earlier_ones_made() -> None:
         made |= outputs
     assert downloads == [
         "lanecast convert ngsim/ --out us101.parquet",
+        "lanecast convert ngsim/*.txt --to csp --out csp/",
         "lanecast annotate logs/ --out /shared/annotated --engine ray --address ray://head:10001",
     ]
 
