@@ -24,6 +24,7 @@ from lanecast.models.metrics import accuracy, confusion_matrix, macro_f1, summar
 from lanecast.models.ood import target_speed
 from lanecast.models.predictions import Forecaster, Predictions
 from lanecast.models.reports.document import Scene
+from lanecast.models.reports.tables import model_name
 
 
 def vehicle_ids(index: pa.Table) -> np.ndarray:
@@ -183,7 +184,7 @@ def out_of_distribution_note(
         return None
     n = int(np.count_nonzero(flags))
     text = (
-        f"{n:,} of {flags.size:,} windows ({100 * n / max(flags.size, 1):.1f} %) out of the {model} model's "
+        f"{n:,} of {flags.size:,} windows ({100 * n / max(flags.size, 1):.1f} %) out of the {model_name(model)}'s "
         "training distribution (target speed or acceleration outside its 0.5-99.5 percentiles)"
     )
     if n:
@@ -191,7 +192,7 @@ def out_of_distribution_note(
             name: float(np.sqrt(np.mean(np.sum((p.offsets[flags, -1] - future[flags, -1]) ** 2, axis=-1))))
             for name, p in preds.items()
         }
-        text += "; RMSE at 5 s on them: " + ", ".join(f"{k} {v:.2f} m" for k, v in err.items())
+        text += "; RMSE at 5 s on them: " + ", ".join(f"{model_name(k)} {v:.2f} m" for k, v in err.items())
     return text
 
 
