@@ -95,8 +95,7 @@ def pick_window(windows: Windows, track: int, t0_ns: int, recording: str | None,
         where = f" in {recording}" if recording else ""
         raise InputError(
             source,
-            f"no window of track {track}{where} at t0 = {t0_ns / 1e9:.1f} s",
-            column="--track/--time",
+            f"--track {track} --time {t0_ns / 1e9:g}: no window of track {track}{where} at t0 = {t0_ns / 1e9:.1f} s",
             expected="a track present in INPUT with 3 s of history up to t0",
         )
     t0 = index.column("t0_ns").to_numpy()
@@ -107,8 +106,7 @@ def pick_window(windows: Windows, track: int, t0_ns: int, recording: str | None,
             times = t0[ok] / 1e9
             raise InputError(
                 source,
-                f"track {track} has no window at t0 = {t0_ns / 1e9:.1f} s",
-                column="--time",
+                f"--time {t0_ns / 1e9:g}: track {track} has no window at t0 = {t0_ns / 1e9:.1f} s",
                 expected=f"a time with 3 s of history: {times.min():.1f} … {times.max():.1f} s",
             )
         best, stride = nearest
@@ -121,7 +119,9 @@ def pick_window(windows: Windows, track: int, t0_ns: int, recording: str | None,
     found = np.flatnonzero(near)
     if len(set(rec[found])) > 1:
         raise InputError(
-            source, f"track {track} is in several recordings: {sorted(set(rec[found]))}", column="--recording"
+            source,
+            f"--track {track}: the track is in several recordings: {sorted(set(rec[found]))}",
+            expected="--recording naming one of them",
         )
     return int(found[0])
 
@@ -181,8 +181,7 @@ def no_window_in_table(
         ids = table.column("track_id")
         return InputError(
             source,
-            f"no track {track}{where}",
-            column="--track",
+            f"--track {track}: no track {track}{where}",
             expected=f"a track id of INPUT ({pc.min(ids).as_py()} … {pc.max(ids).as_py()}; `lanecast info` lists them)",
         )
     first, last = pc.min(times).as_py() / 1e9, pc.max(times).as_py() / 1e9
@@ -191,14 +190,12 @@ def no_window_in_table(
     if last - first < history_s:
         return InputError(
             source,
-            f"track {track}{where} has no window: {span}, less than the 3 s of history a window needs",
-            column="--track",
+            f"--track {track}: track {track}{where} has no window: {span}, less than the 3 s of history a window needs",
             expected="a track in INPUT for 3 s or more",
         )
     return InputError(
         source,
-        f"track {track}{where} has no window at t0 = {t0_ns / 1e9:.1f} s: {span}",
-        column="--time",
+        f"--time {t0_ns / 1e9:g}: track {track}{where} has no window at t0 = {t0_ns / 1e9:.1f} s: {span}",
         expected=f"a time after 3 s of gap-free history: {first + history_s:.1f} … {last:.1f} s",
     )
 

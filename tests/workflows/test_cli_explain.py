@@ -22,3 +22,18 @@ def test_explain_on_a_windows_dataset_missing_a_file_names_it(
         f"error: {directory / missing}: missing file of a windows dataset",
     )
     no_output(out)
+
+
+def test_explain_names_its_options_not_a_column(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A track or time with no window was 'column '--track/--time'', as if a CSV column were wrong."""
+    from conftest import synthetic_windows
+
+    from lanecast.io_adapters.windows_store.dataset import save_windows
+    from lanecast.workflows.cli import main
+
+    windows = save_windows(synthetic_windows(50), tmp_path / "w")
+    assert (
+        main(["explain", str(windows), "--track", "99999", "--time", "3", "--out", str(tmp_path / "e")]) == 2
+    )
+    err = capsys.readouterr().err
+    assert "column" not in err and f"{windows}: --track 99999 --time 3: no window of track 99999" in err, err
