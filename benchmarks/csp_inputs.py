@@ -32,8 +32,11 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from lanecast.io_adapters.datasets import highd  # noqa: E402
+from real_proxy import save_ngsim_txt  # noqa: E402
+
+from lanecast.io_adapters.datasets.highd import reader as highd  # noqa: E402
 from lanecast.pipeline.resample import resample  # noqa: E402
 
 FT = 0.3048
@@ -154,27 +157,7 @@ def write_ngsim_txt(
         np.zeros(n),
         np.zeros(n),
     ]
-    fmt = [
-        "%d",
-        "%d",
-        "%d",
-        "%d",
-        "%.3f",
-        "%.3f",
-        "%.3f",
-        "%.3f",
-        "%.1f",
-        "%.1f",
-        "%d",
-        "%.2f",
-        "%.2f",
-        "%d",
-        "%d",
-        "%d",
-        "%.2f",
-        "%.2f",
-    ]
-    np.savetxt(path, np.column_stack([np.asarray(c, dtype=float) for c in columns]), fmt=fmt, delimiter="   ")
+    save_ngsim_txt(path, columns)
     return n
 
 

@@ -73,6 +73,18 @@ SEEDS = {
 }  # never trained on (train_shipped: 101-109, 901-909)
 
 
+#: printf formats of the 18 columns of a raw NGSIM .txt (ids and counts whole, feet to the mm)
+NGSIM_TXT_FORMAT = (
+    ["%d"] * 4 + ["%.3f"] * 4 + ["%.1f"] * 2 + ["%d", "%.2f", "%.2f"] + ["%d"] * 3 + ["%.2f"] * 2
+)
+
+
+def save_ngsim_txt(path: Path, columns: list) -> None:
+    """Write 18 columns as a raw NGSIM .txt (whitespace-separated, as the published files)."""
+    table = np.column_stack([np.asarray(c, dtype=float) for c in columns])
+    np.savetxt(path, table, fmt=NGSIM_TXT_FORMAT, delimiter="   ")
+
+
 def write_ngsim_txt(table, path: Path, *, noisy: bool, args: argparse.Namespace, seed: int) -> int:
     """One carriageway of a highD-read track table as an NGSIM .txt (feet, front bumper). Rows written."""
     rec = table.column("recording").to_numpy().astype(str) if table.num_rows else np.array([])
@@ -144,27 +156,7 @@ def write_ngsim_txt(table, path: Path, *, noisy: bool, args: argparse.Namespace,
         np.zeros(track.size),
         np.zeros(track.size),
     ]
-    fmt = [
-        "%d",
-        "%d",
-        "%d",
-        "%d",
-        "%.3f",
-        "%.3f",
-        "%.3f",
-        "%.3f",
-        "%.1f",
-        "%.1f",
-        "%d",
-        "%.2f",
-        "%.2f",
-        "%d",
-        "%d",
-        "%d",
-        "%.2f",
-        "%.2f",
-    ]
-    np.savetxt(path, np.column_stack([np.asarray(c, dtype=float) for c in columns]), fmt=fmt, delimiter="   ")
+    save_ngsim_txt(path, columns)
     return int(track.size)
 
 
