@@ -141,10 +141,36 @@ def first_of(names: list[str]) -> str:
     return f"{names[0]!r}" + (f" and {len(names) - 1} more" if len(names) > 1 else "")
 
 
+#: ``replaces`` of a directory output replaced whatever its files (``--force``)
+ANY_FILES: tuple[str, ...] = ("*",)
+
+
 def check_replaceable(target: Path, replaces: tuple[str, ...] = ()) -> None:
     """OutputError if the existing directory ``target`` holds an entry matching none of the name
-    patterns ``replaces`` (a user's file, which replacing the directory would delete)."""
+    patterns ``replaces`` (a user's file, which replacing the directory would delete).
+
+    Even with :data:`ANY_FILES` (``--force``) a directory holding folders, the working directory,
+    one of its parents or the home directory is refused: --force replaces files, not a tree."""
     if not target.is_dir() or target.is_symlink():
+        return
+    if replaces == ANY_FILES:
+        resolved = target.resolve()
+        if resolved == Path.home().resolve() or resolved in (
+            Path.cwd().resolve(),
+            *Path.cwd().resolve().parents,
+        ):
+            raise OutputError(
+                target,
+                "is the working directory, one of its parents or the home directory",
+                expected="a directory of its own for the output, even with --force",
+            )
+        folders = sorted(p.name for p in target.iterdir() if p.is_dir() and not p.is_symlink())
+        if folders:
+            raise OutputError(
+                target,
+                f"the directory holds the folder {first_of(folders)}, which --force does not delete",
+                expected="a new or empty directory, or one holding only files",
+            )
         return
     foreign = sorted(p.name for p in target.iterdir() if not any(fnmatch(p.name, r) for r in replaces))
     if foreign:

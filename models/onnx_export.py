@@ -28,6 +28,7 @@ from lanecast.io_adapters.contracts.normalisation import NormStats
 from lanecast.io_adapters.contracts.windows import HORIZON_S, TARGET_ROW
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import atomic_path
+from lanecast.io_adapters.ownership import check_replaceable_files
 from lanecast.models.baselines import CV_SPAN, _fit_matrix
 from lanecast.models.card import file_sha256, lanecast_version, normalisation_sha256, write_card
 from lanecast.models.checkpoint import load_checkpoint, resolve
@@ -135,12 +136,14 @@ def _kinematic_limits(offsets: torch.Tensor) -> torch.Tensor:
     return torch.stack((forward, across), dim=-1)
 
 
-def export_onnx(model: Path | str | None, out_dir: Path | str | None = None) -> Path:
+def export_onnx(model: Path | str | None, out_dir: Path | str | None = None, *, force: bool = False) -> Path:
     """Export a checkpoint to ``<out_dir>/<stem>.onnx`` and record it in the card; returns the ONNX path.
 
     ``out_dir`` None: beside the weights (the card there is updated). Another directory receives a
     complete model: the weights copied, the card with its ``onnx`` section, the ONNX file.
     The exported graph is checked against torch on synthetic windows before anything is written.
+    A file in the way that lanecast did not write (a user's own ``<stem>.onnx``) is refused before
+    the work unless ``force``.
     """
     weights_path, card_path = resolve(model)
     net, card = load_checkpoint(weights_path)
@@ -149,6 +152,10 @@ def export_onnx(model: Path | str | None, out_dir: Path | str | None = None) -> 
         raise InputError(out, "not a directory", expected="a directory for the exported model")
     stem = weights_path.stem
     onnx_path = out / f"{stem}.onnx"
+    written: tuple[str, ...] = (onnx_path.name, card_path.name)
+    if out.resolve() != weights_path.parent.resolve():
+        written += (weights_path.name,)
+    check_replaceable_files(out, written, force=force)
     graph = PredictionGraph(net, card).eval()
     example = synthetic_windows(card, 64, seed=0)
     with atomic_path(onnx_path) as tmp, warnings.catch_warnings():

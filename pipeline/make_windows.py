@@ -634,9 +634,11 @@ def write_windows(
     ordered_map: OrderedMap | None = None,
     allow_empty: bool = False,
     sources: dict[str, Any] | None = None,
+    replace_any: bool = False,
 ) -> Windows:
     """Stream the windows of a dataset's pieces (whole recordings each) into the dataset directory
-    ``out``, written atomically; return it memory-mapped.
+    ``out``, written atomically; return it memory-mapped. An existing ``out`` holding files other
+    than a dataset's is refused unless ``replace_any`` (``--force``).
 
     Memory is set by the largest piece: each piece's windows are appended to the arrays on disk
     before the next is read. With ``ordered_map`` (e.g. worker processes or Ray tasks) each piece
@@ -650,7 +652,7 @@ def write_windows(
         # direction of travel, which a chunk would take from its own rows: such recordings whole
         pieces = uncut(pieces, lambda chunk: not chunk.road_frame)
     parts: list[PieceWindows] = []
-    with DatasetWriter(out) as writer:
+    with DatasetWriter(out, replace_any=replace_any) as writer:
         if ordered_map is None:
             for piece in pieces:  # gathered into the dataset files' staging memory: no copy
                 part = piece_windows(piece.read_with_context(), options, writer, piece.chunk)

@@ -7,6 +7,7 @@ from pathlib import Path
 
 from lanecast.io_adapters.files import activity
 from lanecast.models.card import read_card
+from lanecast.workflows.vocabulary import add_force_option
 
 FORMATS = ("onnx",)
 
@@ -34,6 +35,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--out", type=Path, metavar="DIR", help="output directory (default: beside the weights, card updated)"
     )
+    add_force_option(p)
     p.set_defaults(func=run)
 
 
@@ -41,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
     from lanecast.models.onnx_export import export_onnx
 
     with activity("export: tracing the model to ONNX and checking it against torch"):
-        path = export_onnx(args.model, args.out)
+        path = export_onnx(args.model, args.out, force=args.force)
     section = read_card(path.with_suffix(".json"))["onnx"]
     print(
         f"wrote {path} (opset {section['opset']}, {path.stat().st_size / 1e3:.0f} kB; "

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from lanecast.io_adapters.sim import recording, scenarios, sumo_highway, to_highd
 from lanecast.io_adapters.sim.scenarios import DRIVING, SCENARIOS
-from lanecast.workflows.vocabulary import HelpFormatter
+from lanecast.workflows.vocabulary import HelpFormatter, add_force_option
 
 DENSITIES = ("low", "medium", "high")
 
@@ -94,6 +94,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=DRIVING["drivers"],
         help="one car and one truck behaviour, or three driving styles (IDM and Krauss)",
     )
+    add_force_option(
+        p,
+        help="replace the files of a recording of the same number already in OUT_DIR (by default a "
+        "recording is never overwritten: the run is refused before simulating)",
+    )
     p.set_defaults(func=run)
 
 
@@ -116,7 +121,12 @@ def run(args: argparse.Namespace) -> int:
             drivers=args.drivers,
         )
     out = recording.simulate(
-        args.out, minutes=args.minutes, seed=args.seed, recording_id=args.recording_id, config=config
+        args.out,
+        minutes=args.minutes,
+        seed=args.seed,
+        recording_id=args.recording_id,
+        config=config,
+        overwrite=args.force,
     )
     names = to_highd.file_names(args.recording_id)
     summary = to_highd.summary(out / names["tracksMeta"])

@@ -54,11 +54,12 @@ def add_location_option(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def add_force_option(parser: argparse.ArgumentParser) -> None:
+FORCE_HELP = (
+    "replace an existing output of the same name that lanecast did not write (by default such a "
+    "file is named and refused, never overwritten; lanecast's own earlier outputs are replaced)"
+)
+
+
+def add_force_option(parser: argparse.ArgumentParser, help: str = FORCE_HELP) -> None:
     """``--force``: replace existing outputs that lanecast did not write (refused by default)."""
-    parser.add_argument(
-        "--force",
-        action="store_true",
-        help="replace an existing output of the same name that lanecast did not write (by default such a "
-        "file is named and refused, never overwritten; lanecast's own earlier outputs are replaced)",
-    )
+    parser.add_argument("--force", action="store_true", help=help)

@@ -7,12 +7,12 @@ import time
 from pathlib import Path
 
 from lanecast.io_adapters.contracts.windows import DATASET_FILES
-from lanecast.io_adapters.files import activity, check_output_dir
+from lanecast.io_adapters.files import ANY_FILES, activity, check_output_dir
 from lanecast.io_adapters.formats import registry, streaming
 from lanecast.pipeline.make_windows import WindowOptions, write_windows
 from lanecast.workflows.arguments import MAX_SEED, integer, number
 from lanecast.workflows.bulk import backends, freed_memory
-from lanecast.workflows.vocabulary import HelpFormatter, add_location_option
+from lanecast.workflows.vocabulary import HelpFormatter, add_force_option, add_location_option
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -76,13 +76,18 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="also cut windows without 5 s of future (future NaN, maneuver -1 where unknown)",
     )
     backends.add_arguments(p, "recordings processed")
+    add_force_option(
+        p,
+        help="replace OUT_DIR even if it holds files that are not a windows dataset's (they are deleted; "
+        "by default such a directory is named and refused, and an earlier dataset is replaced)",
+    )
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     # before the work: a file there, or a directory holding a user's files, was refused at the end
-    check_output_dir(args.out, replaces=DATASET_FILES)
+    check_output_dir(args.out, replaces=ANY_FILES if args.force else DATASET_FILES)
     backends.check(args.workers, args.engine)
     freed_memory.keep_freed_memory(arrow=True)  # pieces reuse what the previous one freed
     with streaming.spill_directory(args.out) as spill:  # NGSIM exports: a spill per recording
@@ -106,6 +111,7 @@ def run(args: argparse.Namespace) -> int:
                 ),
                 ordered_map=ordered_map,
                 sources={"inputs": [str(Path(p)) for p in args.table]},
+                replace_any=args.force,
             )
     m = windows.manifest
     counts = ", ".join(f"{k} {v:,}" for k, v in m["counts"].items() if v)

@@ -336,7 +336,7 @@ def refuse_existing_recording(out_dir: Path, recording_id: int) -> None:
         raise InputError(
             existing[0],
             "already exists: a simulation never overwrites a recording",
-            expected="a new --out directory, another --recording-id, or remove the files first",
+            expected="a new --out directory, another --recording-id, or --force to replace it",
         )
 
 

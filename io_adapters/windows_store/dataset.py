@@ -34,7 +34,7 @@ from lanecast.io_adapters.contracts.windows import (
     Windows,
 )
 from lanecast.io_adapters.errors import InputError
-from lanecast.io_adapters.files import atomic_path, not_regular
+from lanecast.io_adapters.files import ANY_FILES, atomic_path, not_regular
 from lanecast.io_adapters.windows_store.npy_append import SHARD_HEADER_BYTES, NpyAppender, save_npy
 
 
@@ -79,15 +79,17 @@ class DatasetWriter:
     manifest is computed from the finished files memory-mapped.
     """
 
-    def __init__(self, directory: str | Path) -> None:
+    def __init__(self, directory: str | Path, *, replace_any: bool = False) -> None:
         self.directory = Path(directory)
+        #: what an existing directory may hold to be replaced: a dataset's files, or anything (--force)
+        self.replaces = ANY_FILES if replace_any else DATASET_FILES
         self._stack = contextlib.ExitStack()
         self._tmp: Path | None = None
         self._appenders: dict[str, NpyAppender] = {}
 
     def __enter__(self) -> DatasetWriter:
         self._tmp = self._stack.enter_context(
-            atomic_path(self.directory, directory=True, replaces=DATASET_FILES)
+            atomic_path(self.directory, directory=True, replaces=self.replaces)
         )
         self._appenders = {
             name: NpyAppender(self._tmp / f"{name}.npy", dtype, shape)

@@ -191,3 +191,21 @@ def test_an_onnx_export_onnx_runtime_cannot_load(tmp_path: Path, capsys: pytest.
     capsys.readouterr()
     assert isinstance(load_forecaster(model), STCNNForecaster)
     assert f"{SHIPPED_STEM}.onnx: ONNX Runtime cannot load it" in capsys.readouterr().err
+
+
+def test_export_refuses_a_users_onnx_file_and_replaces_it_with_force(
+    model_copy: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "deploy"
+    out.mkdir()
+    users = out / f"{SHIPPED_STEM}.onnx"
+    users.write_bytes(b"my own graph")
+    capsys.readouterr()
+    assert main(["export", str(model_copy), "--to", "onnx", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert str(users) in err and "not an output of lanecast's" in err and "--force" in err
+    assert users.read_bytes() == b"my own graph"
+    assert sorted(p.name for p in out.iterdir()) == [users.name]  # nothing else written either
+    assert main(["export", str(model_copy), "--to", "onnx", "--out", str(out), "--force"]) == 0
+    assert users.read_bytes().startswith(b"\x08")  # an ONNX protobuf (ir_version field) now
+    assert main(["export", str(model_copy), "--to", "onnx", "--out", str(out)]) == 0  # its own: replaced

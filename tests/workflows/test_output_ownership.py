@@ -5,10 +5,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
-from conftest import synthetic_windows
+from conftest import make_track_table, synthetic_windows
 from mcap.writer import Writer
 
 from lanecast.io_adapters.ownership import lanecast_wrote
@@ -90,4 +91,71 @@ def test_evaluate_and_report_refuse_a_users_report_before_any_work(
     assert main(["evaluate", str(windows), "--out", str(out), "--split", "all", "--force"]) == 0
     assert lanecast_wrote(mine) and lanecast_wrote(out / "report.md") and lanecast_wrote(out / "metrics.json")
     assert main(["evaluate", str(windows), "--out", str(out), "--split", "all"]) == 0  # its own: replaced
+    capsys.readouterr()
+
+
+def _windowable_table(tmp_path: Path) -> Path:
+    """Two cars driving 6 s side by side: windows to cut."""
+    frames = np.arange(60)
+    columns = {
+        "track_id": np.repeat([1, 2], 60),
+        "frame": np.tile(frames, 2),
+        "x": np.tile(frames * 2.5, 2),
+        "y": np.repeat([1.75, 5.25], 60),
+        "vx": np.full(120, 25.0),
+        "lane_id": np.repeat([1, 2], 60),
+    }
+    path = tmp_path / "table.parquet"
+    pq.write_table(make_track_table(columns), path)
+    return path
+
+
+def test_windows_refuses_a_folder_of_a_users_files_and_replaces_it_with_force(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    table = str(_windowable_table(tmp_path))
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "notes.txt").write_text("keep me")
+    assert main(["windows", table, "--out", str(out), "--no-future"]) == 2
+    line = _last_error(capsys)
+    assert str(out) in line and "'notes.txt'" in line, line
+    assert (out / "notes.txt").read_text() == "keep me"
+    assert main(["windows", table, "--out", str(out), "--no-future", "--force"]) == 0
+    assert not (out / "notes.txt").exists() and (out / "manifest.json").is_file()
+    assert main(["windows", table, "--out", str(out), "--no-future"]) == 0  # its own: replaced
+    capsys.readouterr()
+
+
+def test_windows_force_never_deletes_a_tree_or_the_working_directory(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    out = tmp_path / "project"
+    (out / "src").mkdir(parents=True)
+    assert main(["windows", str(HIGHD), "--out", str(out), "--no-future", "--force"]) == 2
+    assert "holds the folder 'src'" in _last_error(capsys)
+    assert (out / "src").is_dir()
+    (out / "src").rmdir()
+    (out / "a.txt").write_text("a")
+    monkeypatch.chdir(out)
+    assert main(["windows", str(HIGHD), "--out", ".", "--no-future", "--force"]) == 2
+    assert "working directory" in _last_error(capsys)
+    assert (out / "a.txt").read_text() == "a"
+
+
+def test_simulate_refuses_an_existing_recording_and_replaces_it_with_force(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "sim"
+    out.mkdir()
+    tracks = out / "01_tracks.csv"
+    tracks.write_text("mine\n")
+    args = ["simulate", "--out", str(out), "--minutes", "0.5", "--seed", "1", "--density", "low"]
+    assert main(args) == 2
+    line = _last_error(capsys)
+    assert str(tracks) in line and "never overwrites" in line, line
+    assert tracks.read_text() == "mine\n"
+    assert main([*args, "--force"]) == 0
+    assert tracks.read_text().startswith("frame,")
+    assert {p.name for p in out.iterdir()} == {"01_tracks.csv", "01_tracksMeta.csv", "01_recordingMeta.csv"}
     capsys.readouterr()
