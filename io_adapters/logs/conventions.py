@@ -2,8 +2,11 @@
 
 Documented here, used by the MCAP and ROS bag writers and checked by the readers:
 
-- one topic per recording: ``/tracked_objects`` for a single recording, ``/tracked_objects/r<i>``
-  for several; in ROS bags each has a ``<topic>/markers`` MarkerArray companion.
+- one topic per recording: ``/tracked_objects`` for a single recording, ``/tracked_objects/<name>``
+  for several, the recording's name as a ROS name (``highd-01-upper`` → ``highd_01_upper``: the
+  topic says which recording and driving direction it holds); in ROS bags each has a
+  ``<topic>/markers`` MarkerArray companion. Readers map topics to recordings through the metadata,
+  so logs with other topic names (``/tracked_objects/r0`` …) read the same.
 - the log's metadata (MCAP metadata record ``lanecast``; in ROS bags a ``std_msgs/msg/String`` on
   ``/lanecast/metadata``, and rosbag2 ``custom_data``) holds a JSON document: ``source_format``,
   ``frame_rate``, ``units`` and per recording ``topic``, ``frame_rate``, ``coordinate_frame``, the
@@ -24,6 +27,7 @@ Documented here, used by the MCAP and ROS bag writers and checked by the readers
 from __future__ import annotations
 
 import hashlib
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -80,11 +84,26 @@ LABEL_OF_CLASS: dict[str, int] = {v: k for k, v in AUTOWARE_LABELS.items()}
 KNOWN_CLASSES = frozenset(AUTOWARE_LABELS.values()) | {"van", "motorbike"}
 
 
+def ros_name(name: str) -> str:
+    """``name`` as one token of a ROS name: letters, digits and ``_``, not starting with a digit."""
+    token = re.sub(r"_+", "_", re.sub(r"[^A-Za-z0-9_]", "_", name)).strip("_") or "recording"
+    return f"r_{token}" if token[0].isdigit() else token
+
+
 def recording_topics(names: list[str]) -> dict[str, str]:
-    """Recording name → topic in a log lanecast writes (see the module docstring)."""
+    """Recording name → topic in a log lanecast writes (see the module docstring); names that read
+    alike as ROS names get ``_2``, ``_3`` … in order."""
     if len(names) == 1:
         return {names[0]: TRACK_TOPIC}
-    return {name: f"{TRACK_TOPIC}/r{i}" for i, name in enumerate(names)}
+    topics: dict[str, str] = {}
+    taken: set[str] = set()
+    for name in names:
+        token, n = ros_name(name), 1
+        while (topic := f"{TRACK_TOPIC}/{token}" + (f"_{n}" if n > 1 else "")) in taken:
+            n += 1
+        topics[name] = topic
+        taken.add(topic)
+    return topics
 
 
 @dataclass

@@ -44,5 +44,19 @@ def test_info_on_a_log_lists_its_topics(tmp_path: Path, capsys: pytest.CaptureFi
     assert main(["info", str(bag)]) == 0
     out = capsys.readouterr().out
     assert f"topics of {bag} (5; messages, type, encoding):" in out
-    line = next(x for x in out.splitlines() if x.strip().startswith("/tracked_objects/r0 "))
+    line = next(x for x in out.splitlines() if x.strip().startswith("/tracked_objects/highd_01_lower "))
     assert line.split()[1] == "5" and "autoware_perception_msgs/msg/TrackedObjects" in line
+
+
+def test_topics_name_their_recording_as_ros_names() -> None:
+    from lanecast.io_adapters.logs.conventions import recording_topics
+
+    assert recording_topics(["highd-01-upper"]) == {"highd-01-upper": "/tracked_objects"}
+    assert recording_topics(["highd-01-upper", "highd-01-lower", "sim@run2", "9 lanes", "a.b", "a-b"]) == {
+        "highd-01-upper": "/tracked_objects/highd_01_upper",
+        "highd-01-lower": "/tracked_objects/highd_01_lower",
+        "sim@run2": "/tracked_objects/sim_run2",
+        "9 lanes": "/tracked_objects/r_9_lanes",
+        "a.b": "/tracked_objects/a_b",
+        "a-b": "/tracked_objects/a_b_2",
+    }

@@ -87,7 +87,7 @@ def test_scene_update_round_trip(tmp_path: Path, encoding: str) -> None:
     meta = track_table.read_meta(back)
     assert meta.source_format == "highd"
     assert meta.recordings["rec-a"].extra["note"] == "rec-a"
-    assert meta.recordings["rec-b"].extra["topic"] == "/tracked_objects/r1"
+    assert meta.recordings["rec-b"].extra["topic"] == "/tracked_objects/rec_b"
 
 
 def test_single_recording_topic_and_frames_at_own_rate(tmp_path: Path) -> None:
@@ -116,7 +116,7 @@ def test_log_read_independently_by_mcap_library(tmp_path: Path) -> None:
         assert summary is not None and summary.chunk_indexes
         assert {ci.compression for ci in summary.chunk_indexes} == {"zstd"}
         assert {s.name for s in summary.schemas.values()} == {"foxglove.SceneUpdate"}
-        decoded = list(reader.iter_decoded_messages(topics=["/tracked_objects/r0"]))
+        decoded = list(reader.iter_decoded_messages(topics=["/tracked_objects/rec_a"]))
         metadata = {m.name: m.metadata for m in reader.iter_metadata()}
     assert metadata["lanecast"]["source"] == "highd"
     assert json.loads(metadata["lanecast"]["units"])["x"] == "m"
@@ -747,3 +747,45 @@ def test_a_topic_whose_messages_all_have_one_log_time_is_refused(tmp_path: Path)
     with pytest.raises(LogError, match=r"topic '/objects': all 5 messages are stamped 0 ns") as err:
         mcap_reader.read(path)
     assert err.value.path == str(path)
+
+
+def test_log_with_numbered_topics_reads_the_same(tmp_path: Path) -> None:
+    """Logs written with ``/tracked_objects/r0``, ``r1`` (and any other topic names the metadata
+    maps to recordings) read as logs named by recording do."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    table = make_table()
+    named = mcap_writer.write(table, tmp_path / "named.mcap", "mcap")
+    renames = {
+        "/tracked_objects/rec_a": "/tracked_objects/r0",
+        "/tracked_objects/rec_b": "/tracked_objects/r1",
+    }
+    numbered = tmp_path / "numbered.mcap"
+    with named.open("rb") as src, numbered.open("wb") as dst:
+        reader = make_reader(src)
+        writer = Writer(dst)
+        writer.start(profile="", library="lanecast test")
+        schemas: dict[int, int] = {}
+        channels: dict[int, int] = {}
+        for schema, channel, message in reader.iter_messages():
+            if channel.id not in channels:
+                assert schema is not None
+                if schema.id not in schemas:
+                    schemas[schema.id] = writer.register_schema(schema.name, schema.encoding, schema.data)
+                channels[channel.id] = writer.register_channel(
+                    renames[channel.topic], channel.message_encoding, schemas[schema.id]
+                )
+            writer.add_message(channels[channel.id], message.log_time, message.data, message.publish_time)
+        for record in reader.iter_metadata():
+            metadata = dict(record.metadata)
+            if record.name == "lanecast":
+                doc = json.loads(metadata["lanecast"])
+                for spec in doc["recordings"].values():
+                    spec["topic"] = renames[spec["topic"]]
+                metadata["lanecast"] = json.dumps(doc)
+            writer.add_metadata(record.name, metadata)
+        writer.finish()
+    back, _ = mcap_reader.read_log(numbered)
+    same_table(table, back)
+    assert track_table.read_meta(back).recordings["rec-b"].extra["topic"] == "/tracked_objects/r1"

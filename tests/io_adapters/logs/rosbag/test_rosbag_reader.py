@@ -83,17 +83,17 @@ def test_written_bags_read_by_anyreader_alone(tmp_path: Path) -> None:
             topics = {c.topic: c.msgtype for c in reader.connections}
             assert topics == {
                 "/lanecast/metadata": "std_msgs/msg/String",
-                "/tracked_objects/r0": ros_types.TRACKED_OBJECTS,
-                "/tracked_objects/r0/markers": ros_types.MARKER_ARRAY,
-                "/tracked_objects/r1": ros_types.TRACKED_OBJECTS,
-                "/tracked_objects/r1/markers": ros_types.MARKER_ARRAY,
+                "/tracked_objects/north": ros_types.TRACKED_OBJECTS,
+                "/tracked_objects/north/markers": ros_types.MARKER_ARRAY,
+                "/tracked_objects/south": ros_types.TRACKED_OBJECTS,
+                "/tracked_objects/south/markers": ros_types.MARKER_ARRAY,
             }
-            conns = [c for c in reader.connections if c.topic.startswith("/tracked_objects/r0")]
+            conns = [c for c in reader.connections if c.topic.startswith("/tracked_objects/north")]
             decoded = [
                 (c.topic, t, reader.deserialize(raw, c.msgtype))
                 for c, t, raw in reader.messages(connections=conns)
             ]
-        objects = [(t, m) for topic, t, m in decoded if topic == "/tracked_objects/r0"]
+        objects = [(t, m) for topic, t, m in decoded if topic == "/tracked_objects/north"]
         # north: tracks start at frames 0, 4, 8 with 25 frames → frames 0..32 at 10 Hz.
         assert [t for t, _ in objects] == [f * 100_000_000 for f in range(33)]
         first = objects[0][1]
@@ -210,7 +210,7 @@ def test_foreign_ros1_without_tf_is_a_clear_error(tmp_path: Path) -> None:
 
 def test_bag_topic_selection_and_errors(tmp_path: Path) -> None:
     out = rosbag_writer.write(make_table(), tmp_path / "bag", "ros2")
-    south = rosbag_reader.read(out, topic="/tracked_objects/r1")
+    south = rosbag_reader.read(out, topic="/tracked_objects/south")
     assert list(track_table.read_meta(south).recordings) == ["south"]
     assert set(south.column("track_id").to_numpy().tolist()) == {101, 102, 103}
     with pytest.raises(LogError, match="'/lanecast/metadata' has type std_msgs/msg/String"):
