@@ -9,6 +9,7 @@ and odometry (see :mod:`lanecast.io_adapters.logs.object_columns`).
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -302,7 +303,7 @@ def _undecodable(
     if damage is not None:
         return damage
     what = f"cannot read the bag at message {at[0]} (topic {at[1]!r}, log time {at[2]} ns)"
-    reason = f"{type(exc).__name__}: {exc}"
+    reason = why_undecodable(exc, len(raw))
     expected = f"a valid {msgtype} message"
     for file in _storage_files(target, ros1):
         try:
@@ -314,6 +315,42 @@ def _undecodable(
             where = f", on page {page}" if page is not None else ""
             return LogError(file, f"{what}{where}: {reason}", offset=offset, expected=expected)
     return LogError(path, f"{what}: {reason}", expected=expected)
+
+
+_SHORT = re.compile(r"at least (\d+) bytes for unpacking \d+ bytes at offset (\d+)")
+_NOT_UTF8 = re.compile(r"can't decode byte (0x[0-9a-f]{2}) in position (\d+)")
+_ENDS_EARLY = ("buffer is smaller than requested size", "unpack_from requires a buffer", "out of range")
+
+
+def why_undecodable(exc: BaseException, size: int) -> str:
+    """What is wrong with a message's ``size`` bytes that rosbags could not deserialize, in words
+    (rosbags passes on Python's texts: "unpack_from requires a buffer of at least …")."""
+    cause: BaseException | None = exc
+    while cause is not None:  # rosbags wraps the decoder's error, sometimes twice
+        text = str(cause)
+        if isinstance(cause, UnicodeDecodeError):
+            return (
+                f"a text field holds bytes that are not UTF-8 (byte 0x{cause.object[cause.start]:02x} "
+                f"at position {cause.start} of the text)"
+            )
+        if (short := _SHORT.search(text)) is not None:
+            need, field = (int(v) for v in short.groups())
+            return (
+                f"the message's {size:,} bytes end before its field at byte {field:,} ({need:,} bytes "
+                "needed): a length or count inside it is damaged"
+            )
+        if (utf := _NOT_UTF8.search(text)) is not None:
+            return (
+                f"a text field holds bytes that are not UTF-8 (byte {utf.group(1)} at position "
+                f"{utf.group(2)} of the text)"
+            )
+        if any(words in text for words in _ENDS_EARLY):
+            return (
+                f"the message's {size:,} bytes end before the data its fields announce: a length or "
+                "count inside it is damaged"
+            )
+        cause = cause.__cause__ or cause.__context__
+    return f"its {size:,} bytes do not decode as this type"
 
 
 def _digest_mismatch(target: Path, ros1: bool, exc: LogError) -> LogError:

@@ -368,3 +368,44 @@ def test_a_yaml_alias_bomb_in_metadata_yaml_is_refused_before_it_expands(tmp_pat
         with pytest.raises(LogError, match=r"expands to more than 200,000 values") as err:
             read(bag)
         assert err.value.path == str(meta)
+
+
+def test_undecodable_messages_are_described_in_words_not_in_rosbags_texts(tmp_path: Path) -> None:
+    """rosbags' own errors for damaged message bytes read "unpack_from requires a buffer of at least
+    … bytes" or "'utf-8' codec can't decode": lanecast says what is wrong with the message."""
+    import struct
+
+    from rosbags.highlevel import AnyReader
+
+    from lanecast.io_adapters.logs.rosbag.reader import why_undecodable
+
+    bag = rosbag_writer.write(make_table(), tmp_path / "log.bag", "ros1")
+    with AnyReader([bag]) as reader:
+        conn = next(c for c in reader.connections if c.topic == "/tracked_objects/north")
+        _, _, raw = next(iter(reader.messages(connections=[conn])))
+        frame_id_length = struct.unpack_from("<I", raw, 12)[0]
+        count_at = 16 + frame_id_length  # seq, stamp, frame_id, then the objects' count
+        assert struct.unpack_from("<I", raw, count_at)[0] == 1  # one vehicle in the first frame
+        texts = []
+        for damaged in (
+            raw[:count_at] + struct.pack("<I", 10_000) + raw[count_at + 4 :],  # a count too large
+            raw[:16] + b"\xff" + raw[17:],  # the frame id's first byte: not UTF-8
+        ):
+            with pytest.raises(Exception) as err:
+                reader.deserialize(bytes(damaged), conn.msgtype)
+            texts.append(why_undecodable(err.value, len(damaged)))
+    assert texts[0] == (
+        f"the message's {len(raw):,} bytes end before the data its fields announce: a length or count "
+        "inside it is damaged"
+    )
+    assert texts[1] == "a text field holds bytes that are not UTF-8 (byte 0xff at position 0 of the text)"
+    unpack = struct.error(
+        "unpack_from requires a buffer of at least 3255 bytes for unpacking 4 bytes at offset 3251"
+    )
+    assert why_undecodable(RuntimeError("Could not deserialize"), 3251).startswith("its 3,251 bytes")
+    wrapped = RuntimeError("Could not deserialize 'x'")
+    wrapped.__cause__ = unpack
+    assert why_undecodable(wrapped, 3251) == (
+        "the message's 3,251 bytes end before its field at byte 3,251 (3,255 bytes needed): a length or "
+        "count inside it is damaged"
+    )
