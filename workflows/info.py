@@ -8,7 +8,7 @@ from pathlib import Path
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.contracts.track_summary import summarise
 from lanecast.io_adapters.formats import registry
-from lanecast.io_adapters.logs.topics import log_topics
+from lanecast.io_adapters.logs.topics import forecast_model, log_topics
 from lanecast.pipeline.traffic import traffic_statistics
 from lanecast.workflows.vocabulary import HelpFormatter, add_location_option
 
@@ -99,3 +99,9 @@ def print_topics(path: Path) -> None:
     width = max([24, *(len(t.topic) + 2 for t in topics)])
     for t in topics:
         print(f"    {t.topic:<{width}}{t.messages:>9,}  {t.message_type or '(no schema)'} ({t.encoding})")
+    model = forecast_model(path)
+    if model:
+        print(
+            f"  forecasts by model: {model.get('model', '?')} (sha256 {model.get('model_sha256', '?')[:12]}), "
+            f"trained on {model.get('model_trained_on', '?')}"
+        )

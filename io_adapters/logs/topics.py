@@ -4,6 +4,11 @@ MCAP: from the summary's channels, schemas and statistics where the file has the
 data), else by counting the message records of one pass. ROS 1 and ROS 2 bags: from rosbags'
 connections (their indexes and metadata.yaml). Used by ``lanecast info``; lanecast's own topics
 (``/lanecast/forecast``, ``/lanecast/prediction``, ``/lanecast/metadata``) are listed like any other.
+
+Which model made a log's forecasts (:func:`forecast_model`): an annotated MCAP names it in the
+metadata of its ``/lanecast/forecast`` channel (``model``, ``model_sha256``, ``model_trained_on``), an
+annotated ROS 2 bag in its metadata.yaml ``custom_data`` under the same keys prefixed with
+:data:`MODEL_KEY_PREFIX`, where ``ros2 bag info`` and rosbags show it.
 """
 
 from __future__ import annotations
@@ -18,7 +23,11 @@ from mcap.reader import make_reader
 from mcap.records import Channel, Message, Schema
 from mcap.stream_reader import StreamReader
 
-from lanecast.io_adapters.errors import LogError
+from lanecast.io_adapters.errors import LanecastError, LogError
+from lanecast.io_adapters.logs.forecast_batch import FORECAST_TOPIC
+
+#: custom_data keys of an annotated ROS 2 bag naming the model: ``lanecast.forecast.model`` …
+MODEL_KEY_PREFIX = "lanecast.forecast."
 
 
 @dataclass(frozen=True)
@@ -95,3 +104,29 @@ def log_topics(path: Path) -> list[TopicCount]:
 
 def _sorted(topics: Iterable[TopicCount]) -> list[TopicCount]:
     return sorted(topics, key=lambda t: t.topic)
+
+
+def forecast_model(path: Path) -> dict[str, str]:
+    """The model an annotated log names for its forecasts: ``model``, ``model_sha256``,
+    ``model_trained_on`` (empty for other logs, ROS 1 bags and damaged files: the reading itself
+    names the damage)."""
+    if path.is_file() and path.suffix.lower() == ".mcap":
+        try:
+            with path.open("rb") as fh:
+                summary = make_reader(fh).get_summary()
+        except (McapError, OSError, ValueError, EOFError):
+            return {}
+        channels = summary.channels.values() if summary is not None else ()
+        for channel in channels:
+            if channel.topic == FORECAST_TOPIC and channel.metadata.get("model"):
+                return {k: v for k, v in channel.metadata.items() if k.startswith("model")}
+        return {}
+    if path.is_dir() and (path / "metadata.yaml").is_file():
+        from lanecast.io_adapters.logs.rosbag.copy import ros2_custom_data
+
+        try:
+            custom = ros2_custom_data(path)
+        except LanecastError:
+            return {}
+        return {k[len(MODEL_KEY_PREFIX) :]: v for k, v in custom.items() if k.startswith(MODEL_KEY_PREFIX)}
+    return {}

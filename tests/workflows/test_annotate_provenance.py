@@ -62,3 +62,45 @@ def test_an_annotated_log_and_its_report_name_the_model(
     )
     page = (tmp_path / "report" / "report.html").read_text()
     assert prov["sha256"] in page and prov["trained_on"] in page
+
+
+def test_an_annotated_ros2_bag_names_the_model_in_its_metadata_and_info_shows_it(
+    tmp_path: Path, sim_recording_dir: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from ruamel.yaml import YAML
+
+    bag = tmp_path / "logs" / "sim-bag"
+    assert main(["convert", str(sim_recording_dir), "--to", "ros2", "--out", str(bag)]) == 0
+    assert main(["annotate", str(bag), "--out", str(tmp_path / "annotated")]) == 0
+    annotated = tmp_path / "annotated" / "sim-bag"
+    info = YAML(typ="safe").load((annotated / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    prov = provenance(None)
+    assert {k: v for k, v in info["custom_data"].items() if k.startswith("lanecast.forecast.")} == {
+        "lanecast.forecast.model": prov["model"],
+        "lanecast.forecast.model_sha256": prov["sha256"],
+        "lanecast.forecast.model_trained_on": prov["trained_on"],
+    }
+    capsys.readouterr()
+    for log in (annotated, bag):
+        assert main(["info", str(log)]) == 0
+        out = capsys.readouterr().out
+        named = f"forecasts by model: the shipped model (stcnn-sumo) (sha256 {prov['sha256'][:12]})" in out
+        assert named == (log == annotated), out
+    assert main(["report", str(annotated), "--out", str(tmp_path / "report")]) == 0
+    assert f"forecasts by model: the shipped model (stcnn-sumo) (sha256 {prov['sha256'][:12]})" in (
+        capsys.readouterr().out
+    )
+
+
+def test_info_on_an_annotated_mcap_names_the_model(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    log = tmp_path / "logs" / "sim.mcap"
+    assert main(["convert", str(HIGHD), "--out", str(log)]) == 0
+    assert main(["annotate", str(log), "--out", str(tmp_path / "annotated")]) == 0
+    capsys.readouterr()
+    assert main(["info", str(tmp_path / "annotated" / "sim.mcap")]) == 0
+    sha = provenance(None)["sha256"]
+    assert f"  forecasts by model: the shipped model (stcnn-sumo) (sha256 {sha[:12]}), trained on" in (
+        capsys.readouterr().out
+    )

@@ -41,6 +41,7 @@ from lanecast.io_adapters.logs.mcap import copy as mcap_copy
 from lanecast.io_adapters.logs.mcap import salvage_copy as mcap_salvage_copy
 from lanecast.io_adapters.logs.rosbag import copy as bag_copy
 from lanecast.io_adapters.logs.rosbag import reader as rosbag_reader
+from lanecast.io_adapters.logs.topics import MODEL_KEY_PREFIX
 from lanecast.models.card import provenance
 from lanecast.models.runtime import load_forecaster
 from lanecast.workflows.annotation.track_forecasts import (
@@ -284,6 +285,7 @@ def annotate_log(
     autoware = options.encoding == AUTOWARE  # the SceneUpdates as auto picks them, and PredictedObjects
     encoding = choose_encoding(kind, src, "auto" if autoware else options.encoding, info=info)
     specs = fm.channel_specs(encoding) + ([fm.explain_channel_spec(encoding)] if what_ifs is not None else [])
+    named: tuple[tuple[str, str], ...] = ()
     if options.forecasts is None:  # the log names the model that made its forecasts
         prov = provenance(options.model_dir)
         named = (
@@ -333,7 +335,8 @@ def annotate_log(
         with atomic_path(out, directory=True, replaces=BAG_FILES) as tmp:
             inner = tmp / out.name  # rosbags creates the bag directory and names its files after it
             store = autoware_encode.writer_typestore() if autoware else fm.ros2_typestore()
-            stats = bag_copy.copy_ros2_bag(src, inner, merge(), typestore=store)
+            custom = {f"{MODEL_KEY_PREFIX}{key}": value for key, value in named}  # in metadata.yaml
+            stats = bag_copy.copy_ros2_bag(src, inner, merge(), typestore=store, custom_data=custom)
             for part in inner.iterdir():  # relative paths in metadata.yaml stay valid one level up
                 part.rename(tmp / part.name)
                 _readable(tmp / part.name)

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
-from mcap.reader import NonSeekingReader, make_reader
+from mcap.reader import NonSeekingReader
 from rosbags.highlevel import AnyReader
 
 from lanecast.io_adapters.contracts.window_frame import to_window_frame
@@ -28,8 +28,9 @@ from lanecast.io_adapters.contracts.windows import MANEUVERS
 from lanecast.io_adapters.errors import InputError, LanecastError, LogError
 from lanecast.io_adapters.files import activity, progress, staged_files
 from lanecast.io_adapters.formats import registry
+from lanecast.io_adapters.logs import topics
 from lanecast.io_adapters.logs.forecast_batch import N_STEPS
-from lanecast.io_adapters.logs.forecast_messages import FORECAST_TOPIC, PREDICTION_TOPIC
+from lanecast.io_adapters.logs.forecast_messages import PREDICTION_TOPIC
 from lanecast.io_adapters.logs.messages.prediction_json import document_problem
 from lanecast.models.baselines import constant_acceleration, constant_velocity
 from lanecast.models.evaluation import speed_band_note, write_metrics
@@ -253,7 +254,7 @@ def score_log(log: Path, topic: str | None) -> dict[str, Any]:
     }
     return {
         "log": log,
-        "model": forecast_model(log),
+        "model": topics.forecast_model(log),
         "n_forecasts": int(fc.track_id.size),
         "offsets": to_window_frame(fc.points[fc_rows], *origin),
         "candidates": to_window_frame(fc.alt_points[fc_rows], *origin) if fc.alt_points.shape[1] else None,
@@ -269,24 +270,6 @@ def score_log(log: Path, topic: str | None) -> dict[str, Any]:
         "probs": fc.probs[fc_rows],
         "alt_probs": fc.alt_probs[fc_rows],
     }
-
-
-def forecast_model(log: Path) -> dict[str, str]:
-    """The model an annotated MCAP names on its forecast channel (empty for other logs, or logs
-    annotated before lanecast named it)."""
-    if log.suffix.lower() != ".mcap":
-        return {}
-    try:
-        with log.open("rb") as fh:
-            summary = make_reader(fh).get_summary()
-    except Exception:  # the scoring itself names a damaged log; here it only goes unnamed
-        return {}
-    if summary is None:
-        return {}
-    for channel in summary.channels.values():
-        if channel.topic == FORECAST_TOPIC and channel.metadata.get("model"):
-            return {k: v for k, v in channel.metadata.items() if k.startswith("model")}
-    return {}
 
 
 def metrics_of(parts: list[dict[str, Any]]) -> dict[str, Any]:

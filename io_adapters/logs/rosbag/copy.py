@@ -14,6 +14,7 @@ The merge, counts and progress are those of :mod:`lanecast.io_adapters.logs.mcap
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, BinaryIO
 
@@ -140,10 +141,17 @@ def ros2_custom_data(bag: Path) -> dict[str, str]:
     return {str(k): str(v) for k, v in custom.items()}
 
 
-def copy_ros2_bag(src: Path, dst: Path, merge: Merge | None = None, *, typestore: Any = None) -> CopyStats:
+def copy_ros2_bag(
+    src: Path,
+    dst: Path,
+    merge: Merge | None = None,
+    *,
+    typestore: Any = None,
+    custom_data: Mapping[str, str] | None = None,
+) -> CopyStats:
     """Every connection and message of ROS 2 bag directory ``src`` into a new bag ``dst`` (which must
-    not exist; same storage plugin, the same ``custom_data`` in metadata.yaml), merging ``merge``'s
-    messages on CDR topics registered from ``typestore``."""
+    not exist; same storage plugin, the same ``custom_data`` in metadata.yaml plus ``custom_data``),
+    merging ``merge``'s messages on CDR topics registered from ``typestore``."""
     from rosbags.rosbag2 import Reader, Writer
     from rosbags.rosbag2.writer import StoragePlugin
 
@@ -157,7 +165,7 @@ def copy_ros2_bag(src: Path, dst: Path, merge: Merge | None = None, *, typestore
             check_new_topics(src, [c.topic for c in reader.connections], merge.channels)
             plugin = StoragePlugin.MCAP if any(src.glob("*.mcap")) else StoragePlugin.SQLITE3
             writer = Writer(dst, version=9, storage_plugin=plugin)
-            for key, value in ros2_custom_data(src).items():
+            for key, value in {**ros2_custom_data(src), **(custom_data or {})}.items():
                 writer.set_custom_data(key, value)
             writer.open()
             try:
