@@ -43,6 +43,7 @@ from lanecast.models.metrics import (
     lane_change_windows,
     macro_f1,
     miss_rate,
+    paired_rmse_difference,
     rmse,
 )
 from lanecast.models.stcnn import STCNN, STCNNConfig, count_parameters
@@ -281,6 +282,40 @@ def _split_indices(windows: Windows) -> tuple[np.ndarray, str]:
     raise InputError(None, "no labelled test or validation windows to score the ablation on")
 
 
+def headline(variants_: dict[str, Any], squared_5s: dict[str, np.ndarray]) -> dict[str, Any]:
+    """Which variant wins at 5 s and whether it is significantly better than the full model and than
+    the runner-up: the paired bootstrap of :func:`lanecast.models.metrics.paired_rmse_difference` on
+    the scored windows (each window's squared error averaged over the seeds). → the ``headline`` of
+    ablation.json: ``winner``, ``comparisons`` [{``against``, ``difference_m`` (winner minus other;
+    negative = winner better), ``low``, ``high``, ``significant``}] and the sentence ``text``."""
+    ranked = sorted(variants_, key=lambda n: variants_[n]["mean"]["rmse"][-1])
+    if not ranked:
+        return {"winner": None, "comparisons": [], "text": "no variant was scored"}
+    winner = ranked[0]
+    others = list(
+        dict.fromkeys(n for n in (["full"] if "full" in ranked else []) + ranked[1:2] if n != winner)
+    )
+    label = variants_[winner]["label"]
+    n_windows = len(squared_5s[winner])
+    comparisons = []
+    parts = []
+    for other in others:
+        diff, low, high = paired_rmse_difference(squared_5s[winner], squared_5s[other])
+        significant = bool(np.isfinite(high) and high < 0)
+        comparisons.append(
+            {"against": other, "difference_m": diff, "low": low, "high": high, "significant": significant}
+        )
+        verdict = "significant" if significant else "not significant: the interval includes no difference"
+        parts.append(
+            f"{-diff:.2f} m better than {variants_[other]['label'].lower()} (95 % interval of the difference "
+            f"{-high:.2f} to {-low:.2f} m): {verdict}"
+        )
+    rmse5 = variants_[winner]["mean"]["rmse"][-1]
+    text = f"{label} has the lowest RMSE at 5 s, {rmse5:.2f} m on {n_windows:,} windows"
+    text += ("; " + "; ".join(parts) if parts else "") + "."
+    return {"winner": winner, "n_windows": n_windows, "comparisons": comparisons, "text": text}
+
+
 def run_ablation(
     windows: Windows,
     names: list[str],
@@ -303,6 +338,7 @@ def run_ablation(
     future, maneuver = np.asarray(windows.future[idx]), np.asarray(windows.maneuver[idx])
     train_maneuver = np.asarray(windows.maneuver[labelled(windows, ("train",))])
     runs: dict[str, list[dict[str, Any]]] = {n: [] for n in order}
+    squared_5s: dict[str, list[np.ndarray]] = {n: [] for n in order}  # per seed, per window
     for seed in seeds:
         cfg = replace(config, seed=seed)
         full: TrainResult | None = None
@@ -332,6 +368,7 @@ def run_ablation(
                 )
             if name in runs:
                 runs[name].append({"seed": seed, "train_seconds": seconds, **score(fc, future, maneuver)})
+                squared_5s[name].append(displacement_errors(fc.offsets, future)[:, -1] ** 2)
     out_variants: dict[str, Any] = {}
     for name in order:
         v = table[name]
@@ -356,6 +393,7 @@ def run_ablation(
             "lane_change_windows": int(lane_change_windows(maneuver).sum()),
         },
         "train_config": config.to_dict(),
+        "headline": headline(out_variants, {n: np.mean(squared_5s[n], axis=0) for n in order}),
         "rmse": "per window, sqrt(mean over windows of the squared Euclidean error), m, at 1-5 s",
         "paper": "Table II of Mersch et al., IROS 2021 (highD)",
     }

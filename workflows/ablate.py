@@ -19,7 +19,7 @@ from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import check_output_dir, staged_files
 from lanecast.io_adapters.ownership import GENERATOR
 from lanecast.io_adapters.windows_store.dataset import load_windows
-from lanecast.models.reports.ablation import write_ablation_report
+from lanecast.models.reports.ablation import headline_text, write_ablation_report
 from lanecast.workflows.arguments import integer
 from lanecast.workflows.vocabulary import HelpFormatter, add_force_option
 
@@ -123,6 +123,7 @@ def run(args: argparse.Namespace) -> int:
         )
         html = args.out / write_ablation_report(stage, result).relative_to(stage)  # NaN shows "–"
     settings = f"the settings of {args.config}" if args.config else "the paper's training settings"
+    print(headline_text(result))
     print(f"RMSE per window at 1-5 s (m), mean over {args.seeds} seed(s), {settings}:")
     for v in result["variants"].values():
         print(f"  {v['label']:<24}" + " ".join(f"{x:.2f}" for x in v["mean"]["rmse"]))

@@ -123,6 +123,15 @@ def _md_table(header: list[str], rows: list[list[str]]) -> list[str]:
     ]
 
 
+def headline_text(result: dict[str, Any]) -> str:
+    """The answer first: which variant wins at 5 s and whether that is significant (ablation.json's
+    ``headline``); a quick run's sentence says that its figures compare nothing."""
+    text = str((result.get("headline") or {}).get("text") or "")
+    if text and result.get("quick_warning"):
+        text += " A quick run: these figures do not compare the variants."
+    return text
+
+
 def write_ablation_report(directory: Path, result: dict[str, Any]) -> Path:
     """Write report.md, ablation.png and a self-contained report.html into ``directory``; return the HTML."""
     directory = Path(directory)
@@ -155,10 +164,12 @@ def write_ablation_report(directory: Path, result: dict[str, Any]) -> Path:
     ]
     quick = result.get("quick_warning")  # a check that the ablation runs: no winner to name
     warning = [f"**Quick run: {quick}**", ""] if quick else []
+    answer = headline_text(result)
     md = [
         "# Ablation study (Table II of Mersch et al., IROS 2021)",
         "",
         *warning,
+        *([answer if quick else f"**{answer}**", ""] if answer else []),  # a quick run: nothing bold
         intro,
         "",
         *_md_table(header, rows),
@@ -189,6 +200,7 @@ def write_ablation_report(directory: Path, result: dict[str, Any]) -> Path:
         "<h1>Ablation study</h1>",
         "<p>The seven variants of Table II of Mersch et al. (IROS 2021), retrained on the same windows.</p>",
         *([f"<p style='background:#fff3cd;padding:6px'><b>Quick run: {esc(quick)}</b></p>"] if quick else []),
+        *([f"<p>{esc(answer)}</p>" if quick else f"<p><b>{esc(answer)}</b></p>"] if answer else []),
         f"<p>{esc(intro)}{'' if quick else ' The lowest mean of each row is bold.'}</p>",
         table(rows, None if quick else best),
         "<h2>The paper's Table II (highD)</h2>",

@@ -173,3 +173,21 @@ def test_rmse_per_band_of_target_speed() -> None:
     s = M.summary(pred, true, np.zeros((6, 5), int), np.arange(6), speed=speed, boots=0)
     assert s["per_speed_band"] == bands
     assert M.summary(pred, true, np.zeros((6, 5), int), np.arange(6), boots=0)["per_speed_band"] is None
+
+
+def test_paired_rmse_difference_finds_a_clear_difference_and_none_between_equals() -> None:
+    rng = np.random.default_rng(3)
+    base = rng.gamma(2.0, 1.0, size=2000)  # per-window squared errors of B
+    better = base * 0.81  # A: every window 10 % smaller error (RMSE × 0.9)
+    diff, low, high = M.paired_rmse_difference(better, base)
+    assert diff == pytest.approx(np.sqrt(better.mean()) - np.sqrt(base.mean()))
+    assert diff == pytest.approx(-0.1 * np.sqrt(base.mean()))
+    assert low <= diff <= high < 0  # significant: the interval excludes 0
+    same = M.paired_rmse_difference(base, base.copy())
+    assert same == (0.0, 0.0, 0.0)  # the same errors: no difference in any resample
+    shuffled = rng.permutation(base)  # the same errors on other windows: as often worse as better
+    diff, lo, hi = M.paired_rmse_difference(shuffled, base)
+    assert diff == pytest.approx(0.0, abs=1e-12) and lo < 0 < hi  # not significant
+    assert all(math.isnan(v) for v in M.paired_rmse_difference(base[:1], base[:1])[1:])
+    with pytest.raises(ValueError, match="one shape"):
+        M.paired_rmse_difference(base, base[:-1])

@@ -28,3 +28,23 @@ def test_a_quick_ablation_warns_in_every_output_and_bolds_no_winner(
     assert "Quick run:" in page and "do not compare the variants" in page
     assert "<b>" not in page.split("Quick run:")[1]  # no bold winner in any table
     assert "**Quick run:" in (out / "report.md").read_text()
+    headline = doc["headline"]
+    assert (
+        headline["winner"] in ("no_dilation", "full") and headline["n_windows"] == doc["scored_on"]["windows"]
+    )
+    (comparison,) = headline["comparisons"]
+    assert comparison["against"] == ({"no_dilation", "full"} - {headline["winner"]}).pop()
+    assert (
+        comparison["difference_m"] <= 0
+        and comparison["low"] <= comparison["difference_m"] <= comparison["high"]
+    )
+    assert comparison["significant"] == (comparison["high"] < 0)
+    assert headline["text"] in page and "A quick run: these figures do not compare the variants." in page
+    assert headline["text"] in printed
+
+    from lanecast.models.reports.ablation import write_ablation_report
+
+    doc.pop("quick_warning")  # the same figures from a full run: the answer leads, in bold
+    page = write_ablation_report(tmp_path / "full", doc).read_text()
+    assert f"<p><b>{headline['text']}</b></p>" in page
+    assert f"**{headline['text']}**" in (tmp_path / "full" / "report.md").read_text()
