@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import shlex
 import time
+from datetime import datetime
 from pathlib import Path
 
 from lanecast.io_adapters.contracts import track_table
@@ -120,6 +121,7 @@ def run(args: argparse.Namespace) -> int:
         show_progress=True,
         overwrite=True,  # the demo owns its folder (claim): a rerun makes it again
         config=config,
+        start=datetime.now().astimezone().replace(second=0, microsecond=0),  # the log's date: now
     )
     table = highd.read([sim_dir])
     rows = summarise(table)

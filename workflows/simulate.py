@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from datetime import datetime
 from pathlib import Path
 
 from lanecast.io_adapters.sim import recording, scenarios, sumo_highway, to_highd
@@ -23,7 +24,7 @@ def register(sub: argparse._SubParsersAction) -> None:
             "inside the lane (--lateral-smoothing 0 --weave 0 --drivers uniform: SUMO's raw motion), and write "
             "the recorded middle section as "
             "highD's three CSV files (NN_tracks.csv, NN_tracksMeta.csv, NN_recordingMeta.csv; 25 Hz) into "
-            "OUT_DIR. Neighbour ids come from SUMO. The same arguments give byte-identical files; about 15 "
+            "OUT_DIR. Neighbour ids come from SUMO. The same arguments (with --start) give byte-identical files; about 15 "
             "minutes at medium density give a recording of highD's size (about 1,000 vehicles). "
             "--scenario NAME simulates a named traffic scenario instead (its road, limit, demand, bottleneck "
             "and drivers; 10 Hz; --minutes, --seed, --recording-id still apply): "
@@ -52,6 +53,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--density", choices=DENSITIES, default="medium", help="traffic density")
     p.add_argument("--truck-share", type=float, default=0.2, help="share of trucks, 0…1")
     p.add_argument("--recording-id", type=int, default=1, help="highD recording number NN")
+    p.add_argument(
+        "--start",
+        type=start_time,
+        metavar="YYYY-MM-DDTHH:MM",
+        help="when the recording begins, local time (default: now); written as highD's month, weekday and "
+        "time of day, where drive logs made from it begin. The same arguments and --start give "
+        "byte-identical files",
+    )
     p.add_argument(
         "--section-length",
         type=float,
@@ -102,6 +111,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+def start_time(text: str) -> datetime:
+    """``--start``: an ISO date and time (local time unless it names its offset)."""
+    try:
+        when = datetime.fromisoformat(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a date and time like 2026-12-05T08:30") from exc
+    if not 1970 <= when.year <= 2200:
+        raise argparse.ArgumentTypeError(f"{text!r}: a year from 1970 to 2200")
+    return when if when.tzinfo is not None else when.astimezone()
+
+
 def run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     if args.scenario:
@@ -127,6 +147,7 @@ def run(args: argparse.Namespace) -> int:
         recording_id=args.recording_id,
         config=config,
         overwrite=args.force,
+        start=args.start or datetime.now().astimezone().replace(second=0, microsecond=0),
     )
     names = to_highd.file_names(args.recording_id)
     summary = to_highd.summary(out / names["tracksMeta"])

@@ -33,7 +33,7 @@ from lanecast.io_adapters.contracts.track_runs import (
     run_starts,
 )
 from lanecast.io_adapters.errors import FrameError, LanecastError, LogError, TrackTableError
-from lanecast.io_adapters.logs.conventions import FIXED_FRAMES, KNOWN_CLASSES, MARKER_SUFFIX
+from lanecast.io_adapters.logs.conventions import FIXED_FRAMES, KNOWN_CLASSES, MARKER_SUFFIX, OFFSET_KEY
 from lanecast.io_adapters.logs.coordinate_frames import Transforms
 from lanecast.io_adapters.logs.frames_from_stamps import frames_of
 from lanecast.io_adapters.logs.object_columns import Categorical, ObjectColumns, rotate
@@ -178,6 +178,11 @@ def assemble(
         else {k: np.concatenate([p[k] for p in pieces]) for k in pieces[0]}
     )
     columns["object_class"] = Categorical.concat(piece_classes).to_arrow()
+    offset = int((log_meta or {}).get("time_offset_ns") or 0)
+    if offset:  # the table's clock: times from the recordings' start (conventions: the log's clock)
+        columns["time_ns"] = columns["time_ns"] - np.int64(offset)
+        for rec in recordings.values():
+            rec.extra[OFFSET_KEY] = offset
     sizes = [p["track_id"].size for p in pieces]
     columns["recording"] = Categorical(np.repeat(np.arange(len(sizes)), sizes), rec_names).to_arrow()
     meta = track_table.TableMeta(

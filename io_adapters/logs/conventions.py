@@ -9,10 +9,16 @@ Documented here, used by the MCAP and ROS bag writers and checked by the readers
   so logs with other topic names (``/tracked_objects/r0`` …) read the same.
 - the log's metadata (MCAP metadata record ``lanecast``; in ROS bags a ``std_msgs/msg/String`` on
   ``/lanecast/metadata``, and rosbag2 ``custom_data``) holds a JSON document: ``source_format``,
-  ``frame_rate``, ``units`` and per recording ``topic``, ``frame_rate``, ``coordinate_frame``, the
+  ``frame_rate``, ``units``, ``time_offset_ns`` (below) and per recording ``topic``, ``frame_rate``, ``coordinate_frame``, the
   frame origin (``frame0``, ``time0_ns``) or an explicit frame list, ``source_files`` and ``extra``
   (parsed and checked by :func:`parse_log_metadata`); in the ROS bags lanecast writes, whose
   formats have no checksum of their own, also a digest of their messages (:class:`PayloadDigest`).
+- the log's clock: a track table's times count from its recording's start, but a recording whose
+  start is known (``start_time_ns`` in its metadata: highD's recordingMeta, ``lanecast simulate``)
+  is written at that date, not at 1 January 1970: every time in the log is the table's plus
+  ``time_offset_ns`` (the earliest start among the recordings; 0 and left out when none is known).
+  The readers subtract it, so a table read back is the table written; the annotation adds it to
+  the forecasts it writes and the report takes it from the forecasts it reads.
 - SceneUpdate: one message per frame, entity id = track id, one cube (centre, yaw, length × width ×
   1.5 m), entity metadata ``class``, ``lane_id`` (absent = null), ``vx``, ``vy``, ``ax``, ``ay`` (float32
   in their shortest decimal form: the same kinematics as the ROS bags carry, so the same table
@@ -147,8 +153,39 @@ def message_plan(
     return groups, allkeys[np.lexsort((allkeys[:, 2], allkeys[:, 1], allkeys[:, 0]))]
 
 
+#: the recording's extra naming its start on the Unix clock (ns), where known
+START_KEY = "start_time_ns"
+#: the recording's extra, in a table read from a log, naming the log's ``time_offset_ns``
+OFFSET_KEY = "log_time_offset_ns"
+
+
+def log_time_offset(table: pa.Table | pa.Schema) -> int:
+    """What a log adds to the table's times: the earliest known start of its recordings (ns), else 0."""
+    starts = [
+        rec.extra[START_KEY]
+        for rec in track_table.read_meta(table).recordings.values()
+        if isinstance(rec.extra.get(START_KEY), int) and 0 < rec.extra[START_KEY] < 2**62
+    ]
+    return min(starts, default=0)
+
+
+def read_offset(table: pa.Table | pa.Schema) -> int:
+    """The ``time_offset_ns`` of the log a table was read from (0 for other tables)."""
+    offsets = [rec.extra.get(OFFSET_KEY, 0) for rec in track_table.read_meta(table).recordings.values()]
+    return int(max((o for o in offsets if isinstance(o, int)), default=0))
+
+
+def shifted(table: pa.Table, offset: int, column: str = "time_ns") -> pa.Table:
+    """``table`` with ``offset`` ns added to its times ``column`` (its field and metadata kept)."""
+    if not offset:
+        return table
+    i = table.schema.get_field_index(column)
+    times = table.column(i).to_numpy() + np.int64(offset)
+    return table.set_column(i, table.schema.field(i), pa.array(times, pa.int64()))
+
+
 def log_metadata(
-    table: pa.Table, topics: Mapping[str, str], groups: Mapping[str, FrameGroups]
+    table: pa.Table, topics: Mapping[str, str], groups: Mapping[str, FrameGroups], time_offset_ns: int = 0
 ) -> dict[str, Any]:
     """The JSON document lanecast stores in the logs it writes (see the module docstring)."""
     meta = track_table.read_meta(table)
@@ -174,7 +211,7 @@ def log_metadata(
             else:
                 spec["frames"] = g.frame.tolist()
         recordings[name] = spec
-    return {
+    doc: dict[str, Any] = {
         "version": 1,
         "source_format": meta.source_format,
         "source_files": meta.source_files,
@@ -182,6 +219,9 @@ def log_metadata(
         "units": track_table.UNITS,
         "recordings": recordings,
     }
+    if time_offset_ns:
+        doc["time_offset_ns"] = int(time_offset_ns)
+    return doc
 
 
 #: Highest frame rate accepted from a log's lanecast metadata (Hz).
@@ -236,6 +276,10 @@ def parse_log_metadata(path: Path, text: str | bytes) -> dict[str, Any]:
         jf.get(doc, "source_files", "", "str_list", [])
         jf.get(doc, "payload_digest", "", "str", None)
         jf.get(doc, "payload_messages", "", "count", None)
+        if jf.get(doc, "time_offset_ns", "", "count", 0) >= 2**62:
+            raise jf.FieldError(
+                "time_offset_ns", f"{doc['time_offset_ns']}", "a time before the year 2116 (ns)"
+            )
         recording_of_topic: dict[str, str] = {}
         for name, spec in jf.get(doc, "recordings", "", "object", {}).items():
             where = f"recordings.{name}"

@@ -130,3 +130,35 @@ def forecast_model(path: Path) -> dict[str, str]:
             return {}
         return {k[len(MODEL_KEY_PREFIX) :]: v for k, v in custom.items() if k.startswith(MODEL_KEY_PREFIX)}
     return {}
+
+
+def time_offset(path: Path) -> int:
+    """The ``time_offset_ns`` of a log lanecast wrote (what its clock adds to the track table's
+    times; 0 for other logs): from an MCAP's metadata or a bag's ``/lanecast/metadata`` message."""
+    from lanecast.io_adapters.logs import conventions as conv
+
+    text: str | bytes | None = None
+    try:
+        if path.is_file() and path.suffix.lower() == ".mcap":
+            with path.open("rb") as fh:
+                for record in make_reader(fh).iter_metadata():
+                    if record.name == conv.META_NAME:
+                        text = record.metadata.get(conv.META_NAME)
+        else:
+            from rosbags.highlevel import AnyReader
+
+            with AnyReader([path]) as reader:
+                conns = [c for c in reader.connections if c.topic == conv.META_TOPIC]
+                for conn, _, raw in reader.messages(connections=conns):
+                    text = getattr(reader.deserialize(raw, conn.msgtype), "data", None)
+                    break
+    except (McapError, OSError, ValueError, EOFError, LanecastError):
+        return 0
+    except Exception:  # rosbags' errors: the reading itself names a damaged bag
+        return 0
+    if not text:
+        return 0
+    try:
+        return int(conv.parse_log_metadata(path, text).get("time_offset_ns") or 0)
+    except LogError:  # not lanecast's document: the log's clock is the tracks'
+        return 0

@@ -4,6 +4,7 @@ written as highD's three CSV files (:mod:`~lanecast.io_adapters.sim.to_highd`)."
 from __future__ import annotations
 
 import tempfile
+from datetime import datetime
 from pathlib import Path
 
 from lanecast.io_adapters.errors import InputError
@@ -27,11 +28,13 @@ def simulate(
     show_progress: bool = True,
     overwrite: bool = False,
     config: HighwayConfig | None = None,
+    start: datetime | None = None,
 ) -> Path:
     """Simulate ``minutes`` of highway traffic and write a highD recording into ``out_dir``.
 
     ``config`` (e.g. a named scenario's, :mod:`lanecast.io_adapters.sim.scenarios`) replaces every
-    other simulation argument. Returns ``out_dir``. The same arguments give byte-identical files. An
+    other simulation argument. ``start``: when the recording began (its recordingMeta's month,
+    weekday and time of day; drive logs made from it begin then); None: a fixed date. Returns ``out_dir``. The same arguments give byte-identical files. An
     existing recording of the same number in ``out_dir`` is refused before simulating, unless
     ``overwrite``.
     """
@@ -58,5 +61,5 @@ def simulate(
                 samples = run_simulation(cfg, Path(work), lambda: progress_bar.update(1))
         else:
             samples = run_simulation(cfg, Path(work))
-    tables = to_highd(samples, cfg, recording_id)
+    tables = to_highd(samples, cfg, recording_id, start)
     return write_highd(tables, Path(out_dir), recording_id, overwrite=overwrite)

@@ -26,6 +26,7 @@ from __future__ import annotations
 import os
 import shutil
 import tempfile
+from datetime import datetime
 from pathlib import Path
 
 import numpy as np
@@ -39,6 +40,7 @@ from lanecast.io_adapters.contracts.track_runs import (
     run_starts,
 )
 from lanecast.io_adapters.datasets.highd.reader import NEIGHBOURS
+from lanecast.io_adapters.datasets.highd.start_time import meta_fields
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.sim.slow_signals import sinusoid_sum
 from lanecast.io_adapters.sim.sumo_highway import HighwayConfig, Samples
@@ -133,7 +135,13 @@ def _round(values: np.ndarray, decimals: int) -> np.ndarray:
     return np.round(values, decimals) + 0.0  # + 0.0 turns -0.0 into 0.0
 
 
-def to_highd(samples: Samples, cfg: HighwayConfig, recording_id: int = 1) -> dict[str, pa.Table]:
+#: recordingMeta's date fields when no start is given: the same arguments give the same files
+DEFAULT_START = {"month": "01.2000", "weekDay": "Sat", "startTime": "12:00"}
+
+
+def to_highd(
+    samples: Samples, cfg: HighwayConfig, recording_id: int = 1, start: datetime | None = None
+) -> dict[str, pa.Table]:
     """The three highD tables (``tracks``, ``tracksMeta``, ``recordingMeta``) from the samples."""
     order = np.lexsort((samples.frame, samples.vehicle))
     veh = samples.vehicle[order]
@@ -237,7 +245,7 @@ def to_highd(samples: Samples, cfg: HighwayConfig, recording_id: int = 1) -> dic
     tracks_table = pa.table({name: tracks[name] for name in TRACKS_COLUMNS})
 
     meta = _tracks_meta(tracks_table, samples, highd_id_of)
-    recording = _recording_meta(meta, samples, cfg, recording_id)
+    recording = _recording_meta(meta, samples, cfg, recording_id, start)
     return {"tracks": tracks_table, "tracksMeta": meta, "recordingMeta": recording}
 
 
@@ -288,8 +296,13 @@ def _tracks_meta(tracks: pa.Table, samples: Samples, highd_id_of: np.ndarray) ->
     )
 
 
-def _recording_meta(meta: pa.Table, samples: Samples, cfg: HighwayConfig, recording_id: int) -> pa.Table:
+def _recording_meta(
+    meta: pa.Table, samples: Samples, cfg: HighwayConfig, recording_id: int, start: datetime | None
+) -> pa.Table:
+    """recordingMeta's one row; ``start`` gives ``month``, ``weekDay`` and ``startTime`` (a drive
+    log written from the recording begins then), None the fixed 01.2000, Sat, 12:00."""
     upper, lower, _ = lane_markings(samples)
+    when = meta_fields(start) if start is not None else DEFAULT_START
     classes = np.asarray(meta.column("class").to_pylist())
     return pa.table(
         {
@@ -297,9 +310,9 @@ def _recording_meta(meta: pa.Table, samples: Samples, cfg: HighwayConfig, record
             "frameRate": [int(cfg.frame_rate)],
             "locationId": [0],  # not a highD location: simulated
             "speedLimit": [round(cfg.speed_limit_mps, 2)],
-            "month": ["01.2000"],  # format fields of highD; a simulation has no calendar date
-            "weekDay": ["Sat"],
-            "startTime": ["12:00"],
+            "month": [when["month"]],
+            "weekDay": [when["weekDay"]],
+            "startTime": [when["startTime"]],
             "duration": [round(cfg.n_frames / cfg.frame_rate, 2)],
             "totalDrivenDistance": [round(float(np.sum(meta.column("traveledDistance").to_numpy())), 2)],
             "totalDrivenTime": [

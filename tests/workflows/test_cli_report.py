@@ -43,9 +43,13 @@ def test_report_scores_logged_forecasts_like_batch_prediction(
     assert (tmp_path / "r" / "logs" / "drive" / "metrics.json").is_file()
 
     # Independent computation: windows at the forecast times, the shipped model, lanecast.models.metrics.
+    from lanecast.io_adapters.logs.conventions import read_offset
+
     docs = report.prediction_documents(out_dir / "drive.mcap")
-    t0 = np.unique([d["t0_ns"] for d in docs])
-    windows = make_windows(registry.read_any([log]), split="none", t0_ns=t0, allow_empty=True)
+    tracks = registry.read_any([log])
+    assert read_offset(tracks) > 0  # a simulated recording's log starts at its date, not in 1970
+    t0 = np.unique([d["t0_ns"] for d in docs]) - read_offset(tracks)  # the log's clock → the table's
+    windows = make_windows(tracks, split="none", t0_ns=t0, allow_empty=True)
     known = np.isfinite(np.asarray(windows.future)).all(axis=(1, 2))
     pred = STCNNForecaster.load(None).predict(
         np.asarray(windows.inputs)[known], np.asarray(windows.present)[known], top_k=3, batch_size=4096

@@ -34,7 +34,9 @@ from lanecast.io_adapters.contracts.track_table import read_meta
 from lanecast.io_adapters.errors import InputError, LogError
 from lanecast.io_adapters.files import activity, atomic_path, check_input, checksum
 from lanecast.io_adapters.formats import registry
+from lanecast.io_adapters.logs import conventions as conv
 from lanecast.io_adapters.logs import forecast_messages as fm
+from lanecast.io_adapters.logs import topics as topic_lists
 from lanecast.io_adapters.logs.autoware import predicted_objects_encode as autoware_encode
 from lanecast.io_adapters.logs.conventions import BAG_FILES
 from lanecast.io_adapters.logs.mcap import copy as mcap_copy
@@ -278,6 +280,11 @@ def annotate_log(
         with activity(f"annotate: {src.name}: forecasting"):
             forecasts = predict(tracks, options, validated=read_here)
     model_s = time.perf_counter() - started - read_s
+    # forecasts and tracks count from the recordings' start; the log's clock adds its offset
+    offset = conv.read_offset(tracks) if tracks is not None else topic_lists.time_offset(src)
+    forecasts = conv.shifted(forecasts, offset, "t0_ns")
+    what_ifs = conv.shifted(what_ifs, offset, "t0_ns") if what_ifs is not None else None
+    tracks = conv.shifted(tracks, offset) if tracks is not None else None
 
     frame_ids: str | dict[str, str] = options.frame_id
     if tracks is not None:

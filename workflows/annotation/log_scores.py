@@ -28,6 +28,7 @@ from lanecast.io_adapters.contracts.windows import MANEUVERS
 from lanecast.io_adapters.errors import InputError, LanecastError, LogError
 from lanecast.io_adapters.files import activity, progress, staged_files
 from lanecast.io_adapters.formats import registry
+from lanecast.io_adapters.logs import conventions as conv
 from lanecast.io_adapters.logs import topics
 from lanecast.io_adapters.logs.forecast_batch import N_STEPS
 from lanecast.io_adapters.logs.forecast_messages import PREDICTION_TOPIC
@@ -229,6 +230,7 @@ def score_log(log: Path, topic: str | None) -> dict[str, Any]:
     # damage (a truncated log was a traceback from the mcap library reading the predictions)
     tracks = registry.read_any([log], topic=topic) if topic else registry.read_any([log])
     fc = log_forecasts(checked_forecast_times(log, prediction_documents(log)))
+    fc.t0_ns = fc.t0_ns - conv.read_offset(tracks)  # the log's clock → the tracks' (conventions)
     windows = make_windows(
         tracks,
         require_future=True,

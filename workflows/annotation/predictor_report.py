@@ -19,6 +19,7 @@ from typing import Any
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import activity, progress, staged_files
 from lanecast.io_adapters.formats import registry
+from lanecast.io_adapters.logs import conventions as conv
 from lanecast.io_adapters.ownership import GENERATOR, HTML_MARK, MARKDOWN_MARK
 from lanecast.models.predictor_metrics import predictor_summary
 from lanecast.models.runtime import load_forecaster
@@ -216,6 +217,7 @@ def report_predictors(
             try:
                 with activity(f"report: {log.name}: reading its tracks"):
                     tracks = registry.read_any([log], topic=topic) if topic else registry.read_any([log])
+                    tracks = conv.shifted(tracks, conv.read_offset(tracks))  # on the predictions' clock
                 per_log: dict[str, list[Scored]] = {}
                 with activity(f"report: {log.name}: scoring its recorded predictions"):
                     for pred in read_predictions(log, predictions, checked=True):

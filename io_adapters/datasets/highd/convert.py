@@ -13,6 +13,7 @@ The checks run first (checks.py, meta_checks.py), on the whole file or on a bloc
 
 from __future__ import annotations
 
+from datetime import datetime
 from typing import Any
 
 import numpy as np
@@ -29,6 +30,7 @@ from lanecast.io_adapters.datasets.highd.columns import (
 )
 from lanecast.io_adapters.datasets.highd.meta import Meta
 from lanecast.io_adapters.datasets.highd.sniff import Recording
+from lanecast.io_adapters.datasets.highd.start_time import NOTE, start_ns
 
 HEADING_MIN_SPEED = 0.5  # m/s: below it the heading is 0 (direction of travel)
 
@@ -118,9 +120,17 @@ def convert_tracks(
                 "lane_markings_y": road_lane_markings(meta.markings[d], d),
                 "lane_markings_raw": meta.markings[d],
                 "road_from_image": [[sign, 0.0], [0.0, -sign]],
+                **_start_fields(meta.start),
             },
         )
     return out, recs
+
+
+def _start_fields(start: datetime | None) -> dict[str, Any]:
+    """The recording's start (drive logs written from it begin there), where recordingMeta gives it."""
+    if start is None:
+        return {}
+    return {"start_time": start.isoformat(), "start_time_ns": start_ns(start), "start_time_note": NOTE}
 
 
 def _dictionary(parts: list[dict[str, Any]], names_key: str, codes_key: str) -> pa.DictionaryArray:

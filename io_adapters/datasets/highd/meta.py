@@ -4,7 +4,10 @@ applied to every track of the recording)."""
 
 from __future__ import annotations
 
+import csv
+import itertools
 from dataclasses import dataclass
+from datetime import datetime
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +17,7 @@ from lanecast.io_adapters.datasets.csv_errors import row_line
 from lanecast.io_adapters.datasets.highd.columns import LOWER, RECORDING_META_COLUMNS, UPPER
 from lanecast.io_adapters.datasets.highd.parse import read_csv
 from lanecast.io_adapters.datasets.highd.sniff import NAME
+from lanecast.io_adapters.datasets.highd.start_time import recording_start
 from lanecast.io_adapters.errors import InputError
 
 
@@ -26,6 +30,7 @@ class Meta:
     location_id: int
     speed_limit: float
     markings: dict[int, list[float]]  # drivingDirection → raw image y of the lane markings
+    start: datetime | None = None  # local start (start_time.recording_start), None where not given
 
 
 def _markings(path: Path, text: str | None, column: str, line: int) -> list[float]:
@@ -84,6 +89,7 @@ def read_recording_meta(path: Path) -> Meta:
             path, f"{table.num_rows} data rows", line=row_line(path, 1), expected="exactly one data row"
         )
     row = {name: table.column(name)[0].as_py() for name in RECORDING_META_COLUMNS}
+    when = _when(path)
     line = row_line(path, 0)
     _check_recording_id(path, int(row["id"]), line)
     if not track_table.plausible_frame_rate(row["frameRate"]):
@@ -103,4 +109,15 @@ def read_recording_meta(path: Path) -> Meta:
             UPPER: _markings(path, row["upperLaneMarkings"], "upperLaneMarkings", line),
             LOWER: _markings(path, row["lowerLaneMarkings"], "lowerLaneMarkings", line),
         },
+        start=recording_start(when.get("month"), when.get("weekDay"), when.get("startTime")),
     )
+
+
+def _when(path: Path) -> dict[str, str]:
+    """The optional ``month``, ``weekDay`` and ``startTime`` cells of the one-row file (empty where
+    the file has no such column)."""
+    with path.open(encoding="utf-8", errors="replace", newline="") as fh:
+        rows = list(itertools.islice(csv.reader(fh), 2))
+    if len(rows) < 2:
+        return {}
+    return {k: v for k, v in zip(rows[0], rows[1], strict=False) if k in ("month", "weekDay", "startTime")}

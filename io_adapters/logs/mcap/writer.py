@@ -177,12 +177,14 @@ def write(
         raise InputError(out, f"unknown SceneUpdate encoding {encoding!r}", expected=" or ".join(ENCODINGS))
     track_table.validate(table)
     out = Path(out)
+    offset = conv.log_time_offset(table)
+    table = conv.shifted(table, offset)  # the log's clock: the recordings' dates, not 1970
     meta = track_table.read_meta(table)
     names = sorted(meta.recordings)
     topics = conv.recording_topics(names)
     rs = RowStrings(table)
     groups, plan = conv.message_plan(rs.recording, rs.frame, rs.track_id, rs.time_ns, names)
-    doc = conv.log_metadata(table, topics, groups)
+    doc = conv.log_metadata(table, topics, groups, offset)
     with atomic_path(out) as tmp, tmp.open("wb") as f:
         w = Writer(f, chunk_size=chunk_size, compression=CompressionType.ZSTD, enable_data_crcs=True)
         w.start(profile="", library=LIBRARY)

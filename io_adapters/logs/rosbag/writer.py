@@ -187,6 +187,8 @@ def write(table: pa.Table, out: Path, fmt: str = "ros2", *, storage: str = "mcap
         raise InputError(
             out, "track ids do not fit the int32 marker id", column="track_id", expected="ids < 2**31"
         )
+    offset = conv.log_time_offset(table)
+    table = conv.shifted(table, offset)  # the log's clock: the recordings' dates, not 1970
     times = table.column("time_ns").to_numpy()
     if times.size and times.max() > MAX_ROS_TIME_NS:
         row = int(np.flatnonzero(times > MAX_ROS_TIME_NS)[0])
@@ -203,7 +205,7 @@ def write(table: pa.Table, out: Path, fmt: str = "ros2", *, storage: str = "mcap
     builder = _Builder(table, 1 if fmt == "ros1" else 2)
     c = builder.c
     groups, plan = conv.message_plan(c["recording"], c["frame"], c["track_id"], c["time_ns"], names)
-    meta_doc = conv.log_metadata(table, topics, groups)
+    meta_doc = conv.log_metadata(table, topics, groups, offset)
     doc = json.dumps(meta_doc, sort_keys=True)
     frames = [meta.recordings[n].coordinate_frame for n in names]
     first = int(plan[0, 0]) if plan.shape[0] else 0

@@ -7,7 +7,9 @@ import os
 import stat
 import subprocess
 import sys
+from datetime import datetime
 from pathlib import Path
+from zoneinfo import ZoneInfo
 
 import numpy as np
 import pyarrow as pa
@@ -205,11 +207,13 @@ def test_same_seed_same_bytes_through_the_command(tmp_path: Path) -> None:
         "section_length_m": 200.0,
         "approach_length_m": 200.0,
     }
-    a = recording.simulate(tmp_path / "a", seed=3, show_progress=False, **args)  # type: ignore[arg-type]
-    c = recording.simulate(tmp_path / "c", seed=4, show_progress=False, **args)  # type: ignore[arg-type]
+    start = datetime(2026, 12, 5, 8, 30, tzinfo=ZoneInfo("Europe/Berlin"))
+    a = recording.simulate(tmp_path / "a", seed=3, show_progress=False, start=start, **args)  # type: ignore[arg-type]
+    c = recording.simulate(tmp_path / "c", seed=4, show_progress=False, start=start, **args)  # type: ignore[arg-type]
     b = tmp_path / "b"
     status = cli.main(
-        ["simulate", "--out", str(b), "--minutes", "0.2", "--seed", "3", "--lanes-per-direction", "2",
+        ["simulate", "--out", str(b), "--start", "2026-12-05T08:30+01:00",
+         "--minutes", "0.2", "--seed", "3", "--lanes-per-direction", "2",
          "--density", "high", "--section-length", "200", "--approach-length", "200",
          "--lane-change-duration", "3", "--lateral-smoothing", "0", "--weave", "0", "--drivers", "uniform"]
     )  # fmt: skip
@@ -220,6 +224,37 @@ def test_same_seed_same_bytes_through_the_command(tmp_path: Path) -> None:
     lanes = np.unique(_csv(a / "01_tracks.csv").column("laneId").to_numpy())
     assert set(lanes) <= {2, 3, 5, 6}  # 2 lanes per direction: upper 2, 3; lower 5, 6
     assert sorted(p.name for p in a.iterdir()) == sorted(FILES)  # no temporary left behind
+    header, row = (a / "01_recordingMeta.csv").read_text().splitlines()
+    fields = dict(zip(header.split(","), row.split(","), strict=True))
+    assert [fields[k] for k in ("month", "weekDay", "startTime")] == ["12.2026", "Sat", "08:30"]
+
+
+def test_a_log_of_a_simulated_recording_starts_when_it_was_simulated(tmp_path: Path) -> None:
+    """Logs made from a simulation begin at the date and time of the run (highD's recordingMeta
+    fields), not on 1 January 1970; the table read back from the log is the table written."""
+    from conftest import assert_same_table
+    from mcap.reader import make_reader
+
+    from lanecast.io_adapters.formats import registry
+
+    before = datetime.now().astimezone().replace(second=0, microsecond=0)
+    assert cli.main(["simulate", "--out", str(tmp_path / "sim"), "--minutes", "0.2", "--seed", "1",
+                     "--density", "low", "--section-length", "200", "--approach-length", "200"]) == 0  # fmt: skip
+    table = registry.read_any([tmp_path / "sim"])
+    log = registry.write_any(table, tmp_path / "sim.mcap", "mcap")
+    with log.open("rb") as fh:
+        first = next(iter(make_reader(fh).iter_messages()))[2].log_time
+    after = datetime.now().astimezone()
+    berlin = ZoneInfo("Europe/Berlin")
+    first_day = datetime.fromtimestamp(first / 1e9, berlin)
+    # highD gives month, weekday and time of day: the first such weekday of the month at that time
+    starts = {
+        (t.year, t.month, t.weekday(), t.hour, t.minute)
+        for t in (before.astimezone(berlin), after.astimezone(berlin))
+    }
+    assert (first_day.year, first_day.month, first_day.weekday(), first_day.hour, first_day.minute) in starts
+    assert first_day.day <= 7 and first_day.second == 0
+    assert_same_table(table, registry.read_any([log]))
 
 
 def test_the_command_smooths_lane_changes_by_default(tmp_path: Path) -> None:

@@ -432,7 +432,9 @@ def test_bags_written_by_lanecast_are_annotated_end_to_end(tmp_path: Path, fmt: 
             ]
             for bag in (src, out)
         ]
-        assert custom[1] == custom[0] and "lanecast" in custom[0]  # metadata.yaml's custom_data kept
+        kept = {k: v for k, v in custom[1].items() if not k.startswith("lanecast.forecast.")}
+        assert kept == custom[0] and "lanecast" in custom[0]  # metadata.yaml's custom_data kept
+        assert custom[1]["lanecast.forecast.model"]  # and the model that made the forecasts named
         assert scenes[0].entities[0].lines[0].points[0].x == pytest.approx(30.0 * 3.0)
     else:
         with open(out, "rb") as f:
