@@ -73,6 +73,10 @@ def recording_name(location: str, path: Path, period: int, n_periods: int) -> st
     return f"ngsim-{location}-{path.stem}" + (f"-p{period}" if n_periods > 1 else "")
 
 
+#: Global_Time epochs (ms) taken as dates: 1990 to 2100
+PLAUSIBLE_EPOCH_MS = (631_152_000_000, 4_102_444_800_000)
+
+
 def recording_meta(
     path: Path, location: str, source: str, epoch: int, start: int, period: int, n_periods: int
 ) -> track_table.RecordingMeta:
@@ -86,6 +90,13 @@ def recording_meta(
         "global_time_start": start,
         "global_time_epoch": epoch,
         "global_time_note": "Global_Time as given by the source (ms); epoch = Global_Time - 100 * Frame_ID",
+        # the Unix time of time_ns 0, where drive logs written from the recording put it: only where
+        # Global_Time is a plausible date in ms (the CSV export's Peachtree values are not)
+        **(
+            {"start_time_ns": epoch * 1_000_000}
+            if PLAUSIBLE_EPOCH_MS[0] < epoch < PLAUSIBLE_EPOCH_MS[1]
+            else {}
+        ),
         "period": period if n_periods > 1 else None,
         "time": "time_ns = Frame_ID * 1e8 (frame = Frame_ID at 10 Hz)",
         "units": "converted from feet (x 0.3048)",

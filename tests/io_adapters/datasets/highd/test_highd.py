@@ -480,3 +480,30 @@ def test_dropping_identical_duplicate_rows_is_reported(
         f"{path}: dropped 1 row(s) repeating an earlier (id, frame) with the same values (the first at line 6)"
         in (capsys.readouterr().err)
     )
+
+
+def test_highd_recording_start_from_month_weekday_and_time() -> None:
+    """highD gives 09.2017, Tue, 08:38: the first Tuesday of September 2017 at 08:38 in Germany."""
+    from lanecast.io_adapters.datasets.highd.start_time import meta_fields, recording_start, start_ns
+
+    start = recording_start("09.2017", "Tue", "08:38")
+    assert start is not None and start.isoformat() == "2017-09-05T08:38:00+02:00"
+    assert start_ns(start) == 1504593480 * 10**9
+    assert recording_start("01.2000", "Sat", "12:00").isoformat() == "2000-01-01T12:00:00+01:00"  # type: ignore[union-attr]
+    for bad in (
+        ("13.2017", "Tue", "08:38"),
+        ("09.2017", "Xyz", "08:38"),
+        ("09.2017", "Tue", "25:00"),
+        (None, "Tue", "8:00"),
+    ):
+        assert recording_start(*bad) is None
+    assert meta_fields(start) == {"month": "09.2017", "weekDay": "Tue", "startTime": "08:38"}
+    assert (
+        recording_start(
+            **{
+                k: v
+                for k, v in zip(("month", "week_day", "start_time"), meta_fields(start).values(), strict=True)
+            }
+        )
+        == start
+    )

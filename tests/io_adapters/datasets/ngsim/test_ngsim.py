@@ -555,3 +555,21 @@ def test_a_negative_lane_id_is_refused(tmp_path: Path) -> None:
     with pytest.raises(InputError) as err:
         ngsim.read([path])
     assert err.value.line == 21 and err.value.column == "Lane_ID" and "Lane_ID is -1" in str(err.value)
+
+
+def test_a_log_of_ngsim_starts_at_global_time_where_it_is_a_date(tmp_path: Path) -> None:
+    """US-101's Global_Time is Unix milliseconds: a log of it begins on 15 June 2005; the CSV
+    export's Peachtree values are no date, so its log keeps the table's clock."""
+    from datetime import datetime, timezone
+
+    from mcap.reader import make_reader
+
+    us101 = registry.read_any([TXT.parent])
+    log = registry.write_any(us101, tmp_path / "us101.mcap", "mcap")
+    with log.open("rb") as fh:
+        first = next(iter(make_reader(fh).iter_messages()))[2].log_time
+    assert datetime.fromtimestamp(first / 1e9, timezone.utc).date().isoformat() == "2005-06-15"
+    first_row = int(us101.column("time_ns").to_numpy().min())
+    assert first - first_row == 1118846979700 * 1_000_000  # Global_Time − 100 ms × Frame_ID
+    peachtree = registry.read_any([SAMPLE])
+    assert not any("start_time_ns" in r.extra for r in track_table.read_meta(peachtree).recordings.values())
