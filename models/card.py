@@ -16,9 +16,6 @@ from typing import Any
 
 from lanecast.io_adapters import json_fields as jf
 from lanecast.io_adapters.errors import InputError
-from lanecast.io_adapters.files import atomic_path
-from lanecast.models import ood
-from lanecast.models.baselines import RELATIVE_TO
 
 FORMAT = "lanecast-stcnn"
 FORMAT_VERSION = 1
@@ -158,6 +155,8 @@ def check_architecture(config: dict[str, Any], where: str) -> None:
 
 
 def _check_normalisation(card: dict[str, Any], config: dict[str, Any]) -> None:
+    from lanecast.models.baselines import RELATIVE_TO
+
     norm = jf.get(card, "normalisation", "", "object")
     inputs = jf.get(norm, "inputs", "normalisation", "object")
     for key in ("mean", "std"):
@@ -190,6 +189,8 @@ def check_usage_sections(card: dict[str, Any]) -> None:
     """FieldError at the first bad field of the optional sections read when a model is used: the
     training distribution (out-of-distribution flags), ``training.config`` (``train --init``),
     ``windows.neighbour_range_m`` (how ``forecast`` and ``explain`` cut windows)."""
+    from lanecast.models import ood
+
     training = jf.get(card, "training", "", "object", None)
     if training is not None:
         jf.get(training, "config", "training", "object", None)
@@ -226,6 +227,8 @@ def _in_range(value: float, key: str) -> bool:
 
 def write_card(card_path: Path, card: dict[str, Any]) -> None:
     """Write a card atomically, readable by everyone (it is package data for the shipped model)."""
+    from lanecast.io_adapters.files import atomic_path
+
     with atomic_path(card_path) as tmp:
         tmp.write_text(
             json.dumps(card, indent=2, allow_nan=False, default=_json_default) + "\n", encoding="utf-8"

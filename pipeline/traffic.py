@@ -17,7 +17,6 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-import pandas as pd
 import pyarrow as pa
 
 from lanecast.io_adapters.contracts import track_table
@@ -43,7 +42,13 @@ def speed_dips(track: np.ndarray, speed: np.ndarray, rate_hz: float) -> int:
     span = int(DIP_SPAN_S) + 1
 
     def running_max(values: np.ndarray, keys: np.ndarray) -> np.ndarray:
-        return pd.Series(values).groupby(keys, sort=False).rolling(span, min_periods=1).max().to_numpy()
+        """Max of each sample and the ``span - 1`` before it on the same vehicle (keys contiguous;
+        NaN ignored): ``span`` passes over the arrays, no copy per window."""
+        out = values.astype(np.float64, copy=True)
+        for k in range(1, min(span, len(values))):
+            earlier = np.where(keys[k:] == keys[:-k], values[:-k], np.nan)
+            np.fmax(out[k:], earlier, out=out[k:])
+        return out
 
     before = running_max(v, t)
     after = running_max(v[::-1], t[::-1])[::-1]

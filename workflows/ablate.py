@@ -12,14 +12,7 @@ import json
 import math
 from pathlib import Path
 
-import numpy as np
-
-from lanecast.io_adapters.contracts.windows import labelled, subset
 from lanecast.io_adapters.errors import InputError
-from lanecast.io_adapters.files import check_output_dir, staged_files
-from lanecast.io_adapters.ownership import GENERATOR
-from lanecast.io_adapters.windows_store.dataset import load_windows
-from lanecast.models.reports.ablation import headline_text, write_ablation_report
 from lanecast.workflows.arguments import integer
 from lanecast.workflows.vocabulary import HelpFormatter, add_force_option
 
@@ -80,7 +73,14 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from lanecast.io_adapters.contracts.windows import labelled, subset
+    from lanecast.io_adapters.files import check_output_dir, staged_files
+    from lanecast.io_adapters.ownership import GENERATOR
+    from lanecast.io_adapters.windows_store.dataset import load_windows
     from lanecast.models.ablation import run_ablation, variants  # torch: not on `lanecast --help`'s path
+    from lanecast.models.reports.ablation import headline_text, write_ablation_report
     from lanecast.models.train import TrainConfig
 
     names = [n.strip() for n in (args.variants or ",".join(variants())).split(",") if n.strip()]

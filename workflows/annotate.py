@@ -12,12 +12,8 @@ import sys
 from pathlib import Path
 
 from lanecast.io_adapters.errors import UsageError
-from lanecast.io_adapters.files import check_output
-from lanecast.models.runtime import check_model
-from lanecast.workflows.annotation.annotate_log import AnnotateOptions, read_forecasts_table
 from lanecast.workflows.arguments import MANEUVER_SEQUENCES, integer, number
 from lanecast.workflows.bulk import backends
-from lanecast.workflows.bulk import runner as bulk
 from lanecast.workflows.vocabulary import HelpFormatter, add_model_option
 
 
@@ -96,6 +92,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from lanecast.io_adapters.files import check_output
+    from lanecast.models.runtime import check_model
+    from lanecast.workflows.annotation.annotate_log import AnnotateOptions, read_forecasts_table
+    from lanecast.workflows.bulk import runner as bulk
+
     if not (math.isfinite(args.every) and round(args.every * 10) >= 1):  # the forecast grid is 10 Hz
         raise UsageError("--every", f"{args.every} s", expected="at least 0.1 s (rounded to 0.1 s)")
     check_output(args.out, directory=True)  # a file there, or on its path: before loading anything

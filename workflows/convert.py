@@ -7,16 +7,11 @@ import os
 import time
 from pathlib import Path
 
-from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.datasets.csp import cli as csp_cli
 from lanecast.io_adapters.errors import InputError, UsageError
-from lanecast.io_adapters.files import check_output, check_output_dir
-from lanecast.io_adapters.formats import registry, streaming
-from lanecast.io_adapters.logs.conventions import BAG_FILES
-from lanecast.io_adapters.logs.rosbag.writer import STORAGES
-from lanecast.io_adapters.ownership import check_replaceable_files, check_replaceable_output
-from lanecast.pipeline.resample import resample
-from lanecast.workflows.bulk import backends, freed_memory
+from lanecast.io_adapters.formats import registry
+from lanecast.io_adapters.formats.registry import ROS2_STORAGES as STORAGES
+from lanecast.workflows.bulk import backends
 from lanecast.workflows.vocabulary import HelpFormatter, add_force_option, add_location_option
 
 _SUFFIX_TO_FORMAT = {".parquet": "parquet", ".pq": "parquet", ".mcap": "mcap", ".bag": "ros1"}
@@ -109,6 +104,14 @@ def output_format(out: Path, to: str | None) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    from lanecast.io_adapters.contracts import track_table
+    from lanecast.io_adapters.files import check_output, check_output_dir
+    from lanecast.io_adapters.formats import streaming
+    from lanecast.io_adapters.logs.conventions import BAG_FILES
+    from lanecast.io_adapters.ownership import check_replaceable_files, check_replaceable_output
+    from lanecast.pipeline.resample import resample
+    from lanecast.workflows.bulk import freed_memory
+
     if args.to == "csp":  # research .mat sets, written by their own package
         return csp_cli.run_csp(args, resample=resample)
     started = time.perf_counter()

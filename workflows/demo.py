@@ -8,24 +8,12 @@ future recorded in it, beside the kinematic baselines → print where everything
 from __future__ import annotations
 
 import argparse
-import shlex
 import time
 from datetime import datetime
 from pathlib import Path
 
-from lanecast.io_adapters.contracts import track_table
-from lanecast.io_adapters.contracts.track_summary import summarise
-from lanecast.io_adapters.datasets.highd import reader as highd
 from lanecast.io_adapters.errors import InputError, OutputError
-from lanecast.io_adapters.files import check_output
 from lanecast.io_adapters.formats import registry
-from lanecast.io_adapters.sim.recording import simulate
-from lanecast.io_adapters.sim.scenarios import DRIVING
-from lanecast.io_adapters.sim.sumo_highway import HighwayConfig
-from lanecast.workflows.annotation.annotate_log import AnnotateOptions
-from lanecast.workflows.annotation.log_scores import report_logs
-from lanecast.workflows.bulk.manifest import Manifest
-from lanecast.workflows.bulk.runner import run_bulk
 from lanecast.workflows.vocabulary import HelpFormatter, add_model_option
 
 # A seed the shipped weights never saw (benchmarks/train_shipped.py trains on seeds 11-15, tests on 901-902).
@@ -66,6 +54,8 @@ def claim(out: Path) -> None:
     outputs. A directory where a demo output's name is taken by something the demo did not write
     (``--out .`` beside a highD recording or a ``logs`` folder of one's own) is refused, not
     overwritten."""
+    from lanecast.io_adapters.files import check_output
+
     check_output(out, directory=True)
     if (out / MARK).is_file():
         return
@@ -88,6 +78,8 @@ def claim(out: Path) -> None:
 def made_by_an_earlier_demo(out: Path) -> bool:
     """A demo's directory from before the mark (an earlier lanecast 0.1.0): its annotation manifest
     has the demo's log as its input, which a user's own folder does not."""
+    from lanecast.workflows.bulk.manifest import Manifest
+
     try:
         inputs = Manifest(out / "annotated").latest()
     except InputError:
@@ -97,10 +89,22 @@ def made_by_an_earlier_demo(out: Path) -> bool:
 
 def shown(path: Path) -> str:
     """A path as printed: quoted where a shell would split it (spaces), so that it can be pasted."""
+    import shlex
+
     return shlex.quote(str(path))
 
 
 def run(args: argparse.Namespace) -> int:
+    from lanecast.io_adapters.contracts import track_table
+    from lanecast.io_adapters.contracts.track_summary import summarise
+    from lanecast.io_adapters.datasets.highd import reader as highd
+    from lanecast.io_adapters.sim.recording import simulate
+    from lanecast.io_adapters.sim.scenarios import DRIVING
+    from lanecast.io_adapters.sim.sumo_highway import HighwayConfig
+    from lanecast.workflows.annotation.annotate_log import AnnotateOptions
+    from lanecast.workflows.annotation.log_scores import report_logs
+    from lanecast.workflows.bulk.runner import run_bulk
+
     out: Path = args.out
     started = time.perf_counter()
     config = HighwayConfig(minutes=args.minutes, seed=args.seed, density=args.density, **DRIVING)

@@ -9,24 +9,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
-
 from lanecast.io_adapters.errors import InputError
-from lanecast.io_adapters.files import activity, check_output_dir, staged_files
-from lanecast.io_adapters.windows_store.dataset import load_windows
-from lanecast.models.baselines import constant_acceleration, constant_velocity
-from lanecast.models.card import provenance, provenance_line, resolve
-from lanecast.models.evaluation import (
-    always_straight,
-    evaluate,
-    example_scenes,
-    out_of_distribution_note,
-    speed_band_note,
-    write_metrics,
-)
-from lanecast.models.predictions import Forecaster
-from lanecast.models.reports.document import write_report
-from lanecast.models.reports.tables import headline, model_name
 from lanecast.workflows.arguments import MANEUVER_SEQUENCES, MAX_EXAMPLES, integer
 from lanecast.workflows.vocabulary import HelpFormatter, add_force_option, add_model_option
 
@@ -70,9 +53,25 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
     import torch  # heavy: loaded when the command runs, not for `lanecast --help`
 
+    from lanecast.io_adapters.files import activity, check_output_dir, staged_files
+    from lanecast.io_adapters.windows_store.dataset import load_windows
+    from lanecast.models.baselines import constant_acceleration, constant_velocity
+    from lanecast.models.card import provenance, provenance_line, resolve
+    from lanecast.models.evaluation import (
+        always_straight,
+        evaluate,
+        example_scenes,
+        out_of_distribution_note,
+        speed_band_note,
+        write_metrics,
+    )
     from lanecast.models.predict import STCNNForecaster
+    from lanecast.models.predictions import Forecaster
+    from lanecast.models.reports.document import write_report
+    from lanecast.models.reports.tables import headline, model_name
 
     check_output_dir(
         args.out, files=("metrics.json", "report.md", "report.html"), force=args.force

@@ -11,25 +11,18 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
-import pyarrow as pa
-import pyarrow.compute as pc
-
-from lanecast.io_adapters.contracts.windows import DATASET_FILES, HISTORY, Windows
 from lanecast.io_adapters.errors import InputError
-from lanecast.io_adapters.files import activity, check_output_dir, staged_files
 from lanecast.io_adapters.formats import registry
-from lanecast.io_adapters.windows_store.dataset import load_windows
-from lanecast.models.card import provenance, provenance_line
-from lanecast.models.explain import parse_removals, present_neighbours, what_if
-from lanecast.models.reports.explain import write_explain
-from lanecast.models.runtime import load_forecaster
-from lanecast.pipeline.make_windows import make_windows
-from lanecast.pipeline.neighbours import NEIGHBOUR_RANGE_M
 from lanecast.workflows.arguments import MANEUVER_SEQUENCES, MAX_TIME_S, integer, number
 from lanecast.workflows.vocabulary import HelpFormatter, add_force_option, add_model_option
+
+if TYPE_CHECKING:  # the parser (--help) imports none of the work's modules
+    import numpy as np
+    import pyarrow as pa
+
+    from lanecast.io_adapters.contracts.windows import Windows
 
 STEP_NS = 100_000_000  # windows sit on the 10 Hz grid
 
@@ -86,6 +79,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def pick_window(windows: Windows, track: int, t0_ns: int, recording: str | None, source: Path) -> int:
     """Index of the window of ``track`` (in ``recording``) whose t0 is within half a frame of ``t0_ns``."""
+    import numpy as np
+
     index = windows.index
     ok = index.column("track_id").to_numpy() == track
     rec = index.column("recording").to_numpy(zero_copy_only=False).astype(str)
@@ -130,6 +125,8 @@ def nearest_on_stride(t0: np.ndarray, t0_ns: int) -> tuple[int, int] | None:
     """(the window t0 nearest to ``t0_ns``, the stride), both ns, when ``t0_ns`` lies between two of
     a track's window times ``t0`` [M] no more than one stride apart (a dataset cut with
     ``--stride``), else None."""
+    import numpy as np
+
     times = np.unique(t0)
     after = int(np.searchsorted(times, t0_ns))
     if after == 0 or after == len(times):
@@ -144,6 +141,13 @@ def nearest_on_stride(t0: np.ndarray, t0_ns: int) -> tuple[int, int] | None:
 def window_of(args: argparse.Namespace, card: dict[str, Any]) -> tuple[Windows, int]:
     """The windows INPUT gives (a dataset as it is, or cut at --time from a table or log) and the index of
     the target's window."""
+    import numpy as np
+
+    from lanecast.io_adapters.contracts.windows import DATASET_FILES
+    from lanecast.io_adapters.windows_store.dataset import load_windows
+    from lanecast.pipeline.make_windows import make_windows
+    from lanecast.pipeline.neighbours import NEIGHBOUR_RANGE_M
+
     t0_ns = round(args.time * 10) * STEP_NS
     # A directory with any file of a windows dataset is one: one missing is load_windows' to name
     # (not read as a Parquet track table dataset of its windows.parquet).
@@ -172,6 +176,10 @@ def no_window_in_table(
 ) -> InputError:
     """Why a table or log has no window of ``track`` at ``t0_ns``, with the times it has one at
     (a log's clock is its own: the --help example's time is no time in another log)."""
+    import pyarrow.compute as pc
+
+    from lanecast.io_adapters.contracts.windows import HISTORY
+
     rows = pc.equal(table.column("track_id"), track)
     if recording is not None:
         rows = pc.and_(rows, pc.equal(table.column("recording"), recording))
@@ -201,6 +209,14 @@ def no_window_in_table(
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from lanecast.io_adapters.files import activity, check_output_dir, staged_files
+    from lanecast.models.card import provenance, provenance_line
+    from lanecast.models.explain import parse_removals, present_neighbours, what_if
+    from lanecast.models.reports.explain import write_explain
+    from lanecast.models.runtime import load_forecaster
+
     check_output_dir(args.out, files=("explain.json", "explain.html"), force=args.force)  # before the work
     forecaster = load_forecaster(args.model)
     card: dict[str, Any] = getattr(forecaster, "card", None) or {}

@@ -5,11 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from lanecast.io_adapters.contracts import track_table
-from lanecast.io_adapters.contracts.track_summary import summarise
 from lanecast.io_adapters.formats import registry
-from lanecast.io_adapters.logs.topics import forecast_model, log_topics
-from lanecast.pipeline.traffic import traffic_statistics
 from lanecast.workflows.vocabulary import HelpFormatter, add_location_option
 
 
@@ -46,6 +42,10 @@ def run(args: argparse.Namespace) -> int:
 
 
 def summarise_input(paths: list[Path], args: argparse.Namespace) -> None:
+    from lanecast.io_adapters.contracts import track_table
+    from lanecast.io_adapters.contracts.track_summary import summarise
+    from lanecast.pipeline.traffic import traffic_statistics
+
     formats = sorted({args.format or registry.detect(p) for p in paths})
     table = registry.read_any(
         paths, fmt=args.format, **({"location": args.location} if args.location else {})
@@ -94,6 +94,8 @@ def summarise_input(paths: list[Path], args: argparse.Namespace) -> None:
 
 def print_topics(path: Path) -> None:
     """A log's topics with their message types and counts (lanecast's own forecasts among them)."""
+    from lanecast.io_adapters.logs.topics import forecast_model, log_topics
+
     topics = log_topics(path)
     print(f"  topics of {path} ({len(topics)}; messages, type, encoding):")
     width = max([24, *(len(t.topic) + 2 for t in topics)])

@@ -8,9 +8,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from lanecast.io_adapters.files import check_output_dir
-from lanecast.workflows.annotation.log_scores import report_logs
-from lanecast.workflows.annotation.predictor_report import report_predictors
 from lanecast.workflows.arguments import MAX_EXAMPLES, integer
 from lanecast.workflows.vocabulary import HelpFormatter, add_force_option, add_model_option
 
@@ -50,6 +47,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from lanecast.io_adapters.files import check_output_dir
+    from lanecast.workflows.annotation.log_scores import report_logs
+    from lanecast.workflows.annotation.predictor_report import report_predictors
+
     check_output_dir(args.out, files=("metrics.json", "report.md", "report.html"), force=args.force)
     if args.predictions is not None:
         topics = [t for t in args.predictions if t]

@@ -12,13 +12,7 @@ import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from lanecast.io_adapters import json_fields as jf
 from lanecast.io_adapters.errors import InputError, UsageError
-from lanecast.io_adapters.files import check_output_dir
-from lanecast.io_adapters.windows_store.dataset import load_windows
-from lanecast.models.baselines import constant_velocity
-from lanecast.models.card import read_card, resolve
-from lanecast.models.evaluation import evaluate
 
 if TYPE_CHECKING:
     from lanecast.models.finetune import FinetuneOptions
@@ -113,16 +107,22 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def shipped_defaults() -> dict[str, Any]:
-    """The shipped model's training settings, read from its card (torch-free: for ``--help``)."""
+    """The shipped model's training settings, read from its card's JSON (for ``--help``: no numpy,
+    no torch; the card is package data, checked whenever the model is loaded)."""
+    import json
+
+    from lanecast.models.card import resolve
+
     try:
-        config = read_card(resolve(None)[1])["training"]["config"]
-    except (InputError, KeyError, TypeError):
+        config = json.loads(resolve(None)[1].read_text(encoding="utf-8"))["training"]["config"]
+    except (InputError, OSError, ValueError, KeyError, TypeError):
         return {}
     return config if isinstance(config, dict) else {}
 
 
 def default_config() -> TrainConfig:
     """The shipped model's training config (architecture and hyper-parameters), else the code defaults."""
+    from lanecast.models.card import read_card, resolve
     from lanecast.models.train import TrainConfig
 
     try:
@@ -203,7 +203,10 @@ def train_and_save(
     """Train (from the weights of model ``init`` if given, "default" = the shipped model), evaluate
     on val and test (if present), save; return the card. ``keep``: how a fine-tune keeps the init
     model's skills (lanecast.models.finetune; default FinetuneOptions())."""
+    from lanecast.io_adapters.windows_store.dataset import load_windows
+    from lanecast.models.baselines import constant_velocity
     from lanecast.models.checkpoint import save_checkpoint
+    from lanecast.models.evaluation import evaluate
     from lanecast.models.predict import STCNNForecaster
     from lanecast.models.train import train
 
@@ -244,6 +247,7 @@ def train_and_save(
 
 
 def run(args: argparse.Namespace) -> int:
+    from lanecast.io_adapters.files import check_output_dir
     from lanecast.models.train import TrainConfig
 
     check_output_dir(
@@ -290,6 +294,8 @@ def finetune_options(
     """With --init: how to keep the init model (--keep-base, --classifier) and the config with
     fine-tuning's learning rate and epochs where neither an option nor --config set them; None
     without --init (where --keep-base and --classifier are refused)."""
+    from lanecast.io_adapters import json_fields as jf
+
     if args.init is None:
         for name in ("keep_base", "classifier"):
             if getattr(args, name) is not None:

@@ -6,12 +6,9 @@ import argparse
 import time
 from pathlib import Path
 
-from lanecast.io_adapters.contracts.windows import DATASET_FILES
-from lanecast.io_adapters.files import ANY_FILES, activity, check_output_dir
-from lanecast.io_adapters.formats import registry, streaming
-from lanecast.pipeline.make_windows import WindowOptions, write_windows
+from lanecast.io_adapters.formats import registry
 from lanecast.workflows.arguments import MAX_SEED, integer, number
-from lanecast.workflows.bulk import backends, freed_memory
+from lanecast.workflows.bulk import backends
 from lanecast.workflows.vocabulary import HelpFormatter, add_force_option, add_location_option
 
 
@@ -85,6 +82,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from lanecast.io_adapters.contracts.windows import DATASET_FILES
+    from lanecast.io_adapters.files import ANY_FILES, activity, check_output_dir
+    from lanecast.io_adapters.formats import streaming
+    from lanecast.pipeline.make_windows import WindowOptions, write_windows
+    from lanecast.workflows.bulk import freed_memory
+
     started = time.perf_counter()
     # before the work: a file there, or a directory holding a user's files, was refused at the end
     check_output_dir(args.out, replaces=ANY_FILES if args.force else DATASET_FILES)

@@ -18,12 +18,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol, cast
 
-import pyarrow as pa
-
-from lanecast.io_adapters.contracts import track_table
-from lanecast.io_adapters.datasets.csv_errors import not_text
 from lanecast.io_adapters.errors import FormatNotRecognisedError, UsageError
-from lanecast.io_adapters.files import check_input, first_of
+
+if TYPE_CHECKING:  # the registry is read by every command's parser: pyarrow and files only when used
+    import pyarrow as pa
 
 
 class ReaderModule(Protocol):
@@ -102,6 +100,9 @@ PARQUET = "parquet"  # the track table's own format, which every piece of a data
 _LOGS = "lanecast.io_adapters.logs"
 _DATASETS = "lanecast.io_adapters.datasets"
 _LOG_OPTIONS = frozenset({"topic", "fixed_frames"})
+#: rosbag2 storage plugins the ROS 2 writer writes (the first is the default)
+ROS2_STORAGES = ("mcap", "sqlite3")
+
 READERS: dict[str, Reader] = {
     r.name: r
     for r in (
@@ -174,6 +175,9 @@ SUFFIX_MAGIC = {
 
 def detect(path: str | Path) -> str:
     """The name of the format of ``path`` (a file, or a directory such as a ROS 2 bag)."""
+    from lanecast.io_adapters.datasets.csv_errors import not_text
+    from lanecast.io_adapters.files import check_input, first_of
+
     path = check_input(path)
     for fmt, entry in READERS.items():
         if entry.sniff(path):
@@ -249,6 +253,8 @@ def logs_in(folder: Path) -> list[Path]:
 
 def expand(paths: Sequence[str | Path]) -> list[Path]:
     """``paths`` with each folder of drive logs replaced by the logs in it (:func:`logs_in`)."""
+    from lanecast.io_adapters.files import check_input
+
     out: list[Path] = []
     for p in map(check_input, paths):
         out += logs_in(p) or [p]
@@ -258,6 +264,8 @@ def expand(paths: Sequence[str | Path]) -> list[Path]:
 def group_by_format(paths: Sequence[str | Path], fmt: str | None = None) -> dict[str, list[Path]]:
     """``paths`` by format (detected per path unless ``fmt``; a folder of drive logs is its logs),
     each checked by :func:`check_input` before any reader opens it (a FIFO would block)."""
+    from lanecast.io_adapters.files import check_input
+
     groups: dict[str, list[Path]] = {}
     for p in expand(paths) if fmt is None else map(check_input, paths):
         groups.setdefault(reader(fmt).name if fmt else detect(p), []).append(p)
@@ -267,6 +275,8 @@ def group_by_format(paths: Sequence[str | Path], fmt: str | None = None) -> dict
 def read_any(paths: Sequence[str | Path], fmt: str | None = None, **options: Any) -> pa.Table:
     """Read inputs of any supported format into one track table; each reader gets the options it
     takes (``location`` goes to NGSIM only), an option no reader takes is an error."""
+    from lanecast.io_adapters.contracts import track_table
+
     options = reader_options(options)
     groups = group_by_format(paths, fmt)
     tables = [READERS[name].read(group, READERS[name].accepted(options)) for name, group in groups.items()]

@@ -40,3 +40,37 @@ def test_a_command_builds_its_own_parser_and_lists_the_others() -> None:
     assert set(sub.choices) == set(SUMMARIES)
     assert any(a.dest == "paths" for a in sub.choices["info"]._actions)
     assert not any(a.dest == "inputs" for a in sub.choices["convert"]._actions)
+
+
+HEAVY = (
+    "numpy",
+    "pyarrow",
+    "pandas",
+    "torch",
+    "onnxruntime",
+    "scipy",
+    "mcap",
+    "rosbags",
+    "tqdm",
+    "matplotlib",
+)
+
+
+def test_every_commands_help_imports_none_of_the_work() -> None:
+    """`lanecast <command> --help` reads the parser alone: no array, table, log or model library
+    (each costs 0.1–2 s of start-up that a user waiting for a help text should not pay)."""
+    probe = f"""
+import sys
+from lanecast.workflows.cli import main
+for command in sys.argv[1:]:
+    try:
+        main([command, "--help"])
+    except SystemExit:
+        pass
+print("heavy:" + ",".join(sorted({{m.split(".")[0] for m in sys.modules}} & set({HEAVY!r}))))
+"""
+    done = subprocess.run(
+        [sys.executable, "-c", probe, *SUMMARIES], capture_output=True, text=True, check=True
+    )
+    assert "usage: lanecast simulate" in done.stdout and "usage: lanecast train" in done.stdout
+    assert done.stdout.strip().splitlines()[-1] == "heavy:", done.stdout[-400:]

@@ -20,7 +20,7 @@ from typing import Any, TypeVar
 
 from lanecast.io_adapters.errors import InputError, LanecastError
 from lanecast.workflows.arguments import MAX_WORKERS, integer
-from lanecast.workflows.bulk import freed_memory, ray_backend
+from lanecast.workflows.bulk import ray_backend
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -85,6 +85,8 @@ def ordered_map(
         for item in items:
             yield fn(item)
     else:
+        from lanecast.workflows.bulk import freed_memory  # pyarrow: only where work runs
+
         with ProcessPoolExecutor(
             max_workers=workers,
             mp_context=mp.get_context("spawn"),
@@ -117,6 +119,8 @@ def mapper_from_args(
 
 
 def _call(fn: Callable[[T], R], item: T) -> R:
+    from lanecast.workflows.bulk import freed_memory
+
     freed_memory.keep_freed_memory()  # once per Ray worker process
     return fn(item)
 

@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import argparse
 import os
+from typing import TYPE_CHECKING
 
-from lanecast.io_adapters.datasets.csp.inputs import Resample
-from lanecast.io_adapters.datasets.csp.writer import check_csp_output, write_csp
 from lanecast.io_adapters.errors import InputError, UsageError
-from lanecast.io_adapters.files import check_input
 from lanecast.io_adapters.formats import registry
+
+if TYPE_CHECKING:  # read by convert's parser: the writer only when --to csp runs
+    from lanecast.io_adapters.datasets.csp.inputs import Resample
 
 FORMATS = ("ngsim", "highd")
 HELP = (
@@ -21,6 +22,8 @@ HELP = (
 
 def input_format(inputs: list[str], fmt: str | None) -> str:
     """``ngsim`` or ``highd``: the one format of every input (``--format`` or detected)."""
+    from lanecast.io_adapters.files import check_input
+
     found = {fmt or registry.detect(check_input(p)) for p in inputs}
     if len(found) != 1 or not found <= set(FORMATS):
         raise UsageError(
@@ -33,6 +36,8 @@ def input_format(inputs: list[str], fmt: str | None) -> str:
 
 def run_csp(args: argparse.Namespace, resample: Resample | None = None) -> int:
     """Check the output directory, then write the sets; prints the dataset ids it gave."""
+    from lanecast.io_adapters.datasets.csp.writer import check_csp_output, write_csp
+
     check_csp_output(args.out)
     fmt = input_format(list(args.inputs), args.format)
     if os.path.realpath(args.out) in {os.path.realpath(p) for p in args.inputs}:

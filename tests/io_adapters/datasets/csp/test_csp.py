@@ -14,8 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lanecast.io_adapters.datasets.csp import fields, inputs, sets, write_csp
+from lanecast.io_adapters.datasets.csp import fields, inputs, sets
 from lanecast.io_adapters.datasets.csp.sets import Dataset
+from lanecast.io_adapters.datasets.csp.writer import write_csp
 from lanecast.io_adapters.errors import InputError, OutputError
 from lanecast.pipeline.resample import resample
 from lanecast.workflows import cli
