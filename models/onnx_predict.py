@@ -4,10 +4,11 @@ One ``session.run`` per batch does the whole library path (normalise, classify, 
 regress, de-normalise); Python only slices batches. ``onnx_file`` tells whether a card's ONNX export
 still matches its weights (a retrained model leaves a stale file behind: it is never used).
 
-Threads: one intra-op thread per process by default (``LANECAST_THREADS`` overrides), threads that
-sleep instead of spinning when idle. On a shared machine a second thread per process bought nothing
-and cost up to 10× under contention (BENCHMARKS.md, "Inference"); use more cores through more worker
-processes (``lanecast annotate --workers N``), one per core.
+Threads (:func:`default_threads`): the cores this process may use, less those the machine's other
+work keeps busy (the 1-minute load average), shared among the worker processes of a bulk run
+(``--workers N``), at least one; ``LANECAST_THREADS`` overrides. Idle threads sleep instead of
+spinning. A single process on an idle machine gets every core (batch 256 runs faster on two); under
+load or beside other workers one thread each, as more threads then only contend (BENCHMARKS.md).
 """
 
 from __future__ import annotations
@@ -24,12 +25,27 @@ from lanecast.models.predictions import Predictions
 
 #: Environment variable overriding the intra-op threads of an ONNX Runtime session.
 THREADS_ENV = "LANECAST_THREADS"
+#: Environment variable a bulk run's worker processes carry: how many share the machine.
+WORKERS_ENV = "LANECAST_WORKERS"
+
+
+def choose_threads(cores: int, load: float, workers: int = 1) -> int:
+    """Intra-op threads for each of ``workers`` processes on ``cores`` cores of which the machine's
+    other work keeps ``load`` busy (1-minute load average): the free cores shared out, at least 1."""
+    free = min(cores, cores - round(load))
+    return max(1, free // max(1, workers))
 
 
 def default_threads() -> int:
-    """Intra-op threads per process: ``$LANECAST_THREADS`` or 1."""
+    """Intra-op threads for this process: ``$LANECAST_THREADS``, else :func:`choose_threads` of the
+    cores it may run on, the load average and ``$LANECAST_WORKERS`` (set in a bulk run's workers)."""
     value = os.environ.get(THREADS_ENV, "")
-    return max(1, int(value)) if value.strip().isdigit() else 1
+    if value.strip().isdigit():
+        return max(1, int(value))
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else 0.0
+    workers = os.environ.get(WORKERS_ENV, "1")
+    return choose_threads(cores, load, int(workers) if workers.isdigit() else 1)
 
 
 #: What the exported graph computes, recorded in the card at export: 1 forward-only forecasts, 2 also
@@ -72,6 +88,11 @@ class OnnxForecaster:
         self.card = card
         self.name = name
         self._outputs = ["probs", "maneuver", "top_sequences", "top_probs", "top_offsets"]
+        self._k: dict[int, np.ndarray] = {}  # the graph's ``k`` input per top_k, made once
+        # ONNX Runtime's compiled session behind its Python wrapper, whose per-call input-name check
+        # (a few µs: the feed here is always the graph's three inputs) is most of a batch-1 call's
+        # overhead; the wrapper where a build has no such attribute
+        self._compiled: Any = getattr(session, "_sess", None)
 
     @classmethod
     def from_file(
@@ -103,23 +124,35 @@ class OnnxForecaster:
         ``top_k`` = 0 still regresses the argmax sequence but returns no alternatives (K = 1 kept).
         """
         n = inputs.shape[0]
-        k = np.asarray(max(top_k, 1), np.int64)
         if n == 0:
-            return empty_predictions(int(k))
-        parts = [
-            self.session.run(
-                self._outputs,
-                {
-                    "inputs": np.ascontiguousarray(inputs[s : s + batch_size], np.float32),
-                    "present": np.ascontiguousarray(present[s : s + batch_size], np.bool_),
-                    "k": k,
-                },
+            return empty_predictions(max(top_k, 1))
+        k = self._k.get(top_k)
+        if k is None:
+            k = self._k[top_k] = np.asarray(max(top_k, 1), np.int64)
+        run, outputs = self.session.run, self._outputs
+        if n <= batch_size and self._compiled is not None:  # batch 1 pays about the engine alone
+            probs, maneuver, sequences, top_probs, top_offsets = self._compiled.run(
+                outputs, {"inputs": _float32(inputs), "present": _bool(present), "k": k}, None
             )
-            for s in range(0, n, batch_size)
-        ]
-        probs, maneuver, sequences, top_probs, top_offsets = (
-            p[0] if len(parts) == 1 else np.concatenate(p) for p in zip(*parts, strict=True)
-        )
+        elif n <= batch_size:  # one call: no slicing, no concatenation
+            probs, maneuver, sequences, top_probs, top_offsets = run(
+                outputs, {"inputs": _float32(inputs), "present": _bool(present), "k": k}
+            )
+        else:
+            parts = [
+                run(
+                    outputs,
+                    {
+                        "inputs": _float32(inputs[s : s + batch_size]),
+                        "present": _bool(present[s : s + batch_size]),
+                        "k": k,
+                    },
+                )
+                for s in range(0, n, batch_size)
+            ]
+            probs, maneuver, sequences, top_probs, top_offsets = (
+                np.concatenate(p) for p in zip(*parts, strict=True)
+            )
         return Predictions(
             offsets=top_offsets[:, 0],  # the top sequence is the per-step argmax
             probs=probs,
@@ -128,6 +161,15 @@ class OnnxForecaster:
             top_probs=top_probs,
             top_offsets=top_offsets,
         )
+
+
+def _float32(a: np.ndarray) -> np.ndarray:
+    """``a`` as the C-contiguous float32 array the graph takes (no copy when it is one already)."""
+    return a if a.dtype == np.float32 and a.flags.c_contiguous else np.ascontiguousarray(a, np.float32)
+
+
+def _bool(a: np.ndarray) -> np.ndarray:
+    return a if a.dtype == np.bool_ and a.flags.c_contiguous else np.ascontiguousarray(a, np.bool_)
 
 
 def empty_predictions(k: int, horizon: int = 5, classes: int = 3) -> Predictions:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -209,3 +210,34 @@ def test_export_refuses_a_users_onnx_file_and_replaces_it_with_force(
     assert main(["export", str(model_copy), "--to", "onnx", "--out", str(out), "--force"]) == 0
     assert users.read_bytes().startswith(b"\x08")  # an ONNX protobuf (ir_version field) now
     assert main(["export", str(model_copy), "--to", "onnx", "--out", str(out)]) == 0  # its own: replaced
+
+
+def test_threads_are_the_free_cores_shared_among_workers(monkeypatch: pytest.MonkeyPatch) -> None:
+    from lanecast.models.onnx_predict import THREADS_ENV, WORKERS_ENV, choose_threads, default_threads
+
+    assert choose_threads(cores=2, load=0.3) == 2  # an idle machine: every core
+    assert choose_threads(cores=2, load=1.2) == 1  # one core busy elsewhere
+    assert choose_threads(cores=2, load=9.0) == 1  # loaded: never below one
+    assert choose_threads(cores=8, load=0.0, workers=4) == 2  # four workers share eight cores
+    assert choose_threads(cores=8, load=2.0, workers=4) == 1
+    assert choose_threads(cores=8, load=0.0, workers=16) == 1
+    monkeypatch.setenv(THREADS_ENV, "3")
+    assert default_threads() == 3  # the user's word first
+    monkeypatch.delenv(THREADS_ENV)
+    monkeypatch.setenv(WORKERS_ENV, "64")
+    assert default_threads() == 1
+    monkeypatch.delenv(WORKERS_ENV)
+    assert 1 <= default_threads() <= (os.cpu_count() or 1)
+
+
+def test_a_batch_of_one_predicts_as_a_batch_of_many(windows) -> None:  # type: ignore[no-untyped-def]
+    """The one-call path (the compiled session, no slicing) gives what the batched path gives."""
+    forecaster = load_forecaster(None, engine="onnx")
+    inputs, present = np.asarray(windows.inputs[:7]), np.asarray(windows.present[:7])
+    many = forecaster.predict(inputs, present, batch_size=3)
+    ones = [forecaster.predict(inputs[i : i + 1], present[i : i + 1], batch_size=1) for i in range(7)]
+    for name in ("offsets", "probs", "top_sequences", "top_offsets"):
+        np.testing.assert_allclose(
+            np.concatenate([getattr(o, name) for o in ones]), getattr(many, name), rtol=1e-5, atol=1e-5
+        )
+    assert forecaster.predict(inputs.astype(np.float64), present, top_k=1).top_offsets.shape == (7, 1, 5, 2)

@@ -12,6 +12,7 @@ import argparse
 import contextlib
 import functools
 import multiprocessing as mp
+import os
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor
@@ -85,12 +86,11 @@ def ordered_map(
         for item in items:
             yield fn(item)
     else:
-        from lanecast.workflows.bulk import freed_memory  # pyarrow: only where work runs
-
         with ProcessPoolExecutor(
             max_workers=workers,
             mp_context=mp.get_context("spawn"),
-            initializer=freed_memory.keep_freed_memory,
+            initializer=_start_worker,
+            initargs=(workers,),
         ) as pool:
             pending: deque[Future[R]] = deque()
             for item in items:
@@ -118,9 +118,19 @@ def mapper_from_args(
     )
 
 
+def _start_worker(workers: int) -> None:
+    """A local worker process: ``workers`` share the machine (each model's threads: their share of
+    the free cores, lanecast.models.onnx_predict.default_threads); freed memory kept for reuse."""
+    from lanecast.workflows.bulk import freed_memory  # pyarrow: only where work runs
+
+    os.environ["LANECAST_WORKERS"] = str(workers)
+    freed_memory.keep_freed_memory()
+
+
 def _call(fn: Callable[[T], R], item: T) -> R:
     from lanecast.workflows.bulk import freed_memory
 
+    os.environ.setdefault("LANECAST_THREADS", "1")  # a Ray task holds one CPU
     freed_memory.keep_freed_memory()  # once per Ray worker process
     return fn(item)
 
