@@ -42,7 +42,7 @@ ROOT = Path(__file__).resolve().parents[1]
 STAGE_ALONE = """
 import sys, time
 from lanecast.io_adapters.formats import streaming
-from lanecast.pipeline.make_windows import write_windows
+from lanecast.pipeline.write_windows import write_windows
 import lanecast.io_adapters.datasets.highd.reader  # the reader's imports too: not the stage's work
 start = time.perf_counter()
 with streaming.spill_directory(sys.argv[2]) as spill:

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-from importlib import metadata
 from pathlib import Path
 from typing import Any
 
@@ -25,10 +24,10 @@ SHIPPED_STEM = "stcnn-sumo"
 
 
 def lanecast_version() -> str:
-    try:
-        return metadata.version("lanecast")
-    except metadata.PackageNotFoundError:
-        return "unknown"
+    """The installed lanecast's version (the package's ``__version__``)."""
+    from lanecast import __version__
+
+    return __version__
 
 
 def resolve(model: Path | str | None) -> tuple[Path, Path]:

@@ -85,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
     from lanecast.io_adapters.contracts.windows import DATASET_FILES
     from lanecast.io_adapters.files import ANY_FILES, activity, check_output_dir
     from lanecast.io_adapters.formats import streaming
-    from lanecast.pipeline.make_windows import WindowOptions, write_windows
+    from lanecast.pipeline.write_windows import WindowOptions, write_windows
     from lanecast.workflows.bulk import freed_memory
 
     started = time.perf_counter()

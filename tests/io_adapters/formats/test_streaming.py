@@ -25,7 +25,8 @@ from lanecast.io_adapters.errors import InputError, TrackTableError
 from lanecast.io_adapters.formats import registry, streaming
 from lanecast.io_adapters.windows_store.dataset import load_windows
 from lanecast.io_adapters.windows_store.npy_append import NpyAppender
-from lanecast.pipeline.make_windows import WindowOptions, make_windows, write_windows
+from lanecast.pipeline.make_windows import make_windows
+from lanecast.pipeline.write_windows import WindowOptions, write_windows
 from lanecast.workflows.cli import main
 
 ARRAYS = ("inputs", "present", "future", "maneuver")
