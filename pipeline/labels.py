@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from lanecast.io_adapters.contracts.track_runs import lane_change_starts, row_extent, run_starts
-from lanecast.pipeline.neighbours import Columns
+from lanecast.pipeline.neighbour_columns import Columns
 
 STRAIGHT, LEFT, RIGHT, UNKNOWN = 0, 1, 2, -1
 WINDOW_S = 2.0

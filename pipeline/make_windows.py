@@ -35,6 +35,7 @@ from lanecast.io_adapters.contracts.windows import (
 )
 from lanecast.io_adapters.errors import InputError
 from lanecast.pipeline import labels as labels_mod
+from lanecast.pipeline import neighbour_columns as nb_cols
 from lanecast.pipeline import neighbours as nb_mod
 from lanecast.pipeline import window_tensors as wt
 from lanecast.pipeline.resample import GAP_FACTOR, RATE_HZ, resample_with_physics, step_ns
@@ -58,8 +59,8 @@ def make_windows(
     seed: int = 0,
     t0_ns: np.ndarray | None = None,
     neighbours: str = "auto",
-    lane_width: float = nb_mod.LANE_WIDTH,
-    neighbour_range: float = nb_mod.NEIGHBOUR_RANGE_M,
+    lane_width: float = nb_cols.LANE_WIDTH,
+    neighbour_range: float = nb_cols.NEIGHBOUR_RANGE_M,
     allow_empty: bool = False,
     max_rows: int = MAX_ROWS,
     workers: int = wt.WORKERS,
@@ -218,7 +219,7 @@ def recording_groups(table: pa.Table, max_rows: int) -> list[tuple[int, int]]:
 class _Prep:
     """One group of recordings resampled, with neighbours, labels and window rows."""
 
-    cols: nb_mod.Columns
+    cols: nb_cols.Columns
     neighbour_rows: np.ndarray
     labels: np.ndarray
     t0_rows: np.ndarray
@@ -247,7 +248,7 @@ def prepare_group(
     timings["resample_s"] = time.perf_counter() - t
     t = time.perf_counter()
     # resampling changes rates, not coordinate frames; its float64 results are used as computed
-    cols = nb_mod.columns(table10, meta=meta, physics=physics)
+    cols = nb_cols.columns(table10, meta=meta, physics=physics)
     nb = nb_mod.neighbour_rows(
         table10, cols, method=neighbours, lane_width=lane_width, max_range_m=neighbour_range
     )
@@ -355,7 +356,7 @@ def splits_of_windows(
 
 
 def _skipped(
-    cols: nb_mod.Columns, t0_rows: np.ndarray, back: np.ndarray, require_future: bool
+    cols: nb_cols.Columns, t0_rows: np.ndarray, back: np.ndarray, require_future: bool
 ) -> dict[str, str]:
     """Recordings without a single window and why (for the manifest and error messages)."""
     n_rec = cols.names.size

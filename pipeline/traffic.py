@@ -20,7 +20,7 @@ import numpy as np
 import pyarrow as pa
 
 from lanecast.io_adapters.contracts import track_table
-from lanecast.pipeline.neighbours import columns, road_coordinates
+from lanecast.pipeline.neighbour_columns import columns, road_coordinates
 
 SPEED_PERCENTILES = (5, 25, 50, 75, 95)
 LATERAL_PERCENTILES = (50, 95, 99)

@@ -18,7 +18,7 @@ import numpy as np
 
 from lanecast.io_adapters.contracts.track_runs import row_extent, run_starts
 from lanecast.io_adapters.contracts.windows import HISTORY, HORIZONS, ROWS, TARGET_ROW
-from lanecast.pipeline.neighbours import SLOTS, Columns
+from lanecast.pipeline.neighbour_columns import SLOTS, Columns
 
 FUTURE = 50  # frames at 10 Hz after t0 that the targets need
 HORIZON_STEP = 10  # frames between future steps (1 s)

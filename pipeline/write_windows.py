@@ -27,7 +27,7 @@ from lanecast.io_adapters.datasets.parquet.pieces import Chunk
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.formats.pieces import Piece, uncut
 from lanecast.io_adapters.windows_store.dataset import DatasetWriter, load_windows, save_shard
-from lanecast.pipeline import neighbours as nb_mod
+from lanecast.pipeline import neighbour_columns as nb_cols
 from lanecast.pipeline import window_tensors as wt
 from lanecast.pipeline.make_windows import (
     build_manifest,
@@ -52,8 +52,8 @@ class WindowOptions:
     split: str = "pip"
     seed: int = 0
     neighbours: str = "auto"
-    lane_width: float = nb_mod.LANE_WIDTH
-    neighbour_range: float = nb_mod.NEIGHBOUR_RANGE_M
+    lane_width: float = nb_cols.LANE_WIDTH
+    neighbour_range: float = nb_cols.NEIGHBOUR_RANGE_M
 
     def check(self) -> None:
         if self.stride < 1:
@@ -151,7 +151,7 @@ def chunk_method(chunk: Chunk, meta: track_table.TableMeta, method: str) -> str:
     every row has a lane id, else bands), as the unchunked recording decides it."""
     if method != "auto":
         return method
-    if set(nb_mod.SOURCE_COLUMNS.values()) <= set(chunk.ids_given):
+    if set(nb_cols.SOURCE_COLUMNS.values()) <= set(chunk.ids_given):
         return "source"
     road = meta.recordings[chunk.recording].coordinate_frame == "road"
     return "lanes" if chunk.lanes_everywhere and road else "bands"

@@ -146,7 +146,7 @@ def window_of(args: argparse.Namespace, card: dict[str, Any]) -> tuple[Windows, 
     from lanecast.io_adapters.contracts.windows import DATASET_FILES
     from lanecast.io_adapters.windows_store.dataset import load_windows
     from lanecast.pipeline.make_windows import make_windows
-    from lanecast.pipeline.neighbours import NEIGHBOUR_RANGE_M
+    from lanecast.pipeline.neighbour_columns import NEIGHBOUR_RANGE_M
 
     t0_ns = round(args.time * 10) * STEP_NS
     # A directory with any file of a windows dataset is one: one missing is load_windows' to name

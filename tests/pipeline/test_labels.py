@@ -10,7 +10,7 @@ from conftest import make_track_table
 
 from lanecast.pipeline.labels import lane_changes, row_labels
 from lanecast.pipeline.make_windows import make_windows
-from lanecast.pipeline.neighbours import columns
+from lanecast.pipeline.neighbour_columns import columns
 
 
 def track_table(

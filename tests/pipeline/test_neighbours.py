@@ -13,6 +13,7 @@ from conftest import LANE, SEVEN, SEVEN_EXPECTED, make_track_table
 
 from lanecast.io_adapters.contracts.track_table import RecordingMeta, TableMeta, build_table
 from lanecast.io_adapters.errors import TrackTableError
+from lanecast.pipeline import neighbour_columns as ncols
 from lanecast.pipeline import neighbours as nbm
 
 
@@ -91,7 +92,7 @@ def test_lane_numbering_towards_minus_y_gives_the_same_slots() -> None:
 def test_alongside_is_longitudinal_overlap(dx: float, slot: str) -> None:
     """Two 4.5 m cars overlap while |dx| < 4.5 m."""
     table = scene({1: (2, 0.0), 2: (3, dx)})
-    got = dict(zip(nbm.SLOTS, ids_of(table, 1)[0], strict=True))
+    got = dict(zip(ncols.SLOTS, ids_of(table, 1)[0], strict=True))
     assert got[slot] == 2
     assert sum(v == 2 for v in got.values()) == 1
 
@@ -100,20 +101,20 @@ def test_truck_alongside_overlap_uses_both_lengths() -> None:
     """A 16 m truck overlaps a 4.5 m car while |dx| < 10.25 m; the nearest overlapping one is L."""
     lengths = {1: 16.0}
     table = scene({1: (2, 0.0), 2: (3, 10.0), 3: (3, 3.0), 4: (3, -10.3)}, lengths=lengths)
-    got = dict(zip(nbm.SLOTS, ids_of(table, 1)[0], strict=True))
+    got = dict(zip(ncols.SLOTS, ids_of(table, 1)[0], strict=True))
     assert (got["L"], got["FL"], got["RL"]) == (3, -1, 4)
 
 
 def test_nearest_front_and_rear_in_a_crowded_adjacent_lane() -> None:
     vehicles = {1: (2, 0.0)} | {10 + i: (3, float(x)) for i, x in enumerate([-60, -30, -12, 15, 40, 70])}
     table = scene(vehicles)
-    got = dict(zip(nbm.SLOTS, ids_of(table, 1)[0], strict=True))
+    got = dict(zip(ncols.SLOTS, ids_of(table, 1)[0], strict=True))
     assert (got["FL"], got["L"], got["RL"]) == (13, -1, 12)
 
 
 def test_bands_match_lanes_without_lane_ids() -> None:
     table = scene(SEVEN, lanes=False)
-    assert nbm.recording_methods(table, nbm.columns(table)) == {"r": "bands"}
+    assert nbm.recording_methods(table, ncols.columns(table)) == {"r": "bands"}
     np.testing.assert_array_equal(ids_of(table, 1)[0], SEVEN_EXPECTED)
 
 
@@ -130,11 +131,11 @@ def test_source_columns_are_used_when_present() -> None:
     # Every column has ids somewhere (car 3 claims 1 everywhere); for car 1 the source claims 3 is
     # ahead (deliberately unlike the geometry) and 9 (not in the table) is its left alongside: 3
     # is taken as given, the unknown id becomes "none", the empty slots stay empty.
-    extra = {name: np.where(tid == 3, 1, np.nan) for name in nbm.SOURCE_COLUMNS.values()}
+    extra = {name: np.where(tid == 3, 1, np.nan) for name in ncols.SOURCE_COLUMNS.values()}
     extra["preceding_id"] = np.where(tid == 1, 3, np.nan)
     extra["left_alongside_id"] = np.where(tid == 1, 9, np.where(tid == 3, 1, np.nan))
     table = scene(vehicles, extra=extra)
-    assert nbm.recording_methods(table, nbm.columns(table)) == {"r": "source"}
+    assert nbm.recording_methods(table, ncols.columns(table)) == {"r": "source"}
     np.testing.assert_array_equal(ids_of(table, 1)[0], [-1, 3, -1, -1, -1, -1, -1])
     # computed from lanes even though the source gives them
     np.testing.assert_array_equal(ids_of(table, 1, "lanes")[0], [-1, 2, -1, 3, -1, -1, -1])
@@ -146,7 +147,7 @@ def test_partial_source_columns_are_not_enough() -> None:
     tid = scene(vehicles).column("track_id").to_numpy()
     extra = {"preceding_id": np.where(tid == 1, 2, np.nan), "following_id": np.where(tid == 2, 1, np.nan)}
     table = scene(vehicles, extra=extra)
-    assert nbm.recording_methods(table, nbm.columns(table)) == {"r": "lanes"}
+    assert nbm.recording_methods(table, ncols.columns(table)) == {"r": "lanes"}
     np.testing.assert_array_equal(ids_of(table, 1)[0], [-1, 2, -1, 3, -1, -1, -1])
 
 
@@ -196,8 +197,8 @@ def test_mixed_recordings_choose_their_own_method() -> None:
 
 def test_row_index_lookup() -> None:
     table = scene({5: (2, 0.0), 9: (3, 0.0)}, n_frames=4)
-    cols = nbm.columns(table)
-    index = nbm.RowIndex(cols)
+    cols = ncols.columns(table)
+    index = ncols.RowIndex(cols)
     rows = index.rows(np.zeros(5, np.int64), np.array([5, 9, 9, 7, 5]), np.array([0, 3, 4, 0, -1]))
     np.testing.assert_array_equal(rows, [0, 7, -1, -1, -1])
 
@@ -221,7 +222,7 @@ def test_row_index_lookup_with_gaps(big_ids: bool) -> None:
     for name in ("x", "y", "heading", "vx", "vy", "ax", "ay", "length", "width"):
         cols_in[name] = np.zeros(n)
     table = build_table(cols_in, TableMeta("test", {"r": RecordingMeta(10.0)}))
-    index = nbm.RowIndex(nbm.columns(table))
+    index = ncols.RowIndex(ncols.columns(table))
     assert (index.dense is None) == big_ids
     q_track = np.array([5, 5, 5, 5, 5, 9 + far, 9 + far, 7])
     q_frame = np.array([0, 3, 5, 12, 13, 3, 10, 0])
@@ -236,7 +237,7 @@ def test_agreement_with_sumo_neighbours(sim_recording_dir: Path) -> None:
     from lanecast.pipeline.resample import resample
 
     table = resample(highd.read([sim_recording_dir]))
-    cols = nbm.columns(table)
+    cols = ncols.columns(table)
     source = nbm.neighbour_rows(table, cols, method="source").rows
     computed = nbm.neighbour_rows(table, cols, method="lanes").rows
     sid = np.where(source >= 0, cols.track[np.maximum(source, 0)], -1)
@@ -244,7 +245,7 @@ def test_agreement_with_sumo_neighbours(sim_recording_dir: Path) -> None:
     agree = sid == cid
     total = agree.mean()
     print(f"\nneighbour agreement with SUMO: {total:.4f} over {agree.size:,} (target, frame, slot) entries")
-    for s, slot in enumerate(nbm.SLOTS):
+    for s, slot in enumerate(ncols.SLOTS):
         print(f"  {slot:>2}: {agree[:, s].mean():.4f}")
     kinds = {
         "SUMO has one, lanecast none": (sid >= 0) & (cid < 0),
@@ -261,7 +262,7 @@ def test_each_recording_needs_ids_in_every_source_column_of_its_own_rows() -> No
     """auto decides per recording: ids of one recording do not make another's column usable."""
     a = scene(SEVEN)
     tid = a.column("track_id").to_numpy()
-    full = {name: np.where(tid == 1, 2.0, np.nan) for name in nbm.SOURCE_COLUMNS.values()}
+    full = {name: np.where(tid == 1, 2.0, np.nan) for name in ncols.SOURCE_COLUMNS.values()}
     cols = {
         name: np.concatenate([a.column(name).to_numpy(zero_copy_only=False)] * 3) for name in a.column_names
     }
@@ -271,5 +272,5 @@ def test_each_recording_needs_ids_in_every_source_column_of_its_own_rows() -> No
             ids, ids if name != "left_following_id" else np.full(a.num_rows, np.nan), ids * np.nan
         ]
     table = build_table(cols, TableMeta("test", {r: RecordingMeta(10.0) for r in "abc"}))
-    assert nbm.recording_methods(table, nbm.columns(table)) == {"a": "source", "b": "lanes", "c": "lanes"}
-    assert nbm.recording_methods(table.slice(0, 0), nbm.columns(table.slice(0, 0))) == {}
+    assert nbm.recording_methods(table, ncols.columns(table)) == {"a": "source", "b": "lanes", "c": "lanes"}
+    assert nbm.recording_methods(table.slice(0, 0), ncols.columns(table.slice(0, 0))) == {}

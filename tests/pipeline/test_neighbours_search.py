@@ -10,15 +10,17 @@ import pyarrow as pa
 import pytest
 from conftest import LANE, make_track_table
 
+from lanecast.pipeline import neighbour_bands as bands
+from lanecast.pipeline import neighbour_columns as ncols
 from lanecast.pipeline import neighbours as nbm
 
-RANGE = nbm.NEIGHBOUR_RANGE_M
+RANGE = ncols.NEIGHBOUR_RANGE_M
 
 
-def brute_force_bands(cols: nbm.Columns, lane_width: float = LANE) -> np.ndarray:
+def brute_force_bands(cols: ncols.Columns, lane_width: float = LANE) -> np.ndarray:
     """Neighbour rows [n, 7] by the band rules (docs/design.md §2), every pair of vehicles of each
     (recording, frame) compared; the lowest score wins, the lowest row among equals."""
-    out = np.full((cols.n, len(nbm.SLOTS)), -1, dtype=np.int64)
+    out = np.full((cols.n, len(ncols.SLOTS)), -1, dtype=np.int64)
     ok = np.isfinite(cols.x) & np.isfinite(cols.y) & np.isfinite(cols.heading)
     key = cols.rec * (int(cols.frame.max()) + 1) + cols.frame
     for k in np.unique(key):
@@ -44,7 +46,7 @@ def brute_force_bands(cols: nbm.Columns, lane_width: float = LANE) -> np.ndarray
                 "RL": (left & behind, -lon),
                 "RR": (right & behind, -lon),
             }
-            for s, slot in enumerate(nbm.SLOTS):
+            for s, slot in enumerate(ncols.SLOTS):
                 mask, score = rules[slot]
                 if mask.any():
                     best = np.flatnonzero(mask & (score == score[mask].min()))[0]  # lowest row
@@ -84,29 +86,29 @@ def random_scene(seed: int, coordinate_frame: str, *, n_tracks: int = 60, n_fram
 @pytest.mark.parametrize("coordinate_frame", ["road", "map"])
 def test_band_search_matches_brute_force(seed: int, coordinate_frame: str) -> None:
     table = random_scene(seed, coordinate_frame)
-    cols = nbm.columns(table)
+    cols = ncols.columns(table)
     assert cols.n > 1000
     expected = brute_force_bands(cols)
     assert (expected >= 0).sum() > 3 * cols.n  # crowded enough that most slots are taken
     # Without a range: every vehicle of the frame is a candidate.
-    np.testing.assert_array_equal(nbm.from_bands(cols), expected)
+    np.testing.assert_array_equal(bands.from_bands(cols), expected)
     # With the range (vehicles beyond it not compared in a world frame): the same after limit_range.
-    limited = nbm.limit_range(cols, expected, RANGE)
+    limited = ncols.limit_range(cols, expected, RANGE)
     assert (limited != expected).sum() > 100  # the range matters in these scenes
     got = nbm.neighbour_rows(table, cols, method="bands").rows
     np.testing.assert_array_equal(got, limited)
     np.testing.assert_array_equal(
-        nbm.limit_range(cols, nbm.from_bands(cols, max_range_m=RANGE), RANGE), limited
+        ncols.limit_range(cols, bands.from_bands(cols, max_range_m=RANGE), RANGE), limited
     )
 
 
 def test_band_search_on_a_subset_of_rows() -> None:
     """Rows left out are nobody's neighbour and get none."""
     table = random_scene(3, "map")
-    cols = nbm.columns(table)
+    cols = ncols.columns(table)
     rows = np.flatnonzero(cols.track % 3 != 0)
     keep = np.zeros(cols.n, dtype=bool)
     keep[rows] = True
-    sub = nbm.Columns(**{**cols.__dict__, "x": np.where(keep, cols.x, np.nan)})
-    got = nbm.limit_range(cols, nbm.from_bands(cols, rows, max_range_m=RANGE), RANGE)
-    np.testing.assert_array_equal(got, nbm.limit_range(cols, brute_force_bands(sub), RANGE))
+    sub = ncols.Columns(**{**cols.__dict__, "x": np.where(keep, cols.x, np.nan)})
+    got = ncols.limit_range(cols, bands.from_bands(cols, rows, max_range_m=RANGE), RANGE)
+    np.testing.assert_array_equal(got, ncols.limit_range(cols, brute_force_bands(sub), RANGE))

@@ -19,7 +19,7 @@ from lanecast.models.forecasts_from_predictions import forecasts_table
 from lanecast.models.predictions import Forecaster
 from lanecast.models.runtime import load_forecaster
 from lanecast.pipeline.make_windows import make_windows
-from lanecast.pipeline.neighbours import NEIGHBOUR_RANGE_M
+from lanecast.pipeline.neighbour_columns import NEIGHBOUR_RANGE_M
 
 #: Rate of the windows (Hz); ``every_s`` is converted to a stride in these frames.
 WINDOW_RATE_HZ = 10.0
