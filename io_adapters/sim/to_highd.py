@@ -43,7 +43,8 @@ from lanecast.io_adapters.datasets.highd.reader import NEIGHBOURS
 from lanecast.io_adapters.datasets.highd.start_time import meta_fields
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.sim.slow_signals import sinusoid_sum
-from lanecast.io_adapters.sim.sumo_highway import HighwayConfig, Samples
+from lanecast.io_adapters.sim.sumo_highway import HighwayConfig
+from lanecast.io_adapters.sim.sumo_run import Samples
 
 TOP_MARGIN_M = 8.0  # image y of the upper carriageway's top marking
 X_MARGIN_M = 10.0  # image x of the section's start (so that bounding boxes stay at x > 0)

@@ -19,7 +19,7 @@ import pytest
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.datasets.highd import reader as highd
 from lanecast.io_adapters.errors import InputError
-from lanecast.io_adapters.sim import recording, sumo_highway, to_highd
+from lanecast.io_adapters.sim import recording, sumo_run, to_highd
 from lanecast.workflows import cli
 
 FILES = ("01_tracks.csv", "01_tracksMeta.csv", "01_recordingMeta.csv")
@@ -193,7 +193,7 @@ def test_neighbours_from_sumo_agree_with_lanes_and_positions(sim_recording_dir: 
 def test_subscription_constants_are_tracis() -> None:
     from traci import constants as tc
 
-    assert (sumo_highway.VAR_LEADER, sumo_highway.VAR_FOLLOWER) == (tc.VAR_LEADER, tc.VAR_FOLLOWER)
+    assert (sumo_run.VAR_LEADER, sumo_run.VAR_FOLLOWER) == (tc.VAR_LEADER, tc.VAR_FOLLOWER)
 
 
 @pytest.mark.slow
