@@ -14,6 +14,9 @@ from pathlib import Path
 
 from lanecast.io_adapters.errors import InputError, OutputError
 from lanecast.io_adapters.formats import registry
+from lanecast.io_adapters.sim.scenarios import DRIVING
+from lanecast.io_adapters.sim.sumo_highway import HighwayConfig
+from lanecast.workflows.bulk.manifest import Manifest
 from lanecast.workflows.vocabulary import HelpFormatter, add_model_option
 
 # A seed the shipped weights never saw (benchmarks/train_shipped.py trains on seeds 11-15, tests on 901-902).
@@ -78,8 +81,6 @@ def claim(out: Path) -> None:
 def made_by_an_earlier_demo(out: Path) -> bool:
     """A demo's directory from before the mark (an earlier lanecast 0.1.0): its annotation manifest
     has the demo's log as its input, which a user's own folder does not."""
-    from lanecast.workflows.bulk.manifest import Manifest
-
     try:
         inputs = Manifest(out / "annotated").latest()
     except InputError:
@@ -99,8 +100,6 @@ def run(args: argparse.Namespace) -> int:
     from lanecast.io_adapters.contracts.track_summary import summarise
     from lanecast.io_adapters.datasets.highd import reader as highd
     from lanecast.io_adapters.sim.recording import simulate
-    from lanecast.io_adapters.sim.scenarios import DRIVING
-    from lanecast.io_adapters.sim.sumo_highway import HighwayConfig
     from lanecast.workflows.annotation.annotate_log import AnnotateOptions
     from lanecast.workflows.annotation.log_scores import report_logs
     from lanecast.workflows.bulk.runner import run_bulk

@@ -7,14 +7,14 @@ import time
 from datetime import datetime
 from pathlib import Path
 
+from lanecast.io_adapters.sim import scenarios, sumo_highway
+from lanecast.io_adapters.sim.scenarios import DRIVING, SCENARIOS
 from lanecast.workflows.vocabulary import HelpFormatter, add_force_option
 
 DENSITIES = ("low", "medium", "high")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from lanecast.io_adapters.sim.scenarios import DRIVING, SCENARIOS
-
     p = sub.add_parser(
         "simulate",
         help="simulate highway traffic with SUMO and write it as a highD recording",
@@ -123,7 +123,7 @@ def start_time(text: str) -> datetime:
 
 
 def run(args: argparse.Namespace) -> int:
-    from lanecast.io_adapters.sim import recording, scenarios, sumo_highway, to_highd
+    from lanecast.io_adapters.sim import recording, to_highd
 
     started = time.perf_counter()
     if args.scenario:

@@ -18,6 +18,8 @@ if TYPE_CHECKING:
     from lanecast.models.finetune import FinetuneOptions
     from lanecast.models.train import TrainConfig
 
+from lanecast.io_adapters import json_fields as jf
+from lanecast.models.card import read_card, resolve
 from lanecast.workflows.vocabulary import HelpFormatter, add_force_option
 
 
@@ -111,8 +113,6 @@ def shipped_defaults() -> dict[str, Any]:
     no torch; the card is package data, checked whenever the model is loaded)."""
     import json
 
-    from lanecast.models.card import resolve
-
     try:
         config = json.loads(resolve(None)[1].read_text(encoding="utf-8"))["training"]["config"]
     except (InputError, OSError, ValueError, KeyError, TypeError):
@@ -122,7 +122,6 @@ def shipped_defaults() -> dict[str, Any]:
 
 def default_config() -> TrainConfig:
     """The shipped model's training config (architecture and hyper-parameters), else the code defaults."""
-    from lanecast.models.card import read_card, resolve
     from lanecast.models.train import TrainConfig
 
     try:
@@ -294,8 +293,6 @@ def finetune_options(
     """With --init: how to keep the init model (--keep-base, --classifier) and the config with
     fine-tuning's learning rate and epochs where neither an option nor --config set them; None
     without --init (where --keep-base and --classifier are refused)."""
-    from lanecast.io_adapters import json_fields as jf
-
     if args.init is None:
         for name in ("keep_base", "classifier"):
             if getattr(args, name) is not None:

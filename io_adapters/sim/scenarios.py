@@ -19,12 +19,10 @@ The training mix of the shipped model (``benchmarks/train_shipped.py``) uses eve
 from __future__ import annotations
 
 import dataclasses
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from lanecast.io_adapters.errors import InputError
-
-if TYPE_CHECKING:  # the scenarios' names and settings are read by `simulate --help`: no numpy
-    from lanecast.io_adapters.sim.sumo_highway import HighwayConfig
+from lanecast.io_adapters.sim.sumo_highway import HighwayConfig
 
 #: How drivers move, in every scenario and in ``lanecast simulate`` without one: 4 s lane changes
 #: smoothed by a 3 s kernel (no lateral-acceleration spikes), in-lane weave, mixed drivers.
@@ -145,8 +143,6 @@ def scenario_config(name: str, *, minutes: float, seed: int, **overrides: Any) -
     if name not in SCENARIOS:
         raise InputError(None, f"unknown scenario {name!r}", expected=f"one of {', '.join(SCENARIOS)}")
     params = {**COMMON, **SCENARIOS[name][1], **overrides}
-    from lanecast.io_adapters.sim.sumo_highway import HighwayConfig
-
     cfg = HighwayConfig(minutes=minutes, seed=seed, **params)
     cfg.check()
     return cfg
