@@ -13,7 +13,8 @@ from __future__ import annotations
 
 import enum
 import importlib
-from collections.abc import Mapping, Sequence
+import os
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol, cast
@@ -232,23 +233,33 @@ LOG_SUFFIXES = (".mcap", ".bag")
 
 def logs_in(folder: Path) -> list[Path]:
     """The drive logs in a folder that is no dataset or log itself (``logs/``, an annotate
-    ``--out``): its MCAP files, ROS 1 bags and ROS 2 bag directories, searched recursively in name
-    order; empty for a folder any reader takes as a whole (a highD folder, a ROS 2 bag)."""
-    if (
-        not folder.is_dir()
-        or (folder / "metadata.yaml").exists()
-        or any(e.sniff(folder) for e in READERS.values())
-    ):
+    ``--out``): :func:`walk_logs`; empty for a folder any reader takes as a whole (a highD folder,
+    a ROS 2 bag)."""
+    if not folder.is_dir() or (folder / "metadata.yaml").exists() or _read_whole(folder):
         return []
-    found: list[Path] = []
+    return list(walk_logs(folder))
+
+
+def walk_logs(folder: Path, exclude: str | None = None) -> Iterator[Path]:
+    """The drive logs below ``folder``, searched recursively in name order: MCAP files, ROS 1 bags
+    and ROS 2 bag directories (not descended into). Hidden entries, ``exclude`` (a real path: an
+    annotate OUT_DIR inside the inputs) and folders a reader takes whole (a highD recording's
+    folder) are skipped. The one walk of ``info``, ``convert``, ``windows`` and ``annotate``."""
     for entry in sorted(folder.iterdir()):
-        if entry.name.startswith("."):
+        if entry.name.startswith(".") or (exclude is not None and os.path.realpath(entry) == exclude):
             continue
         if entry.is_dir():
-            found += [entry] if (entry / "metadata.yaml").is_file() else logs_in(entry)
+            if (entry / "metadata.yaml").is_file():
+                yield entry
+            elif not _read_whole(entry):
+                yield from walk_logs(entry, exclude)
         elif entry.suffix.lower() in LOG_SUFFIXES and entry.is_file():
-            found.append(entry)
-    return found
+            yield entry
+
+
+def _read_whole(folder: Path) -> bool:
+    """A reader takes ``folder`` as one input (a highD folder, a partitioned Parquet table)."""
+    return any(e.sniff(folder) for e in READERS.values())
 
 
 def expand(paths: Sequence[str | Path]) -> list[Path]:

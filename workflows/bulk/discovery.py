@@ -17,10 +17,9 @@ from pathlib import Path
 from typing import Any
 
 from lanecast.io_adapters.files import check_input
+from lanecast.io_adapters.formats import registry
 from lanecast.workflows.annotation.annotate_log import output_name
 from lanecast.workflows.bulk.manifest import absolute
-
-LOG_SUFFIXES = (".mcap", ".bag")
 
 
 @dataclass(frozen=True)
@@ -38,29 +37,15 @@ def is_ros2_bag(path: Path) -> bool:
 
 
 def discover(paths: Sequence[Path], exclude: Path | None = None) -> list[Path]:
-    """The logs named by ``paths``: files as given; directories searched recursively for ``*.mcap``,
-    ``*.bag`` and ROS 2 bag directories (not descended into), skipping ``exclude`` (OUT_DIR); each
-    log once (the first name it was found under), as named (links not resolved)."""
+    """The logs named by ``paths``: files as given; directories searched by the registry's walk
+    (``registry.walk_logs``: ``*.mcap``, ``*.bag`` and ROS 2 bag directories), skipping ``exclude``
+    (OUT_DIR); each log once (the first name it was found under), as named (links not resolved)."""
     found: list[Path] = []
     excluded = os.path.realpath(exclude) if exclude is not None else None
-
-    def walk(folder: Path) -> Iterator[Path]:
-        for entry in sorted(folder.iterdir()):
-            if excluded is not None and os.path.realpath(entry) == excluded:
-                continue
-            if entry.name.startswith("."):
-                continue
-            if is_ros2_bag(entry):
-                yield entry
-            elif entry.is_dir():
-                yield from walk(entry)
-            elif entry.suffix.lower() in LOG_SUFFIXES:
-                yield entry
-
     for p in map(Path, paths):
         check_input(p)
         if p.is_dir() and not is_ros2_bag(p):
-            found.extend(walk(p))
+            found.extend(registry.walk_logs(p, excluded))
         else:
             found.append(p)
     unique: dict[Path, Path] = {}  # one log named twice (or through a link) is one log

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -69,3 +70,27 @@ def test_a_writer_option_is_checked(tmp_path: Path) -> None:
     assert not (tmp_path / "a.mcap").exists()
     with pytest.raises(FormatNotRecognisedError, match="unknown output format 'csv'"):
         registry.write_any(table, tmp_path / "a.csv", "csv")
+
+
+def test_one_walk_finds_the_logs_of_a_folder_tree(tmp_path: Path) -> None:
+    """MCAP files, ROS 1 bags and ROS 2 bag directories in name order; not inside a bag, a highD
+    folder, a hidden folder or the excluded output; a folder a reader takes whole has no logs."""
+    import shutil
+
+    from conftest import TESTS
+
+    root = tmp_path / "logs"
+    for name in ("b/2.mcap", "a/1.bag", "a/z.mcap", ".hidden/3.mcap", "out/4.mcap", "notes.txt"):
+        (root / name).parent.mkdir(parents=True, exist_ok=True)
+        (root / name).write_bytes(b"x")
+    bag = root / "c" / "bag"
+    bag.mkdir(parents=True)
+    (bag / "metadata.yaml").write_text("rosbag2_bagfile_information: {}\n")
+    (bag / "inner.mcap").write_bytes(b"x")
+    highd = root / "d" / "highd"
+    shutil.copytree(TESTS / "data" / "highd", highd)
+    (highd / "5.mcap").write_bytes(b"x")
+    found = [p.relative_to(root).as_posix() for p in registry.walk_logs(root, os.path.realpath(root / "out"))]
+    assert found == ["a/1.bag", "a/z.mcap", "b/2.mcap", "c/bag"]
+    assert [p.relative_to(root).as_posix() for p in registry.logs_in(root)][-1] == "out/4.mcap"
+    assert registry.logs_in(highd) == [] and registry.logs_in(bag) == []
