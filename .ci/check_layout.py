@@ -22,7 +22,18 @@ from pathlib import Path
 PACKAGES = ("io_adapters", "pipeline", "models", "workflows")
 HEAVY = (
     *("torch", "matplotlib", "ray", "libsumo", "traci", "sumolib", "onnxruntime", "onnx"),
-    *("numpy", "pyarrow", "pandas", "scipy", "tqdm", "mcap", "mcap_protobuf", "rosbags", "ruamel", "zstandard"),
+    *(
+        "numpy",
+        "pyarrow",
+        "pandas",
+        "scipy",
+        "tqdm",
+        "mcap",
+        "mcap_protobuf",
+        "rosbags",
+        "ruamel",
+        "zstandard",
+    ),
 )
 MAX_LINES = 500
 
