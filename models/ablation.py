@@ -305,10 +305,10 @@ def headline(variants_: dict[str, Any], squared_5s: dict[str, np.ndarray]) -> di
         comparisons.append(
             {"against": other, "difference_m": diff, "low": low, "high": high, "significant": significant}
         )
-        verdict = "significant" if significant else "not significant: the interval includes no difference"
+        verdict = "significant" if significant else "not significant (the interval includes 0)"
         parts.append(
-            f"{-diff:.2f} m better than {variants_[other]['label'].lower()} (95 % interval of the difference "
-            f"{-high:.2f} to {-low:.2f} m): {verdict}"
+            f"{-diff:.2f} m better than {variants_[other]['label'].lower()} on the seeds' pooled errors "
+            f"(95 % interval {-high:.2f} to {-low:.2f} m): {verdict}"
         )
     rmse5 = variants_[winner]["mean"]["rmse"][-1]
     text = f"{label} has the lowest RMSE at 5 s, {rmse5:.2f} m on {n_windows:,} windows"
