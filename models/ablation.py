@@ -307,7 +307,7 @@ def headline(variants_: dict[str, Any], squared_5s: dict[str, np.ndarray]) -> di
         )
         verdict = "significant" if significant else "not significant (the interval includes 0)"
         parts.append(
-            f"{-diff:.2f} m better than {variants_[other]['label'].lower()} on the seeds' pooled errors "
+            f"{-diff:.2f} m better than {variants_[other]['label'].lower()} on the pooled errors of all seeds "
             f"(95 % interval {-high:.2f} to {-low:.2f} m): {verdict}"
         )
     rmse5 = variants_[winner]["mean"]["rmse"][-1]
