@@ -444,7 +444,8 @@ def _write_reports(paths: list[Path], out: Path, topic: str | None, examples: in
         print(f"skipped {line}")
     if not parts:
         raise InputError(paths[0], "no log could be scored", expected="annotated logs with recorded futures")
-    metrics = metrics_of(parts)
+    with activity("report: the metrics of all logs, with their intervals"):
+        metrics = metrics_of(parts)
     models = {json.dumps(p["model"], sort_keys=True) for p in parts if p["model"]}
     meta = {
         "logs": len(parts),
@@ -454,7 +455,8 @@ def _write_reports(paths: list[Path], out: Path, topic: str | None, examples: in
         "ground_truth": "each target's recorded position at t0 + 1..5 s, in its window frame",
         "always_straight": always_straight_of(parts),
     }
-    html = write(out, metrics, meta, example_scenes(parts, examples), links=links)
+    with activity("report: writing the page of all logs"):
+        html = write(out, metrics, meta, example_scenes(parts, examples), links=links)
     m = metrics["stcnn"]
     rmse = " ".join(f"{v:.2f}" if v is not None else "-" for v in m["rmse"])
     cv = " ".join(f"{v:.2f}" if v is not None else "-" for v in metrics["cv"]["rmse"])
