@@ -52,7 +52,7 @@ class Scored:
     unmatched: dict[str, int]
     refused_paths: dict[str, int]
     stamp_offset_ms: dict[str, float | None]
-    recording: str
+    recording: str  # the recording most of the predicted objects are in (a label)
     track_id: np.ndarray  # int64 [N]
     t0_ns: np.ndarray  # int64 [N]
     object_class: np.ndarray  # str [N]
@@ -60,6 +60,7 @@ class Scored:
     candidates: np.ndarray  # float64 [N, K, 5, 2]
     confidence: np.ndarray  # float64 [N, K], NaN where no path
     true: np.ndarray  # float64 [N, 5, 2]
+    row_recording: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=object))  # str [N]
     log: str = ""  # the log's name in the report
     lanecast: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)  # on the common rows
     #: the recorded predictor on every matched row, before the rows lanecast cannot forecast are left out
@@ -131,28 +132,43 @@ class Tracks:
         return np.minimum(row[:, 0] + (frac[:, 0] > 0.5), self.last[np.searchsorted(self.ids, track_id)])
 
 
-def pick_recording(tracks: pa.Table, track_ids: np.ndarray) -> str:
-    """The recording of ``tracks`` holding most of the predicted ``track_ids`` (a log's topics each
-    make one; the predictor predicts the tracked objects of one of them)."""
+def recordings_by_hits(tracks: pa.Table, track_ids: np.ndarray) -> list[str]:
+    """The recordings of ``tracks``, those holding more of the predicted ``track_ids`` first (a
+    log's topics each make one; a predictor may predict the objects of several: lanecast's own
+    forecasts of a log of both highD directions)."""
     rec = tracks.column("recording").to_numpy(zero_copy_only=False).astype(str)
     names = np.unique(rec)
     ids = tracks.column("track_id").to_numpy()
-    hits = [np.isin(np.unique(track_ids), ids[rec == n]).sum() for n in names]
-    return str(names[int(np.argmax(hits))])
+    hits = [int(np.isin(np.unique(track_ids), ids[rec == n]).sum()) for n in names]
+    return [str(names[i]) for i in np.argsort(hits, kind="stable")[::-1]]
+
+
+def recording_tracks(tracks: pa.Table) -> dict[str, Tracks]:
+    """:class:`Tracks` of each recording of ``tracks``."""
+    rec = tracks.column("recording").to_numpy(zero_copy_only=False).astype(str)
+    return {str(n): Tracks(tracks.filter(pa.array(rec == n))) for n in np.unique(rec)}
 
 
 def score_predictor(pred: RecordedPredictions, tracks: pa.Table) -> Scored:
-    """Match ``pred`` to the future in ``tracks`` (a track table of the same log)."""
-    recording = pick_recording(tracks, pred.track_id)
-    rec = tracks.column("recording").to_numpy(zero_copy_only=False).astype(str)
-    tr = Tracks(tracks.filter(pa.array(rec == recording)))
+    """Match ``pred`` to the future in ``tracks`` (a track table of the same log, on the log's
+    clock: ``conventions.shifted(tracks, conventions.read_offset(tracks))``): each predicted
+    object to the recording where its track is known at its stamp (the recording holding most of
+    the predicted ids first, where an id is in several)."""
+    order = recordings_by_hits(tracks, pred.track_id)
+    per_recording = recording_tracks(tracks)
+    true = np.full((len(pred), N_STEPS, 2), np.nan)
+    reason = np.full(len(pred), NO_TRACK, dtype=object)
+    row_recording = np.full(len(pred), "", dtype=object)
+    for name in order:
+        t, r = per_recording[name].truth(pred.track_id, pred.stamp_ns)
+        better = (reason != "") & ((r == "") | ((reason == NO_TRACK) & (r != NO_TRACK)))
+        true[better], reason[better], row_recording[better] = t[better], r[better], name
+    recording = order[0]
     points, path_reason = resample(pred, HORIZONS_S)
     obj = pred.path_object
     usable = path_reason == ""
     n_usable = np.bincount(obj[usable], minlength=len(pred))
     n_paths = np.diff(pred.path_bounds)
-    true, reason = tr.truth(pred.track_id, pred.stamp_ns)
-    reason = reason.astype(object)
     reason[(n_usable == 0) & (n_paths > 0)] = REFUSED
     reason[n_paths == 0] = NO_PATH
     ok = np.flatnonzero(reason == "")
@@ -166,8 +182,14 @@ def score_predictor(pred: RecordedPredictions, tracks: pa.Table) -> Scored:
     col = np.arange(keep.sum()) - np.searchsorted(rows, rows)  # rows are sorted: rank within the object
     candidates[rows, col] = points[keep]
     confidence[rows, col] = pred.confidence[keep]
-    near = tr.nearest(pred.track_id[ok], pred.stamp_ns[ok]) if ok.size else np.zeros(0, np.int64)
-    offset_ms = (pred.stamp_ns[ok] - tr.time[near]) / 1e6
+    offset_ms = np.zeros(ok.size)
+    object_class = np.empty(ok.size, dtype=object)
+    speed = np.zeros(ok.size)
+    for name in np.unique(row_recording[ok]):
+        tr, rows = per_recording[name], np.flatnonzero(row_recording[ok] == name)
+        near = tr.nearest(pred.track_id[ok][rows], pred.stamp_ns[ok][rows])
+        offset_ms[rows] = (pred.stamp_ns[ok][rows] - tr.time[near]) / 1e6
+        object_class[rows], speed[rows] = tr.object_class[near], tr.speed[near]
     refused, refused_count = np.unique(path_reason[~usable], return_counts=True)
     return Scored(
         topic=pred.topic,
@@ -182,42 +204,80 @@ def score_predictor(pred: RecordedPredictions, tracks: pa.Table) -> Scored:
         recording=recording,
         track_id=pred.track_id[ok],
         t0_ns=pred.stamp_ns[ok],
-        object_class=tr.object_class[near],
-        speed=tr.speed[near],
+        object_class=object_class.astype(str),
+        speed=speed,
         candidates=candidates,
         confidence=confidence,
         true=true[ok],
+        row_recording=row_recording[ok].astype(str),
     )
 
 
 def add_lanecast(scored: Scored, tracks: pa.Table, forecasters: list[Forecaster]) -> int:
     """Forecast the scored objects at their stamps with each of ``forecasters`` (and constant
     velocity), keep the rows all of them cover in ``scored`` (the others are counted and returned),
-    and put each one's candidates, confidences and truth into ``scored.lanecast``."""
+    and put each one's candidates, confidences and truth into ``scored.lanecast``. Each row is
+    forecast from the windows of its own recording."""
     rec = tracks.column("recording").to_numpy(zero_copy_only=False).astype(str)
-    table = tracks.filter(pa.array(rec == scored.recording))
-    tr = Tracks(table)
     models = [*forecasters, constant_velocity()]
-    windows = windows_to_forecast(table, models[0], t0_ns=np.unique(scored.t0_ns), validated=True)
-    index = windows.index
-    w_track, w_t0 = index.column("track_id").to_numpy(), index.column("t0_ns").to_numpy()
-    w_true, w_reason = tr.truth(w_track, w_t0)
-    window = _same_frame(scored.track_id, scored.t0_ns, w_track, w_t0)
-    keep = window >= 0
-    keep[keep] = w_reason[window[keep]] == ""
+    n = scored.track_id.size
+    keep = np.zeros(n, dtype=bool)
+    found: dict[str, dict[str, list[np.ndarray]]] = {
+        m.name: {"alt": [], "conf": [], "true": []} for m in models
+    }
+    rows_done: list[np.ndarray] = []
+    for name in np.unique(scored.row_recording):
+        rows = np.flatnonzero(scored.row_recording == name)
+        table = tracks.filter(pa.array(rec == name))
+        tr = Tracks(table)
+        windows = windows_to_forecast(table, models[0], t0_ns=np.unique(scored.t0_ns[rows]), validated=True)
+        index = windows.index
+        w_track, w_t0 = index.column("track_id").to_numpy(), index.column("t0_ns").to_numpy()
+        w_true, w_reason = tr.truth(w_track, w_t0)
+        window = _same_frame(scored.track_id[rows], scored.t0_ns[rows], w_track, w_t0)
+        ok = window >= 0
+        ok[ok] = w_reason[window[ok]] == ""
+        rows, window = rows[ok], window[ok]
+        keep[rows] = True
+        rows_done.append(rows)
+        for model in models:
+            preds = model.predict(windows.inputs[window], windows.present[window], top_k=3)
+            t = forecasts_table(index.take(pa.array(window)), preds)
+            alt = np.stack([_lists(t, "alt_x"), _lists(t, "alt_y")], axis=-1)
+            found[model.name]["alt"].append(alt)
+            found[model.name]["conf"].append(
+                _lists(t, "alt_probs") if alt.shape[1] > 1 else np.ones(alt.shape[:2])
+            )
+            found[model.name]["true"].append(w_true[window])
     scored.all_matched = {name: getattr(scored, name) for name in _ROWS}
+    done = np.concatenate(rows_done) if rows_done else np.zeros(0, np.int64)
+    order = np.argsort(done, kind="stable")  # back to the rows' order in scored
     _subset(scored, keep)
-    window = window[keep]
     for model in models:
-        preds = model.predict(windows.inputs[window], windows.present[window], top_k=3)
-        t = forecasts_table(index.take(pa.array(window)), preds)
-        alt = np.stack([_lists(t, "alt_x"), _lists(t, "alt_y")], axis=-1)
+        parts = found[model.name]
+        k = max((a.shape[1] for a in parts["alt"]), default=1)
+        alt = (
+            np.concatenate([_pad(a, k) for a in parts["alt"]])
+            if parts["alt"]
+            else np.zeros((0, k, N_STEPS, 2))
+        )
+        conf = np.concatenate([_pad(c, k) for c in parts["conf"]]) if parts["conf"] else np.zeros((0, k))
+        true = np.concatenate(parts["true"]) if parts["true"] else np.zeros((0, N_STEPS, 2))
         scored.lanecast[model.name] = {
-            "candidates": alt,
-            "confidence": _lists(t, "alt_probs") if alt.shape[1] > 1 else np.ones(alt.shape[:2]),
-            "true": w_true[window],
+            "candidates": alt[order],
+            "confidence": conf[order],
+            "true": true[order],
         }
-    return int((~keep).sum())
+    return int(n - keep.sum())
+
+
+def _pad(a: np.ndarray, k: int) -> np.ndarray:
+    """``a`` [M, K', …] widened to K candidates with NaN (recordings may give different K)."""
+    if a.shape[1] == k:
+        return a
+    out = np.full((a.shape[0], k, *a.shape[2:]), np.nan)
+    out[:, : a.shape[1]] = a
+    return out
 
 
 def _same_frame(track: np.ndarray, t0: np.ndarray, w_track: np.ndarray, w_t0: np.ndarray) -> np.ndarray:
@@ -243,7 +303,7 @@ def _lists(table: pa.Table, name: str) -> np.ndarray:
     return np.asarray(col.to_numpy(zero_copy_only=False), dtype=np.float64).reshape(shape)
 
 
-_ROWS = ("track_id", "t0_ns", "object_class", "speed", "candidates", "confidence", "true")
+_ROWS = ("track_id", "t0_ns", "object_class", "speed", "candidates", "confidence", "true", "row_recording")
 
 
 def _subset(scored: Scored, keep: np.ndarray) -> None:

@@ -212,3 +212,28 @@ def test_a_folder_of_logs_is_reported_per_log_and_pooled(tmp_path: Path, mcap_re
 def test_a_folder_without_logs_is_named(tmp_path: Path) -> None:
     with pytest.raises(InputError, match="no drive logs found"):
         report_predictors([tmp_path], tmp_path / "report", predictions=[])
+
+
+def test_lanecasts_own_forecasts_of_both_directions_are_all_matched(
+    tmp_path: Path, sim_recording_dir: Path
+) -> None:
+    """A log of both highD directions (two recordings, two topics) annotated by lanecast: every
+    forecast object is matched to the recording its track is in, none counted as unknown, and the
+    scores equal those of `report` on the same log."""
+    log = tmp_path / "logs" / "sim.mcap"
+    assert main(["convert", str(sim_recording_dir), "--out", str(log)]) == 0
+    assert main(["annotate", str(log), "--out", str(tmp_path / "annotated")]) == 0
+    annotated = tmp_path / "annotated" / "sim.mcap"
+    from lanecast.io_adapters.logs import conventions
+
+    tracks = registry.read_any([annotated])
+    tracks = conventions.shifted(tracks, conventions.read_offset(tracks))  # on the log's clock
+    assert len(set(tracks.column("recording").to_pylist())) == 2
+    (pred,) = read_predictions(annotated, ["/lanecast/prediction"], checked=True)
+    scored = score_predictor(pred, tracks)
+    assert "no tracked object with its id (an id switch, or never tracked)" not in scored.unmatched
+    assert set(scored.row_recording) == set(tracks.column("recording").to_pylist())  # both directions
+    assert scored.track_id.size + sum(scored.unmatched.values()) == len(pred)
+    no_window = add_lanecast(scored, tracks, [])
+    assert no_window == 0
+    np.testing.assert_allclose(scored.lanecast["cv"]["true"], scored.true)  # same rows, same truth
