@@ -32,17 +32,8 @@ def test_mcap_and_ros2_bag_of_one_table_read_back_equal(sim_recording_dir: Path,
     )
     for column in ("lane_id", "object_class"):
         np.testing.assert_array_equal(from_mcap[column], from_bag[column], err_msg=column)
-    for column in (
-        "x",
-        "y",
-        "heading",
-        "vx",
-        "vy",
-        "ax",
-        "ay",
-        "length",
-        "width",
-    ):  # bags: body frame and back
+    kinematics = ("x", "y", "heading", "vx", "vy", "ax", "ay", "length", "width")
+    for column in kinematics:  # bags: body frame and back
         np.testing.assert_allclose(from_mcap[column], from_bag[column], rtol=1e-6, atol=1e-6, err_msg=column)
     for column in ("ax", "ay"):  # the table's own accelerations, not velocity differences
         np.testing.assert_allclose(from_mcap[column], original[column], rtol=1e-6, atol=1e-6, err_msg=column)
