@@ -114,7 +114,7 @@ READERS: dict[str, Reader] = {
         Reader(
             "ngsim", f"{_DATASETS}.ngsim.reader", frozenset({"location", "split_periods"}), Pieces.NGSIM_FILES
         ),
-        Reader("mcap", f"{_LOGS}.mcap.reader", _LOG_OPTIONS | {"salvage"}),
+        Reader("mcap", f"{_LOGS}.mcap.reader", _LOG_OPTIONS | {"salvage", "crcs_checked_later"}),
         Reader("rosbag", f"{_LOGS}.rosbag.reader", _LOG_OPTIONS),
     )
 }

@@ -159,12 +159,18 @@ def refuse_annotated(src: Path, kind: str, *, info: mcap_copy.McapSummaryInfo | 
         )
 
 
-def read_tracks(src: Path, topic: str | None = None, *, salvage: bool = False) -> pa.Table:
+def read_tracks(
+    src: Path, topic: str | None = None, *, salvage: bool = False, crcs_checked_later: bool = False
+) -> pa.Table:
     """Pass 1: the log's track table (through the registry's MCAP / bag readers); ``salvage``: an
-    MCAP's intact chunks only (the reader reports the loss)."""
+    MCAP's intact chunks only (the reader reports the loss); ``crcs_checked_later``: an MCAP's CRCs
+    are left to pass 2, whose copy checks every one (chunks and data section) before the output
+    is renamed into place."""
     options: dict[str, Any] = {"topic": topic} if topic else {}
     if salvage:
         options["salvage"] = True
+    elif crcs_checked_later:
+        options["crcs_checked_later"] = True
     return registry.read_any([src], **options)
 
 
@@ -262,7 +268,12 @@ def annotate_log(
     read_here = tracks is None and need_tracks
     if read_here:
         with activity(f"annotate: {src.name}: reading its tracks"):
-            tracks = read_tracks(src, options.topic, salvage=options.salvage and kind == "mcap")
+            tracks = read_tracks(
+                src,
+                options.topic,
+                salvage=options.salvage and kind == "mcap",
+                crcs_checked_later=kind == "mcap",
+            )
     read_s = time.perf_counter() - started
     what_ifs: pa.Table | None = None
     if options.explain:

@@ -375,12 +375,14 @@ def read_log(
     topic: str | None = None,
     salvage: bool = False,
     fixed_frames: Sequence[str] | None = None,
+    crcs_checked_later: bool = False,
 ) -> tuple[pa.Table, ReadStats]:
     """One MCAP file → (validated track table, read statistics).
 
     ``topic`` picks one object topic (default: every supported topic); ``salvage`` skips damaged
     chunks instead of raising; ``fixed_frames`` overrides the frame ids taken as fixed
-    (default map, odom, world, road).
+    (default map, odom, world, road); ``crcs_checked_later``: the caller reads the same bytes again
+    with their CRCs checked before anything it makes is kept (annotate), so this pass skips them.
     """
     path = Path(path)
     dec = _LogDecoder(path, topic)
@@ -389,10 +391,14 @@ def read_log(
             if path.stat().st_size == 0:
                 raise NotMcap(path, "the file is empty", offset=0, expected="an MCAP file")
             with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
-                walk(mm, path, dec, salvage)
+                walk(mm, path, dec, salvage, crcs=salvage or not crcs_checked_later)
                 dec.finish()
     except OSError as exc:
         raise LogError(path, f"cannot read the file: {exc}") from exc
+    except LogError:
+        if crcs_checked_later and not salvage:  # damage found without the CRCs: a CRC may name it
+            read_log(path, topic=topic, fixed_frames=fixed_frames)
+        raise
     if salvage and (dec.stats.chunks_lost or dec.stats.damage):
         print(f"lanecast: {path}: {dec.stats.summary()}", file=sys.stderr)
     elif dec.stats.index:
@@ -443,7 +449,8 @@ def _listing(dec: _LogDecoder) -> str:
 
 
 def read(paths: Sequence[str | Path] | str | Path, **options: Any) -> pa.Table:
-    """MCAP files → one validated track table (options: topic, salvage, fixed_frames)."""
+    """MCAP files → one validated track table (options: topic, salvage, fixed_frames,
+    crcs_checked_later)."""
     if isinstance(paths, (str, Path)):
         paths = [paths]
     tables = [read_log(p, **options)[0] for p in paths]

@@ -100,3 +100,26 @@ def test_annotate_names_a_damaged_ros2_bag_as_convert_does(
             annotate_log(bag, tmp_path / "out", AnnotateOptions())
         assert err.value.path == str(storage_file) and err.value.offset is not None, str(err.value)
     assert not (tmp_path / "out").exists()
+
+
+def test_a_chunk_whose_crc_fails_is_named_and_nothing_is_written(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """annotate's first pass leaves the CRCs to the copy, which checks every one before the output
+    is kept: a flipped byte inside a chunk is still named by its offset, and no log is written."""
+    from conftest import chunks, uncompressed
+
+    from lanecast.io_adapters.formats import registry
+
+    table = staggered_cars(4, 80, stagger=5, step_m=2.5, speed=25.0, rate=25.0)
+    log = registry.write_any(table, tmp_path / "log.mcap", "mcap", chunk_size=2000)
+    plain = uncompressed(log, tmp_path / "plain.mcap")  # a flipped byte decodes: only its CRC tells
+    data = bytearray(plain.read_bytes())
+    second = chunks(bytes(data))[1]
+    data[second + 200] ^= 0x01
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(data))
+    assert main(["annotate", str(bad), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert f"{bad}, offset {second}: corrupt chunk: CRC mismatch" in err, err[-500:]
+    assert not (tmp_path / "out" / "bad.mcap").exists()
