@@ -116,6 +116,13 @@ class OnnxForecaster:
             ) from exc
         return cls(session, card, name)
 
+    def _run(self, inputs: np.ndarray, present: np.ndarray, k: np.ndarray) -> list[np.ndarray]:
+        """One session call on a batch: the compiled session where there is one."""
+        feed = {"inputs": _float32(inputs), "present": _bool(present), "k": k}
+        if self._compiled is not None:
+            return self._compiled.run(self._outputs, feed, None)
+        return self.session.run(self._outputs, feed)
+
     def predict(
         self, inputs: np.ndarray, present: np.ndarray, *, top_k: int = 3, batch_size: int = 4096
     ) -> Predictions:
@@ -129,30 +136,15 @@ class OnnxForecaster:
         k = self._k.get(top_k)
         if k is None:
             k = self._k[top_k] = np.asarray(max(top_k, 1), np.int64)
-        run, outputs = self.session.run, self._outputs
-        if n <= batch_size and self._compiled is not None:  # batch 1 pays about the engine alone
-            probs, maneuver, sequences, top_probs, top_offsets = self._compiled.run(
-                outputs, {"inputs": _float32(inputs), "present": _bool(present), "k": k}, None
-            )
-        elif n <= batch_size:  # one call: no slicing, no concatenation
-            probs, maneuver, sequences, top_probs, top_offsets = run(
-                outputs, {"inputs": _float32(inputs), "present": _bool(present), "k": k}
-            )
+        if n <= batch_size:  # one call: no slicing, no concatenation (batch 1 pays about the engine)
+            outputs = self._run(inputs, present, k)
         else:
             parts = [
-                run(
-                    outputs,
-                    {
-                        "inputs": _float32(inputs[s : s + batch_size]),
-                        "present": _bool(present[s : s + batch_size]),
-                        "k": k,
-                    },
-                )
+                self._run(inputs[s : s + batch_size], present[s : s + batch_size], k)
                 for s in range(0, n, batch_size)
             ]
-            probs, maneuver, sequences, top_probs, top_offsets = (
-                np.concatenate(p) for p in zip(*parts, strict=True)
-            )
+            outputs = [np.concatenate(p) for p in zip(*parts, strict=True)]
+        probs, maneuver, sequences, top_probs, top_offsets = outputs
         return Predictions(
             offsets=top_offsets[:, 0],  # the top sequence is the per-step argmax
             probs=probs,

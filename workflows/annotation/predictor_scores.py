@@ -272,8 +272,8 @@ def add_lanecast(scored: Scored, tracks: pa.Table, forecasters: list[Forecaster]
 
 
 def _pad(a: np.ndarray, k: int) -> np.ndarray:
-    """``a`` [M, K', …] widened to K candidates with NaN (recordings may give different K)."""
-    if a.shape[1] == k:
+    """``a`` [M, K', …] widened to K candidates with NaN (recordings and logs may give different K)."""
+    if a.shape[1] >= k:
         return a
     out = np.full((a.shape[0], k, *a.shape[2:]), np.nan)
     out[:, : a.shape[1]] = a
@@ -315,24 +315,17 @@ def pooled(parts: list[Scored]) -> dict[str, Any]:
     """The arrays of several logs' ``Scored`` (one predictor) concatenated, lanecast's too."""
     k = max((p.candidates.shape[1] for p in parts), default=0)
 
-    def pad(a: np.ndarray, axis_len: int) -> np.ndarray:
-        extra = axis_len - a.shape[1]
-        if extra <= 0:
-            return a
-        shape = (a.shape[0], extra, *a.shape[2:])
-        return np.concatenate([a, np.full(shape, np.nan)], axis=1)
-
     out: dict[str, Any] = {
         name: np.concatenate([getattr(p, name) for p in parts])
         for name in ("track_id", "t0_ns", "object_class", "speed", "true")
     }
-    out["candidates"] = np.concatenate([pad(p.candidates, k) for p in parts])
-    out["confidence"] = np.concatenate([pad(p.confidence, k) for p in parts])
+    out["candidates"] = np.concatenate([_pad(p.candidates, k) for p in parts])
+    out["confidence"] = np.concatenate([_pad(p.confidence, k) for p in parts])
     every = [p.all_matched or {n: getattr(p, n) for n in _ROWS} for p in parts]
     k_all = max((e["candidates"].shape[1] for e in every), default=0)
     out["all_matched"] = {n: np.concatenate([e[n] for e in every]) for n in ("object_class", "speed", "true")}
     for n in ("candidates", "confidence"):
-        out["all_matched"][n] = np.concatenate([pad(e[n], k_all) for e in every])
+        out["all_matched"][n] = np.concatenate([_pad(e[n], k_all) for e in every])
     names = parts[0].lanecast.keys() if parts else []
     out["lanecast"] = {
         n: {
