@@ -4,49 +4,22 @@ One ``session.run`` per batch does the whole library path (normalise, classify, 
 regress, de-normalise); Python only slices batches. ``onnx_file`` tells whether a card's ONNX export
 still matches its weights (a retrained model leaves a stale file behind: it is never used).
 
-Threads (:func:`default_threads`): the cores this process may use, less those the machine's other
-work keeps busy (the 1-minute load average), shared among the worker processes of a bulk run
-(``--workers N``), at least one; ``LANECAST_THREADS`` overrides. Idle threads sleep instead of
-spinning. A single process on an idle machine gets every core (batch 256 runs faster on two); under
-load or beside other workers one thread each, as more threads then only contend (BENCHMARKS.md).
+Threads: :func:`lanecast.io_adapters.cores.default_threads` (the free cores, shared among a bulk
+run's workers). Idle threads sleep instead of spinning. A single process on an idle machine gets
+every core (batch 256 runs faster on two).
 """
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from lanecast.io_adapters.cores import default_threads
 from lanecast.io_adapters.errors import InputError
 from lanecast.models.card import file_sha256, normalisation_sha256
 from lanecast.models.predictions import Predictions
-
-#: Environment variable overriding the intra-op threads of an ONNX Runtime session.
-THREADS_ENV = "LANECAST_THREADS"
-#: Environment variable a bulk run's worker processes carry: how many share the machine.
-WORKERS_ENV = "LANECAST_WORKERS"
-
-
-def choose_threads(cores: int, load: float, workers: int = 1) -> int:
-    """Intra-op threads for each of ``workers`` processes on ``cores`` cores of which the machine's
-    other work keeps ``load`` busy (1-minute load average): the free cores shared out, at least 1."""
-    free = min(cores, cores - round(load))
-    return max(1, free // max(1, workers))
-
-
-def default_threads() -> int:
-    """Intra-op threads for this process: ``$LANECAST_THREADS``, else :func:`choose_threads` of the
-    cores it may run on, the load average and ``$LANECAST_WORKERS`` (set in a bulk run's workers)."""
-    value = os.environ.get(THREADS_ENV, "")
-    if value.strip().isdigit():
-        return max(1, int(value))
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else 0.0
-    workers = os.environ.get(WORKERS_ENV, "1")
-    return choose_threads(cores, load, int(workers) if workers.isdigit() else 1)
-
 
 #: What the exported graph computes, recorded in the card at export: 1 forward-only forecasts, 2 also
 #: |y| ≤ x (lanecast.models.baselines.kinematic_limits). An export of another version is stale.

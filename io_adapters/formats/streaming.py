@@ -185,16 +185,15 @@ class TrackTableWriter:
             if not continues:
                 self._close_part()
                 self._writer = pq.ParquetWriter(
-                    self.part_path(self._parts), table.schema, compression="zstd", write_page_checksum=True
+                    self.part_path(self._parts), table.schema, **track_table.parquet_options(table.schema)
                 )
                 self._parts += 1
             assert self._writer is not None
             self._writer.write_table(table.cast(self._writer.schema), row_group_size=ROW_GROUP_ROWS)
             return
         if self._writer is None:
-            self._writer = pq.ParquetWriter(
-                self._tmp, table.schema.remove_metadata(), compression="zstd", write_page_checksum=True
-            )
+            schema = table.schema.remove_metadata()
+            self._writer = pq.ParquetWriter(self._tmp, schema, **track_table.parquet_options(schema))
         self._writer.write_table(self._aligned(table), row_group_size=ROW_GROUP_ROWS)
 
     def add_part(
@@ -283,9 +282,8 @@ def write_part(item: tuple[int, Piece], root: str) -> str:
     """A worker's task: read piece ``item[1]`` and write it as ``root/part-NNNNN.parquet``."""
     number, piece = item
     path = Path(root) / f"part-{number:05d}.parquet"
-    pq.write_table(
-        piece.read(), path, compression="zstd", row_group_size=ROW_GROUP_ROWS, write_page_checksum=True
-    )
+    table = piece.read()
+    pq.write_table(table, path, row_group_size=ROW_GROUP_ROWS, **track_table.parquet_options(table.schema))
     return str(path)
 
 

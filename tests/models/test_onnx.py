@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import subprocess
 import sys
@@ -210,24 +209,6 @@ def test_export_refuses_a_users_onnx_file_and_replaces_it_with_force(
     assert main(["export", str(model_copy), "--to", "onnx", "--out", str(out), "--force"]) == 0
     assert users.read_bytes().startswith(b"\x08")  # an ONNX protobuf (ir_version field) now
     assert main(["export", str(model_copy), "--to", "onnx", "--out", str(out)]) == 0  # its own: replaced
-
-
-def test_threads_are_the_free_cores_shared_among_workers(monkeypatch: pytest.MonkeyPatch) -> None:
-    from lanecast.models.onnx_predict import THREADS_ENV, WORKERS_ENV, choose_threads, default_threads
-
-    assert choose_threads(cores=2, load=0.3) == 2  # an idle machine: every core
-    assert choose_threads(cores=2, load=1.2) == 1  # one core busy elsewhere
-    assert choose_threads(cores=2, load=9.0) == 1  # loaded: never below one
-    assert choose_threads(cores=8, load=0.0, workers=4) == 2  # four workers share eight cores
-    assert choose_threads(cores=8, load=2.0, workers=4) == 1
-    assert choose_threads(cores=8, load=0.0, workers=16) == 1
-    monkeypatch.setenv(THREADS_ENV, "3")
-    assert default_threads() == 3  # the user's word first
-    monkeypatch.delenv(THREADS_ENV)
-    monkeypatch.setenv(WORKERS_ENV, "64")
-    assert default_threads() == 1
-    monkeypatch.delenv(WORKERS_ENV)
-    assert 1 <= default_threads() <= (os.cpu_count() or 1)
 
 
 def test_a_batch_of_one_predicts_as_a_batch_of_many(windows) -> None:  # type: ignore[no-untyped-def]

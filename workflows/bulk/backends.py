@@ -120,7 +120,7 @@ def mapper_from_args(
 
 def _start_worker(workers: int) -> None:
     """A local worker process: ``workers`` share the machine (each model's threads: their share of
-    the free cores, lanecast.models.onnx_predict.default_threads); freed memory kept for reuse."""
+    the free cores, lanecast.io_adapters.cores.default_threads); freed memory kept for reuse."""
     from lanecast.workflows.bulk import freed_memory  # pyarrow: only where work runs
 
     os.environ["LANECAST_WORKERS"] = str(workers)

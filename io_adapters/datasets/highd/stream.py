@@ -33,7 +33,6 @@ from lanecast.io_adapters.errors import InputError
 # bytes of CSV per block; the peak of a 2-hour file grows with it (measured: 8 MB 0.6 GB, 16 MB 0.95 GB,
 # 32 MB 1.6 GB), the time hardly changes
 BLOCK_BYTES = 8 << 20
-SPILL_COMPRESSION = "zstd"  # the spills of every long recording wait on disk: kept small
 
 
 class _NotStreamable(Exception):
@@ -55,7 +54,7 @@ def split_tracks(
         paths = []
         for name, part in _by_recording(whole):
             paths.append(spill_dir / f"{name}.parquet")
-            pq.write_table(part, paths[-1], compression=SPILL_COMPRESSION, write_page_checksum=True)
+            pq.write_table(part, paths[-1], **track_table.parquet_options(part.schema))
         return paths
 
 
@@ -99,10 +98,7 @@ def _split(rec: Recording, spill_dir: Path, name_prefix: str, block_bytes: int) 
         for name, part in _by_recording(table):
             if name not in writers:
                 writers[name] = pq.ParquetWriter(
-                    spill_dir / f"{name}.parquet",
-                    part.schema,
-                    compression=SPILL_COMPRESSION,
-                    write_page_checksum=True,
+                    spill_dir / f"{name}.parquet", part.schema, **track_table.parquet_options(part.schema)
                 )
             writers[name].write_table(part.replace_schema_metadata(writers[name].schema.metadata))
 

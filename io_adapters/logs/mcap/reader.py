@@ -18,6 +18,7 @@ import json
 import mmap
 import sys
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +27,7 @@ import pyarrow as pa
 from mcap.opcode import Opcode
 
 from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.cores import default_threads
 from lanecast.io_adapters.errors import LogError
 from lanecast.io_adapters.logs import assembly as log_assembly
 from lanecast.io_adapters.logs import conventions as conv
@@ -84,9 +86,12 @@ def sniff(path: str | Path) -> bool:
 class _LogDecoder:
     """Decodes the supported topics of one MCAP into TopicData and Transforms."""
 
-    def __init__(self, path: Path, topic: str | None) -> None:
+    def __init__(self, path: Path, topic: str | None, threads: int = 1) -> None:
         self.path = path
         self.topic = topic
+        # threads that decode protobuf SceneUpdates while the walk goes on (None: the walk's own)
+        self.pool = ThreadPoolExecutor(threads, thread_name_prefix="lanecast-decode") if threads > 1 else None
+        self.threads = threads
         self.defs = Definitions()
         self.schemas: dict[int, SchemaRecord] = self.defs.schemas
         self.channels: dict[int, ChannelRecord] = self.defs.channels
@@ -213,7 +218,7 @@ class _LogDecoder:
         if self.topic is None and ch.topic.startswith(OWN_TOPIC_PREFIX):
             return None  # lanecast's own forecasts in an annotated log are not tracked objects
         if ch.encoding == "protobuf":
-            return wire.SceneUpdateBatch(self._columns(ch.topic, SCENE_UPDATE))
+            return wire.SceneUpdateBatch(self._columns(ch.topic, SCENE_UPDATE), self.pool, self.threads - 1)
         if ch.encoding == "json":
             cols = self._columns(ch.topic, SCENE_UPDATE)
             loads = json.loads
@@ -331,7 +336,7 @@ class _LogDecoder:
         for h in self.handlers.values():
             if type(h) is wire.SceneUpdateBatch:
                 try:
-                    h.flush()
+                    h.finish()
                 except (ValueError, IndexError) as exc:
                     raise self._undecodable(exc) from exc
 
@@ -385,7 +390,7 @@ def read_log(
     with their CRCs checked before anything it makes is kept (annotate), so this pass skips them.
     """
     path = Path(path)
-    dec = _LogDecoder(path, topic)
+    dec = _LogDecoder(path, topic, default_threads())
     try:
         with path.open("rb") as f:
             if path.stat().st_size == 0:
@@ -399,6 +404,9 @@ def read_log(
         if crcs_checked_later and not salvage:  # damage found without the CRCs: a CRC may name it
             read_log(path, topic=topic, fixed_frames=fixed_frames)
         raise
+    finally:
+        if dec.pool is not None:
+            dec.pool.shutdown(cancel_futures=True)
     if salvage and (dec.stats.chunks_lost or dec.stats.damage):
         print(f"lanecast: {path}: {dec.stats.summary()}", file=sys.stderr)
     elif dec.stats.index:

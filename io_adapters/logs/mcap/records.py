@@ -12,6 +12,7 @@ sizes are bounded before any allocation.
 
 from __future__ import annotations
 
+import contextlib
 import struct
 import zlib
 from collections.abc import Iterator
@@ -174,37 +175,50 @@ def chunk_payload(buf: Any, body: int, end: int, crc_checked: bool = True) -> by
     (n,) = struct.unpack_from("<Q", buf, pos)
     if pos + 8 + n > end:
         raise ValueError(f"chunk records ({n} bytes) run past the chunk")
-    raw = buf[pos + 8 : pos + 8 + n]
-    if compression == "zstd":
-        import zstandard
-
-        pieces = []
+    with memoryview(buf) as view:
+        raw = view[pos + 8 : pos + 8 + n]  # no copy of the compressed bytes
         try:
-            with zstandard.ZstdDecompressor().stream_reader(bytes(raw), read_across_frames=True) as reader:
-                wanted = size + 1
-                while wanted > 0 and (piece := reader.read(wanted)):
-                    pieces.append(piece)
-                    wanted -= len(piece)
-        except zstandard.ZstdError as exc:  # a damaged frame (flipped or missing bytes)
-            raise ValueError(f"damaged zstd frame: {exc}") from exc
-        data = b"".join(pieces)
-    elif compression == "lz4":
-        import lz4.frame
-
-        try:
-            data = lz4.frame.LZ4FrameDecompressor().decompress(bytes(raw), max_length=size + 1)
-        except RuntimeError as exc:  # lz4 reports a damaged frame as RuntimeError
-            raise ValueError(f"damaged LZ4 frame: {exc}") from exc
-    elif compression == "":
-        data = bytes(raw)
-    else:
-        raise ValueError(f"unknown compression {compression!r}")
+            data = _decompressed(raw, compression, size)
+        finally:
+            raw.release()
     if len(data) != size:
         said = "more than" if len(data) > size else f"{len(data)} bytes,"
         raise ValueError(f"decompressed to {said} the {size} bytes the chunk says")
     if crc_checked and crc and zlib.crc32(data) != crc:
         raise CrcError(f"CRC mismatch (stored {crc:#010x}, computed {zlib.crc32(data):#010x})")
     return data
+
+
+def _decompressed(raw: memoryview, compression: str, size: int) -> bytes:
+    """A chunk's records, decompressed into one allocation of at most ``size`` + 1 bytes."""
+    if compression == "zstd":
+        import zstandard
+
+        if zstandard.frame_content_size(raw) == size:  # one frame that says its size: one pass
+            with contextlib.suppress(zstandard.ZstdError):  # the stream below names the damage
+                return zstandard.ZstdDecompressor().decompress(
+                    raw, max_output_size=size, allow_extra_data=False
+                )
+        pieces = []
+        try:
+            with zstandard.ZstdDecompressor().stream_reader(raw, read_across_frames=True) as reader:
+                wanted = size + 1
+                while wanted > 0 and (piece := reader.read(wanted)):
+                    pieces.append(piece)
+                    wanted -= len(piece)
+        except zstandard.ZstdError as exc:  # a damaged frame (flipped or missing bytes)
+            raise ValueError(f"damaged zstd frame: {exc}") from exc
+        return b"".join(pieces)
+    if compression == "lz4":
+        import lz4.frame
+
+        try:
+            return bytes(lz4.frame.LZ4FrameDecompressor().decompress(raw, max_length=size + 1))
+        except RuntimeError as exc:  # lz4 reports a damaged frame as RuntimeError
+            raise ValueError(f"damaged LZ4 frame: {exc}") from exc
+    if compression == "":
+        return bytes(raw)
+    raise ValueError(f"unknown compression {compression!r}")
 
 
 def check_attachment(buf: Any, body: int, end: int) -> None:

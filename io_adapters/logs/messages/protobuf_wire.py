@@ -195,7 +195,9 @@ def _scan_few(
     """The fields of a few messages buf[starts[i]:ends[i]], walked one field at a time in Python
     (well under a microsecond per field with one-byte tags and lengths, the common case):
     (owner, tag, value start, value end) arrays [m]."""
-    data = buf.tobytes()
+    base = int(starts.min())  # only the bytes of these messages are copied out (not the batch's)
+    data = buf[base : int(ends.max())].tobytes()
+    starts, ends = starts - base, ends - base
     owner_col: list[int] = []
     tag_col: list[int] = []
     start_col: list[int] = []
@@ -231,8 +233,8 @@ def _scan_few(
             if vend > end:
                 raise ValueError("malformed protobuf message (a field runs past its message)")
             tag_col.append(tag)
-            start_col.append(vstart)
-            end_col.append(vend)
+            start_col.append(vstart + base)
+            end_col.append(vend + base)
             pos = vend
         owner_col.extend([owner] * (len(tag_col) - first))
     return tuple(np.asarray(c, dtype=np.int64) for c in (owner_col, tag_col, start_col, end_col))

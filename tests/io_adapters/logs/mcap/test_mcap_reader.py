@@ -789,3 +789,43 @@ def test_log_with_numbered_topics_reads_the_same(tmp_path: Path) -> None:
     back, _ = mcap_reader.read_log(numbered)
     same_table(table, back)
     assert track_table.read_meta(back).recordings["rec-b"].extra["topic"] == "/tracked_objects/r1"
+
+
+@pytest.mark.parametrize("threads", ["1", "2"])
+def test_decoding_on_threads_gives_the_same_table_and_names_the_damaged_record(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, threads: str
+) -> None:
+    """SceneUpdates decoded on a pool of threads, batch by batch, while the walk goes on: the table
+    is the one a single thread makes, in the log's order, and a message that does not decode is
+    still named by the chunk that holds it, whichever batch it falls in."""
+    from conftest import rewrite_mcap
+
+    table = make_table(n_tracks=4, n_frames=120)
+    clean = mcap_writer.write(table, tmp_path / "log.mcap", "mcap", chunk_size=1500)
+    monkeypatch.setattr(wire.SceneUpdateBatch, "LIMIT", 4000)  # many batches in flight
+    monkeypatch.setenv("LANECAST_THREADS", "1")
+    single = mcap_reader.read(clean)
+    monkeypatch.setenv("LANECAST_THREADS", threads)
+    back = mcap_reader.read(clean)
+    assert back.equals(single) and back.schema.metadata == single.schema.metadata
+    assert_same_table(table, back)
+
+    bad = tmp_path / "bad.mcap"
+    damaged: list[int] = []
+
+    def edit(k: int, n: int, _log_time: int, data: bytes) -> bytes | None:
+        if k != 2 * n // 3:
+            return None
+        damaged.append(k)
+        return data + b"\x12\x50\x1a\x01"  # an entity that runs past the message
+
+    rewrite_mcap(clean, bad, edit)
+    assert damaged
+    monkeypatch.setenv("LANECAST_THREADS", "1")
+    with pytest.raises(LogError, match="SceneUpdate messages cannot be decoded") as single_err:
+        mcap_reader.read(bad)
+    monkeypatch.setenv("LANECAST_THREADS", threads)
+    with pytest.raises(LogError, match="SceneUpdate messages cannot be decoded") as err:
+        mcap_reader.read(bad)
+    assert err.value.offset is not None and err.value.offset > 0
+    assert err.value.offset == single_err.value.offset

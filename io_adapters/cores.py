@@ -1,0 +1,51 @@
+"""How many threads this process may use: the machine's free cores, shared among a bulk run's workers.
+
+The cores this process may run on, less those the machine's other work keeps busy (:func:`busy`),
+shared among the worker processes of a bulk run (``--workers N`` sets
+``LANECAST_WORKERS`` in each), at least one; ``LANECAST_THREADS`` overrides. Used by ONNX Runtime's
+sessions and by the MCAP reader's SceneUpdate decoding. Under load or beside other workers the
+answer is one thread, as more threads then only contend (BENCHMARKS.md).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+#: Environment variable overriding the threads of this process.
+THREADS_ENV = "LANECAST_THREADS"
+#: Environment variable a bulk run's worker processes carry: how many share the machine.
+WORKERS_ENV = "LANECAST_WORKERS"
+
+
+def choose_threads(cores: int, load: float, workers: int = 1) -> int:
+    """Threads for each of ``workers`` processes on ``cores`` cores of which the machine's other
+    work keeps ``load`` busy (1-minute load average): the free cores shared out, at least 1."""
+    free = min(cores, cores - round(load))
+    return max(1, free // max(1, workers))
+
+
+def default_threads() -> int:
+    """Threads for this process: ``$LANECAST_THREADS``, else :func:`choose_threads` of the cores it
+    may run on, the load average and ``$LANECAST_WORKERS``."""
+    value = os.environ.get(THREADS_ENV, "")
+    if value.strip().isdigit():
+        return max(1, int(value))
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    workers = os.environ.get(WORKERS_ENV, "1")
+    return choose_threads(cores, busy(), int(workers) if workers.isdigit() else 1)
+
+
+def busy(loadavg: str | None = None) -> float:
+    """Cores the machine's other work keeps busy: the 1-minute load average, or the threads running
+    right now besides this one where fewer (``/proc/loadavg``, text ``loadavg`` for tests).
+
+    The average alone lags: a minute after lanecast's own previous command (or a benchmark's
+    previous round) it still counts that work, and an idle machine would get one thread.
+    """
+    try:
+        text = loadavg if loadavg is not None else Path("/proc/loadavg").read_text()
+        fields = text.split()
+        return min(float(fields[0]), max(0, int(fields[3].split("/")[0]) - 1))
+    except (OSError, IndexError, ValueError):
+        return os.getloadavg()[0] if hasattr(os, "getloadavg") else 0.0
