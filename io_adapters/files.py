@@ -28,7 +28,7 @@ from fnmatch import fnmatch
 from pathlib import Path
 from typing import Any, TypeVar
 
-from tqdm.auto import tqdm
+from tqdm.std import tqdm  # not tqdm.auto: it imports asyncio (~20 ms), for notebooks
 
 from lanecast.io_adapters.errors import InputError, OutputError
 from lanecast.io_adapters.ownership import check_replaceable_output

@@ -5,13 +5,23 @@ Sub-packages (the repository's top-level folders, installed under this one names
 ``lanecast.models`` (the network, training, metrics), ``lanecast.workflows`` (the commands).
 """
 
-from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
-try:
-    __version__ = version("lanecast")
-except PackageNotFoundError:  # running from a source tree that was never installed
-    __version__ = "0+unknown"
+
+def __getattr__(name: str) -> str:
+    """``__version__``, looked up when first asked for: importlib.metadata would cost every
+    command ~30 ms of start-up."""
+    if name != "__version__":
+        raise AttributeError(f"module 'lanecast' has no attribute {name!r}")
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        value = version("lanecast")
+    except PackageNotFoundError:  # running from a source tree that was never installed
+        value = "0+unknown"
+    globals()["__version__"] = value
+    return value
+
 
 # In a checkout, lanecast/<folder> links to the folder beside it; where git made no links
 # (core.symlinks=false) the folders themselves are the sub-packages, as setup.py maps them in a build.

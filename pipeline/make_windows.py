@@ -17,7 +17,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from lanecast import __version__
+import lanecast
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.contracts.track_runs import run_bounds
 from lanecast.io_adapters.contracts.windows import (
@@ -435,7 +435,7 @@ def build_manifest(
     return {
         "format": FORMAT_NAME,
         "format_version": FORMAT_VERSION,
-        "lanecast_version": __version__,
+        "lanecast_version": lanecast.__version__,
         "parameters": parameters,
         "sources": {
             "source_format": meta.source_format,

@@ -19,8 +19,10 @@ import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from types import FrameType
+from typing import Any
 
-from lanecast import __version__
+import lanecast
+from lanecast.io_adapters import arrow_pandas
 from lanecast.io_adapters.errors import InputError, LanecastError
 from lanecast.workflows.vocabulary import HelpFormatter
 
@@ -86,6 +88,17 @@ def printable_everywhere() -> None:
             stream.reconfigure(errors="lanecast-ascii")
 
 
+class VersionAction(argparse.Action):
+    """``--version``: the version is looked up only when asked for (see lanecast.__getattr__)."""
+
+    def __init__(self, option_strings: list[str], dest: str, **kwargs: Any) -> None:
+        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS, **kwargs)
+
+    def __call__(self, parser: argparse.ArgumentParser, *_: Any) -> None:
+        print(f"lanecast {lanecast.__version__}")
+        parser.exit()
+
+
 def build_parser(only: str | bool | None = True) -> argparse.ArgumentParser:
     """The command line's parser. ``only``: True builds every command's parser (importing every
     command module); a command's name builds that one and lists the others by their one-line help;
@@ -96,7 +109,7 @@ def build_parser(only: str | bool | None = True) -> argparse.ArgumentParser:
         epilog="Start with: lanecast demo",
         formatter_class=HelpFormatter,
     )
-    parser.add_argument("--version", action="version", version=f"lanecast {__version__}")
+    parser.add_argument("--version", action=VersionAction, help="show lanecast's version and exit")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in COMMANDS:
         if only is not True and name != only:
@@ -243,7 +256,11 @@ def _on_sigterm(pid: int) -> Callable[[int, FrameType | None], None]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command in ``argv``; None: this process's command line (the ``lanecast`` script,
+    ``python -m lanecast``), which also defers pandas in the process (io_adapters/arrow_pandas.py)."""
     printable_everywhere()
+    if argv is None:
+        arrow_pandas.defer()
     given = list(sys.argv[1:] if argv is None else argv)
     command = next((a for a in given if not a.startswith("-")), None)
     parser = build_parser(only=command if command in SUMMARIES else None)

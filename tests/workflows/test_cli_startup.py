@@ -5,11 +5,13 @@ from __future__ import annotations
 import argparse
 import subprocess
 import sys
+from pathlib import Path
 
 from lanecast.workflows.cli import SUMMARIES, build_parser
 
 PROBE = """
 import sys
+from pathlib import Path
 from lanecast.workflows.cli import main
 try:
     main({argv!r})
@@ -61,6 +63,7 @@ def test_every_commands_help_imports_none_of_the_work() -> None:
     (each costs 0.1–2 s of start-up that a user waiting for a help text should not pay)."""
     probe = f"""
 import sys
+from pathlib import Path
 from lanecast.workflows.cli import main
 for command in sys.argv[1:]:
     try:
@@ -74,3 +77,24 @@ print("heavy:" + ",".join(sorted({{m.split(".")[0] for m in sys.modules}} & set(
     )
     assert "usage: lanecast simulate" in done.stdout and "usage: lanecast train" in done.stdout
     assert done.stdout.strip().splitlines()[-1] == "heavy:", done.stdout[-400:]
+
+
+def test_reading_a_small_dataset_imports_no_notebook_machinery_nor_looks_up_the_version() -> None:
+    """`lanecast info` on a small highD recording: no asyncio (tqdm.auto's, for notebooks, ~20 ms)
+    and no look-up of lanecast's version in the installed packages' metadata (only when printed)."""
+    data = Path(__file__).resolve().parents[1] / "data" / "highd"
+    probe = f"""
+import sys
+from pathlib import Path
+from lanecast.workflows.cli import main
+main(["info", {str(data)!r}])
+import lanecast
+print("loaded:" + ",".join(sorted(({{"asyncio"}} & set(sys.modules)) | ({{"__version__"}} & set(vars(lanecast))))))
+"""
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)
+    assert "highd-01-lower" in done.stdout
+    assert done.stdout.strip().splitlines()[-1] == "loaded:", done.stdout[-400:]
+    version = subprocess.run(
+        [sys.executable, "-m", "lanecast", "--version"], capture_output=True, text=True, check=True
+    )
+    assert version.stdout.startswith("lanecast ") and len(version.stdout.split()) == 2

@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from lanecast import __version__
+import lanecast
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.files import bar, checksum
 from lanecast.models.card import provenance, provenance_line, resolve
@@ -378,7 +378,7 @@ def _run_bulk(
                     "reason": task.reason,
                     "options": task.options,
                     "options_key": options_key(task.options),
-                    "lanecast": __version__,
+                    "lanecast": lanecast.__version__,
                 }
             )
         progress = bar(desc="annotate", total=len(inputs), unit="log")
@@ -395,7 +395,7 @@ def _run_bulk(
                 output=relative_to_manifest(task.output, out_dir),
                 options=task.options,
                 options_key=options_key(task.options),
-                lanecast=__version__,
+                lanecast=lanecast.__version__,
             )
             manifest.append(entry)
             result.given[len(result.entries)] = str(task.input)  # as named, links not followed

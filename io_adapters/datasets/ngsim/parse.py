@@ -17,6 +17,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.csv as pacsv
 
+from lanecast.io_adapters import arrow_pandas
 from lanecast.io_adapters.datasets import csv_errors
 from lanecast.io_adapters.datasets.ngsim.checks import NAN_LITERALS, check_values, checked_ranges, integral
 from lanecast.io_adapters.datasets.ngsim.columns import INTEGER_COLUMNS, TXT_COLUMNS, USED_COLUMNS
@@ -73,6 +74,7 @@ def _parse_txt(path: Path, location: str | None) -> Parsed:
     n_fields = len(TXT_COLUMNS)
     # Integer columns as int64 where every cell is a plain integer (ids above 2^53 stay exact),
     # else everything as float64 and the integers checked afterwards.
+    arrow_pandas.allow()
     import pandas as pd  # here, not at the top: every other command is spared its import (~0.2 s)
 
     int_types = {
@@ -227,6 +229,7 @@ def _parse_csv_slowly(
         csv_errors.check_parseable(path, path.read_bytes())
         raise InputError(path, f"cannot parse: {failure}", expected="NGSIM CSV rows") from failure
     checked = [n for n in (*USED_COLUMNS, "direction") if n in by_lower]
+    arrow_pandas.allow()
     columns = {
         n: _coerce(strings.column(by_lower[n]).to_pandas(), allow_missing=n == "direction") for n in checked
     }
@@ -259,6 +262,7 @@ def _coerce(cells: pd.Series, allow_missing: bool = False) -> np.ndarray:
     """Cells as float64 [n], NaN where a cell is not a number (for locating bad cells). With
     ``allow_missing`` (columns this reader does not use), missing-value cells such as NaN count as
     fine (0.0): only text that is not a number at all is flagged."""
+    arrow_pandas.allow()
     import pandas as pd  # only for bad or text files (see _parse_txt)
 
     values = np.array(pd.to_numeric(cells, errors="coerce"), dtype=np.float64)  # a writable copy
