@@ -364,10 +364,9 @@ def annotate_log(
             _readable(tmp)
     else:
         with atomic_path(out) as tmp, open(tmp, "wb") as f:
-            if kind == "mcap" and options.salvage:
-                stats = mcap_salvage_copy.copy_mcap_salvaged(src, f, merge=merge(), info=info, digest=digest)
-            elif kind == "mcap":
-                stats = mcap_copy.copy_mcap(src, f, merge=merge(), info=info, digest=digest)
+            if kind == "mcap":
+                copy = mcap_salvage_copy.copy_mcap_salvaged if options.salvage else mcap_copy.copy_mcap
+                stats = copy(src, f, merge(), mcap_copy.CopyOptions(info=info, digest=digest))
             else:
                 stats = bag_copy.copy_ros1_to_mcap(src, f, merge())
             f.flush()

@@ -133,6 +133,21 @@ class McapSummaryInfo:
     topics: frozenset[str] = frozenset()
 
 
+@dataclass(frozen=True)
+class CopyOptions:
+    """How a log is copied (by :func:`copy_mcap` and the salvage copy alike): ``chunk_size`` of the
+    output's chunks; ``info``: the log's :func:`summary_info` when the caller has it already;
+    ``digest`` (a ``hashlib`` object): fed every byte of the source as it is copied, so that a
+    checksum costs no second read."""
+
+    chunk_size: int = CHUNK_SIZE
+    info: McapSummaryInfo | None = None
+    digest: Any = None
+
+
+DEFAULT_COPY = CopyOptions()
+
+
 def check_records(path: Path) -> None:
     """The McapError naming the offset of the first damaged record of MCAP ``path`` (the reader's
     checked walk), or of the first index record that disagrees with the data section, for a copy
@@ -253,20 +268,20 @@ def zstd_writer(out: BinaryIO, chunk_size: int = CHUNK_SIZE) -> IdWriter:
 
 
 def start_copy(
-    src: Path, out: BinaryIO, merge: Merge, info: McapSummaryInfo | None, chunk_size: int
+    src: Path, out: BinaryIO, merge: Merge, options: CopyOptions
 ) -> tuple[McapSummaryInfo, CopyStats, IdWriter, MergedCopy, list[int], list[int]]:
-    """What every copy of an MCAP starts with: the log's summary (``info``, read if None) checked for
-    the topics to add; schema and channel ids for the extra channels above the log's own (without a
+    """What every copy of an MCAP starts with: the log's summary (``options.info``, read if None)
+    checked for the topics to add; schema and channel ids for the extra channels above the log's own (without a
     summary, counted down from 65535, and a clash with a later original id is an error); the writer
     and the merge of the extra messages."""
-    info = info or summary_info(src)
+    info = options.info or summary_info(src)
     check_new_topics(src, info.topics, merge.channels)
     stats = CopyStats(profile=info.profile)
     n = len(merge.channels)
     schema_ids = [info.max_schema_id + 1 + i if info.has_summary else 0xFFFF - i for i in range(n)]
     channel_ids = [info.max_channel_id + 1 + i if info.has_summary else 0xFFFF - i for i in range(n)]
     stats.extra_channel_ids = channel_ids
-    writer = zstd_writer(out, chunk_size)
+    writer = zstd_writer(out, options.chunk_size)
     copying = MergedCopy(
         merge, stats, lambda item: writer.add_message(channel_ids[item[1]], item[0], item[2], item[0], 0)
     )
@@ -314,24 +329,17 @@ class _HashingRaw(io.RawIOBase):
 
 
 def copy_mcap(
-    src: Path,
-    out: BinaryIO,
-    merge: Merge | None = None,
-    *,
-    chunk_size: int = CHUNK_SIZE,
-    info: McapSummaryInfo | None = None,
-    digest: Any = None,
+    src: Path, out: BinaryIO, merge: Merge | None = None, options: CopyOptions = DEFAULT_COPY
 ) -> CopyStats:
     """Stream every record of MCAP ``src`` into ``out`` (an open binary file), merging ``merge``'s messages.
 
     The extra channels get schema and channel ids above the log's own (from its summary; without a
     summary, ids counted down from 65535, and a clash with a later original id is an error).
-    ``info``: the log's ``summary_info`` when the caller has it already; ``digest`` (a ``hashlib``
-    object) is fed every byte of ``src`` as it is copied, so that a checksum costs no second read.
     """
     src = Path(src)
     merge = merge or Merge()
-    info, stats, writer, copying, schema_ids, channel_ids = start_copy(src, out, merge, info, chunk_size)
+    info, stats, writer, copying, schema_ids, channel_ids = start_copy(src, out, merge, options)
+    digest = options.digest
     with open(src, "rb", buffering=0) as raw:
         stats.bytes_in = os.fstat(raw.fileno()).st_size
         hashing = _HashingRaw(raw, digest) if digest is not None else None

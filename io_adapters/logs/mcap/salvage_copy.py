@@ -23,11 +23,11 @@ from mcap.records import Channel, Schema
 from lanecast.io_adapters.errors import LogError
 from lanecast.io_adapters.logs.forecast_messages import ChannelSpec
 from lanecast.io_adapters.logs.mcap.copy import (
-    CHUNK_SIZE,
+    DEFAULT_COPY,
     LIBRARY,
+    CopyOptions,
     CopyStats,
     IdWriter,
-    McapSummaryInfo,
     Merge,
     MergedCopy,
     check_new_topics,
@@ -134,13 +134,7 @@ def _channel(buf: Any, body: int, end: int) -> tuple[int, Channel]:
 
 
 def copy_mcap_salvaged(
-    src: Path,
-    out: BinaryIO,
-    merge: Merge | None = None,
-    *,
-    chunk_size: int = CHUNK_SIZE,
-    info: McapSummaryInfo | None = None,
-    digest: Any = None,
+    src: Path, out: BinaryIO, merge: Merge | None = None, options: CopyOptions = DEFAULT_COPY
 ) -> CopyStats:
     """:func:`copy_mcap` of a damaged MCAP (annotate --salvage): the records of every intact chunk
     and every intact top-level record, through the reader's checked walk with salvage, which skips
@@ -148,7 +142,7 @@ def copy_mcap_salvaged(
     complete MCAP with a summary made from what it holds."""
     src = Path(src)
     merge = merge or Merge()
-    info, stats, writer, copying, schema_ids, channel_ids = start_copy(src, out, merge, info, chunk_size)
+    info, stats, writer, copying, schema_ids, channel_ids = start_copy(src, out, merge, options)
     writer.start(profile=info.profile, library=LIBRARY)
     writer.put_extra(merge.channels, schema_ids, channel_ids)
     sink = _CopySink(src, writer, copying, (set(schema_ids), set(channel_ids)), merge.channels)
@@ -156,8 +150,8 @@ def copy_mcap_salvaged(
         stats.bytes_in = os.fstat(f.fileno()).st_size
         with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
             walk(mm, src, sink, True)
-            if digest is not None:
-                digest.update(mm)
+            if options.digest is not None:
+                options.digest.update(mm)
     stats.schemas, stats.channels = len(sink.schemas), len(sink.channels)
     finish_copy(writer, copying, out)
     return stats

@@ -172,13 +172,13 @@ from pathlib import Path
 from lanecast.io_adapters.logs.mcap import copy as mcap_copy
 from lanecast.workflows.cli import main
 ready, copy_mcap, calls = Path(sys.argv[1]), mcap_copy.copy_mcap, []
-def pausing_copy(src, out, **kwargs):
+def pausing_copy(src, out, *args):
     calls.append(src)
     if len(calls) == 3:
         out.write(b"half a log")
         ready.write_text(str(src))
         time.sleep(600)
-    return copy_mcap(src, out, **kwargs)
+    return copy_mcap(src, out, *args)
 mcap_copy.copy_mcap = pausing_copy
 sys.exit(main(sys.argv[2:]))
 """
