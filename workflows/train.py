@@ -202,14 +202,17 @@ def train_and_save(
     """Train (from the weights of model ``init`` if given, "default" = the shipped model), evaluate
     on val and test (if present), save; return the card. ``keep``: how a fine-tune keeps the init
     model's skills (lanecast.models.finetune; default FinetuneOptions())."""
-    from lanecast.io_adapters.windows_store.dataset import load_windows
-    from lanecast.models.baselines import constant_velocity
-    from lanecast.models.checkpoint import save_checkpoint
-    from lanecast.models.evaluation import evaluate
-    from lanecast.models.predict import STCNNForecaster
-    from lanecast.models.train import train
+    from lanecast.io_adapters.files import activity
 
-    windows = load_windows(windows_dir, check_values=True)
+    with activity("train: loading torch and the windows"):
+        from lanecast.io_adapters.windows_store.dataset import load_windows
+        from lanecast.models.baselines import constant_velocity
+        from lanecast.models.checkpoint import save_checkpoint
+        from lanecast.models.evaluation import evaluate
+        from lanecast.models.predict import STCNNForecaster
+        from lanecast.models.train import train
+
+        windows = load_windows(windows_dir, check_values=True)
     data = {
         "windows": str(windows_dir),
         "sources": windows.manifest.get("sources"),
@@ -235,7 +238,8 @@ def train_and_save(
     metrics: dict[str, Any] = {}
     for name, splits in (("validation", ("val",)), ("test", ("test",))):
         try:
-            scores = evaluate(windows, [forecaster, constant_velocity()], splits=splits, top_k=top_k)[0]
+            with activity(f"train: scoring the model on the {name} windows"):
+                scores = evaluate(windows, [forecaster, constant_velocity()], splits=splits, top_k=top_k)[0]
         except InputError:  # no labelled windows in that split
             metrics[name] = None
             continue
