@@ -8,7 +8,8 @@ track id) and, in ROS 2 logs (CDR), ``autoware_perception_msgs/msg/TrackedObject
 :mod:`lanecast.io_adapters.logs.coordinate_frames`). The file's records come from the checked walk
 of :mod:`lanecast.io_adapters.logs.mcap.walk` (``salvage=True`` skips damaged chunks and reports
 the loss); this module dispatches them by channel to a decoder per schema: protobuf SceneUpdates in
-batches (:class:`~lanecast.io_adapters.logs.foxglove.scene_update_decode.SceneUpdateBatch`), the others one
+batches (:class:`~lanecast.io_adapters.logs.foxglove.scene_update_decode.SceneUpdateBatch`, decoded on
+the free cores' threads while the walk goes on: :mod:`lanecast.io_adapters.cores`), the others one
 message at a time, and assembles the table with :mod:`lanecast.io_adapters.logs.assembly`.
 """
 
