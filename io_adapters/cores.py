@@ -20,7 +20,7 @@ WORKERS_ENV = "LANECAST_WORKERS"
 
 def choose_threads(cores: int, load: float, workers: int = 1) -> int:
     """Threads for each of ``workers`` processes on ``cores`` cores of which the machine's other
-    work keeps ``load`` busy (1-minute load average): the free cores shared out, at least 1."""
+    work keeps ``load`` busy (:func:`busy`): the free cores shared out, at least 1."""
     free = min(cores, cores - round(load))
     return max(1, free // max(1, workers))
 

@@ -19,6 +19,7 @@ from concurrent.futures import Future, ProcessPoolExecutor
 from pathlib import Path
 from typing import Any, TypeVar
 
+from lanecast.io_adapters import cores
 from lanecast.io_adapters.errors import InputError, LanecastError
 from lanecast.workflows.arguments import MAX_WORKERS, integer
 from lanecast.workflows.bulk import ray_backend
@@ -123,14 +124,14 @@ def _start_worker(workers: int) -> None:
     the free cores, lanecast.io_adapters.cores.default_threads); freed memory kept for reuse."""
     from lanecast.workflows.bulk import freed_memory  # pyarrow: only where work runs
 
-    os.environ["LANECAST_WORKERS"] = str(workers)
+    os.environ[cores.WORKERS_ENV] = str(workers)
     freed_memory.keep_freed_memory()
 
 
 def _call(fn: Callable[[T], R], item: T) -> R:
     from lanecast.workflows.bulk import freed_memory
 
-    os.environ.setdefault("LANECAST_THREADS", "1")  # a Ray task holds one CPU
+    os.environ.setdefault(cores.THREADS_ENV, "1")  # a Ray task holds one CPU
     freed_memory.keep_freed_memory()  # once per Ray worker process
     return fn(item)
 

@@ -323,8 +323,9 @@ class SceneUpdateBatch:
 
     Holds the decompressed bytes of the chunks it has spans in until they are decoded, never more
     than ``ahead`` + 1 batches. With a ``pool`` (threads), full batches are decoded on it, up to
-    ``ahead`` + 1 at a time, while the reader goes on decompressing: numpy releases the GIL in its loops, so two cores decode 1.5×
-    faster than one (BENCHMARKS.md); the decoded blocks reach the columns in the log's order.
+    ``ahead`` + 1 at a time, while the reader goes on decompressing: numpy releases the GIL in its
+    loops, so two cores decode 1.5× faster than one (BENCHMARKS.md); the decoded blocks reach the
+    columns in the log's order.
     (Larger batches cost no less: the decoder works through them in cache-sized entity groups.)
     """
 

@@ -271,9 +271,9 @@ def start_copy(
     src: Path, out: BinaryIO, merge: Merge, options: CopyOptions
 ) -> tuple[McapSummaryInfo, CopyStats, IdWriter, MergedCopy, list[int], list[int]]:
     """What every copy of an MCAP starts with: the log's summary (``options.info``, read if None)
-    checked for the topics to add; schema and channel ids for the extra channels above the log's own (without a
-    summary, counted down from 65535, and a clash with a later original id is an error); the writer
-    and the merge of the extra messages."""
+    checked for the topics to add; schema and channel ids for the extra channels above the log's
+    own (without a summary, counted down from 65535, and a clash with a later original id is an
+    error); the writer and the merge of the extra messages."""
     info = options.info or summary_info(src)
     check_new_topics(src, info.topics, merge.channels)
     stats = CopyStats(profile=info.profile)

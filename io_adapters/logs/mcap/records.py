@@ -175,12 +175,8 @@ def chunk_payload(buf: Any, body: int, end: int, crc_checked: bool = True) -> by
     (n,) = struct.unpack_from("<Q", buf, pos)
     if pos + 8 + n > end:
         raise ValueError(f"chunk records ({n} bytes) run past the chunk")
-    with memoryview(buf) as view:
-        raw = view[pos + 8 : pos + 8 + n]  # no copy of the compressed bytes
-        try:
-            data = _decompressed(raw, compression, size)
-        finally:
-            raw.release()
+    with memoryview(buf) as view, view[pos + 8 : pos + 8 + n] as raw:  # no copy of the compressed bytes
+        data = _decompressed(raw, compression, size)
     if len(data) != size:
         said = "more than" if len(data) > size else f"{len(data)} bytes,"
         raise ValueError(f"decompressed to {said} the {size} bytes the chunk says")

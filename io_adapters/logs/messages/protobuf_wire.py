@@ -233,11 +233,12 @@ def _scan_few(
             if vend > end:
                 raise ValueError("malformed protobuf message (a field runs past its message)")
             tag_col.append(tag)
-            start_col.append(vstart + base)
-            end_col.append(vend + base)
+            start_col.append(vstart)
+            end_col.append(vend)
             pos = vend
         owner_col.extend([owner] * (len(tag_col) - first))
-    return tuple(np.asarray(c, dtype=np.int64) for c in (owner_col, tag_col, start_col, end_col))
+    owner, tag, start, end = (np.asarray(c, dtype=np.int64) for c in (owner_col, tag_col, start_col, end_col))
+    return owner, tag, start + base, end + base
 
 
 def _varint_at(data: bytes, pos: int, end: int) -> tuple[int, int]:
