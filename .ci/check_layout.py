@@ -2,7 +2,7 @@
 
 1. No lanecast module is imported inside a function, except modules that load a heavy or optional
    dependency at import, directly or through other lanecast modules (torch, matplotlib, ray,
-   libsumo, onnxruntime; and numpy, pyarrow, pandas, scipy, tqdm and the log libraries, which a
+   libsumo, onnxruntime; and numpy, pyarrow, pandas, scipy and the log libraries, which a
    command's ``--help`` must not pay for), and the command modules ``cli.py`` loads lazily.
 2. No import cycle among lanecast modules (module-level imports; function-level ones are listed
    apart, since they run later; imports under ``if TYPE_CHECKING:`` never run and do not count).
@@ -27,7 +27,6 @@ HEAVY = (
         "pyarrow",
         "pandas",
         "scipy",
-        "tqdm",
         "mcap",
         "mcap_protobuf",
         "rosbags",

@@ -1,4 +1,4 @@
-"""Files lanecast writes and the progress it shows while working.
+"""Files lanecast reads and writes.
 
 Atomic outputs: a reader never sees half of one. Outputs are written under a temporary name beside the target and renamed into place only when
 complete; on any error the temporary is removed and an existing target is left untouched.
@@ -6,10 +6,6 @@ complete; on any error the temporary is removed and an existing target is left u
 Paths: :func:`check_input` is the one place that decides whether a path may be opened as an input
 (a regular file or a directory, readable; never a FIFO, device or symlink loop, which would block
 or crash a sniffer), :func:`check_output` whether an output path can be written.
-
-Progress: tqdm's bars on stderr when it is a terminal; when it is not (a pipe, a log file, CI), a
-plain line every few seconds (``LINE_INTERVAL_S``) and one at the end, so that long work in a batch
-job still shows that it moves, without carriage returns or bar characters in the log.
 """
 
 from __future__ import annotations
@@ -19,27 +15,13 @@ import hashlib
 import os
 import shutil
 import stat
-import sys
 import tempfile
-import threading
-import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterator
 from fnmatch import fnmatch
 from pathlib import Path
-from typing import Any, TypeVar
-
-from tqdm.std import tqdm  # not tqdm.auto: it imports asyncio (~20 ms), for notebooks
 
 from lanecast.io_adapters.errors import InputError, OutputError
 from lanecast.io_adapters.ownership import check_replaceable_output
-
-T = TypeVar("T")
-
-LINE_INTERVAL_S = 5.0  # seconds between two progress lines when stderr is not a terminal
-LINE_FORMAT = (
-    "{desc}: {n_fmt}/{total_fmt} {unit} ({percentage:.0f}%) [{elapsed}<{remaining}, {rate_fmt}{postfix}]"
-)
-LINE_FORMAT_NO_TOTAL = "{desc}: {n_fmt} {unit} [{elapsed}, {rate_fmt}{postfix}]"
 
 
 def _umask() -> int:
@@ -271,148 +253,6 @@ def staged_files(target: str | Path, *, force: bool = False) -> Iterator[Path]:
             final.chmod(0o666 & ~_umask())  # mkdtemp's owner-only mode is not the outputs'
     finally:
         shutil.rmtree(stage, ignore_errors=True)
-
-
-class ProgressLines(tqdm):
-    """tqdm that writes whole lines (no ``\\r``, no bar) at most every ``mininterval`` seconds, and a
-    last line when it closes: progress for a stderr that is not a terminal."""
-
-    _last_line_at = -float("inf")
-    _closing = False
-    final_line = True  # False: close without the last count (the work stopped on an error)
-
-    def display(self, msg: str | None = None, pos: int | None = None) -> bool:  # type: ignore[override]
-        if msg == "":  # tqdm clearing its line: nothing to clear in a log
-            return False
-        now = time.monotonic()
-        if not self._closing and now - self._last_line_at < self.mininterval:
-            return False  # e.g. tqdm.write restoring the bar after a message
-        self._last_line_at = now
-        text = self.__str__() if msg is None else msg
-        self.fp.write(text.strip() + "\n")
-        self.fp.flush()
-        return True
-
-    def clear(self, nolock: bool = False) -> None:
-        """Lines are never erased (tqdm.write calls this before and after its message)."""
-
-    def set_postfix(self, ordered_dict: Any = None, refresh: bool | None = True, **kwargs: Any) -> None:
-        """Only the timed updates print a line: a new postfix does not force one."""
-        super().set_postfix(ordered_dict, refresh=False, **kwargs)
-
-    def set_postfix_str(self, s: str = "", refresh: bool = True) -> None:
-        super().set_postfix_str(s, refresh=False)
-
-    def close(self) -> None:
-        if self.final_line and not self.disable and getattr(self, "last_print_n", self.n) != self.n:
-            self._closing = True
-            self.display()  # the final count, unless the last line already said it
-        super().close()
-
-
-def _terminal_columns() -> int:
-    """stderr's terminal width; 0 where the terminal does not say (``script -qc`` without a size)."""
-    try:
-        return os.get_terminal_size(sys.stderr.fileno()).columns
-    except (OSError, ValueError):
-        return 0
-
-
-def _bar_kwargs(total: int | float | None) -> dict[str, Any]:
-    if sys.stderr.isatty():
-        if _terminal_columns() <= 0:  # tqdm would draw a bar of no width: nothing at all
-            return {"disable": None, "ncols": 80, "nrows": 24, "leave": False}
-        return {"disable": None, "dynamic_ncols": True, "leave": False}
-    return {
-        "file": sys.stderr,
-        # every update looks at the clock: tqdm's adaptive count, learnt in a fast phase (a
-        # simulation's warm-up), let a slow phase after it go without a line for 15 s and more
-        "miniters": 1,
-        "mininterval": LINE_INTERVAL_S,
-        "maxinterval": max(LINE_INTERVAL_S, 10.0),
-        "bar_format": LINE_FORMAT if total else LINE_FORMAT_NO_TOTAL,
-        "leave": False,
-    }
-
-
-def progress(iterable: Iterable[T], *, desc: str, total: int | None = None, unit: str = "it") -> Iterator[T]:
-    """Wrap ``iterable`` in progress: a bar on a terminal, a line every few seconds otherwise."""
-    if total is None and hasattr(iterable, "__len__"):
-        total = len(iterable)  # type: ignore[arg-type]
-    with bar(desc=desc, total=total, unit=unit) as shown:
-        try:
-            for item in iterable:
-                yield item
-                shown.update(1)
-        except GeneratorExit:
-            # The consumer stopped, on an error whose message may already be out: a count printed
-            # now (when the abandoned generator is collected) would follow it as stderr's last line.
-            if isinstance(shown, ProgressLines):
-                shown.final_line = False
-            raise
-
-
-@contextlib.contextmanager
-def activity(desc: str) -> Iterator[None]:
-    """Life signs for a step that has no count to show (a model's export, a report's figures): on a
-    terminal a line with the elapsed time, otherwise a line when it starts and every few seconds
-    while it runs, so that no command stays silent for longer than that."""
-    tty = sys.stderr.isatty()
-    shown = bar(desc=desc, total=None, unit="s", bar_format="{desc} ({elapsed})")
-    done = threading.Event()
-    started = time.monotonic()
-
-    def tick() -> None:
-        while not done.wait(0.5 if tty else 1.0):
-            shown.update(int(time.monotonic() - started) - shown.n)
-
-    ticker = threading.Thread(target=tick, name=f"activity: {desc}", daemon=True)
-    ticker.start()
-    try:
-        yield
-    except BaseException:
-        if isinstance(shown, ProgressLines):
-            shown.final_line = False  # the error is the last line, not a count after it
-        raise
-    finally:
-        done.set()
-        ticker.join()
-        shown.close()
-
-
-_outer_bars = 0  # bars of a whole job open in this process: the bars of its parts stay quiet
-
-
-@contextlib.contextmanager
-def job_progress(*, desc: str, total: int, unit: str) -> Iterator[tqdm]:
-    """One bar for a whole job of ``total`` parts (convert's pieces, say): the bars the parts would
-    show of their own (a reader's "0/1 recording") are not shown while it is open. A job of one
-    part shows that part's bars instead."""
-    global _outer_bars
-    if total <= 1:  # one part: its own bar says more (a reader's recordings), and nothing is doubled
-        with tqdm(total=total, disable=True) as silent:
-            yield silent
-        return
-    with bar(desc=desc, total=total, unit=unit) as shown:
-        _outer_bars += 1
-        try:
-            yield shown
-        finally:
-            _outer_bars -= 1
-
-
-def bar(
-    *, desc: str, total: int | float | None = None, unit: str = "it", bar_format: str | None = None
-) -> tqdm:
-    """A manual progress bar (``update(n)``): a bar on a terminal, a line every few seconds otherwise;
-    none while a :func:`job_progress` bar is open."""
-    cls = tqdm if sys.stderr.isatty() else ProgressLines
-    kwargs = _bar_kwargs(total)
-    if _outer_bars:
-        kwargs["disable"] = True
-    if bar_format is not None:
-        kwargs["bar_format"] = bar_format
-    return cls(desc=desc, total=total, unit=unit, **kwargs)
 
 
 def checksum(path: Path) -> str:

@@ -36,7 +36,8 @@ from lanecast.io_adapters import json_fields as jf
 from lanecast.io_adapters.contracts.normalisation import NormStats, compute_stats, normalise
 from lanecast.io_adapters.contracts.windows import Windows, labelled
 from lanecast.io_adapters.errors import InputError
-from lanecast.io_adapters.files import bar, check_input
+from lanecast.io_adapters.files import check_input
+from lanecast.io_adapters.progress import bar
 from lanecast.models import ood
 from lanecast.models.augment import Augmentation, augment
 from lanecast.models.baselines import CV_SPAN, RELATIVE_TO, reference_offsets

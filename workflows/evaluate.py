@@ -10,6 +10,7 @@ import argparse
 from pathlib import Path
 
 from lanecast.io_adapters.errors import InputError
+from lanecast.io_adapters.progress import activity
 from lanecast.models.card import provenance, provenance_line, resolve
 from lanecast.workflows.arguments import MANEUVER_SEQUENCES, MAX_EXAMPLES, integer
 from lanecast.workflows.vocabulary import HelpFormatter, add_force_option, add_model_option
@@ -57,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
     import torch  # heavy: loaded when the command runs, not for `lanecast --help`
 
-    from lanecast.io_adapters.files import activity, check_output_dir, staged_files
+    from lanecast.io_adapters.files import check_output_dir, staged_files
     from lanecast.io_adapters.windows_store.dataset import load_windows
     from lanecast.models.baselines import constant_acceleration, constant_velocity
     from lanecast.models.evaluation import (

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.formats import registry
+from lanecast.io_adapters.progress import activity
 from lanecast.models.card import provenance, provenance_line
 from lanecast.workflows.arguments import MANEUVER_SEQUENCES, MAX_TIME_S, integer, number
 from lanecast.workflows.vocabulary import HelpFormatter, add_force_option, add_model_option
@@ -212,7 +213,7 @@ def no_window_in_table(
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from lanecast.io_adapters.files import activity, check_output_dir, staged_files
+    from lanecast.io_adapters.files import check_output_dir, staged_files
     from lanecast.models.explain import parse_removals, present_neighbours, what_if
     from lanecast.models.reports.explain import write_explain
     from lanecast.models.runtime import load_forecaster

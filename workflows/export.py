@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from lanecast.io_adapters.progress import activity
 from lanecast.models.card import read_card
 from lanecast.workflows.vocabulary import add_force_option
 
@@ -39,7 +40,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from lanecast.io_adapters.files import activity
     from lanecast.models.onnx_export import export_onnx
 
     with activity("export: tracing the model to ONNX and checking it against torch"):

@@ -19,6 +19,7 @@ if TYPE_CHECKING:
     from lanecast.models.train import TrainConfig
 
 from lanecast.io_adapters import json_fields as jf
+from lanecast.io_adapters.progress import activity
 from lanecast.models.card import read_card, resolve
 from lanecast.workflows.vocabulary import HelpFormatter, add_force_option
 
@@ -202,7 +203,6 @@ def train_and_save(
     """Train (from the weights of model ``init`` if given, "default" = the shipped model), evaluate
     on val and test (if present), save; return the card. ``keep``: how a fine-tune keeps the init
     model's skills (lanecast.models.finetune; default FinetuneOptions())."""
-    from lanecast.io_adapters.files import activity
 
     with activity("train: loading torch and the windows"):
         from lanecast.io_adapters.windows_store.dataset import load_windows

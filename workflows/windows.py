@@ -7,6 +7,7 @@ import time
 from pathlib import Path
 
 from lanecast.io_adapters.formats import registry
+from lanecast.io_adapters.progress import activity
 from lanecast.workflows.arguments import MAX_SEED, integer, number
 from lanecast.workflows.bulk import backends
 from lanecast.workflows.vocabulary import HelpFormatter, add_force_option, add_location_option
@@ -83,7 +84,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from lanecast.io_adapters.contracts.windows import DATASET_FILES
-    from lanecast.io_adapters.files import ANY_FILES, activity, check_output_dir
+    from lanecast.io_adapters.files import ANY_FILES, check_output_dir
     from lanecast.io_adapters.formats import streaming
     from lanecast.pipeline.write_windows import WindowOptions, write_windows
     from lanecast.workflows.bulk import freed_memory

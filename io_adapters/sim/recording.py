@@ -8,7 +8,8 @@ from datetime import datetime
 from pathlib import Path
 
 from lanecast.io_adapters.errors import InputError
-from lanecast.io_adapters.files import bar, check_output
+from lanecast.io_adapters.files import check_output
+from lanecast.io_adapters.progress import bar
 from lanecast.io_adapters.sim.sumo_highway import HighwayConfig
 from lanecast.io_adapters.sim.sumo_run import run_simulation
 from lanecast.io_adapters.sim.to_highd import refuse_existing_recording, to_highd, write_highd

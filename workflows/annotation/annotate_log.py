@@ -32,7 +32,7 @@ from rosbags.rosbag2 import Reader as Reader2
 from lanecast.io_adapters.contracts import forecasts as forecasts_contract
 from lanecast.io_adapters.contracts.track_table import read_meta
 from lanecast.io_adapters.errors import InputError, LogError
-from lanecast.io_adapters.files import activity, atomic_path, check_input, checksum
+from lanecast.io_adapters.files import atomic_path, check_input, checksum
 from lanecast.io_adapters.formats import registry
 from lanecast.io_adapters.logs import conventions as conv
 from lanecast.io_adapters.logs import forecast_messages as fm
@@ -44,6 +44,7 @@ from lanecast.io_adapters.logs.mcap import salvage_copy as mcap_salvage_copy
 from lanecast.io_adapters.logs.rosbag import copy as bag_copy
 from lanecast.io_adapters.logs.rosbag import reader as rosbag_reader
 from lanecast.io_adapters.logs.topics import MODEL_KEY_PREFIX
+from lanecast.io_adapters.progress import activity
 from lanecast.models.card import provenance
 from lanecast.models.runtime import load_forecaster
 from lanecast.workflows.annotation.track_forecasts import (

@@ -26,13 +26,14 @@ from rosbags.highlevel import AnyReader
 from lanecast.io_adapters.contracts.window_frame import to_window_frame
 from lanecast.io_adapters.contracts.windows import MANEUVERS
 from lanecast.io_adapters.errors import InputError, LanecastError, LogError
-from lanecast.io_adapters.files import activity, progress, staged_files
+from lanecast.io_adapters.files import staged_files
 from lanecast.io_adapters.formats import registry
 from lanecast.io_adapters.logs import conventions as conv
 from lanecast.io_adapters.logs import topics
 from lanecast.io_adapters.logs.forecast_batch import N_STEPS
 from lanecast.io_adapters.logs.forecast_messages import PREDICTION_TOPIC
 from lanecast.io_adapters.logs.messages.prediction_json import document_problem
+from lanecast.io_adapters.progress import activity, progress
 from lanecast.models.baselines import constant_acceleration, constant_velocity
 from lanecast.models.evaluation import speed_band_note, write_metrics
 from lanecast.models.metrics import accuracy, confusion_matrix, macro_f1, summary

@@ -17,10 +17,11 @@ from pathlib import Path
 from typing import Any
 
 from lanecast.io_adapters.errors import InputError
-from lanecast.io_adapters.files import activity, progress, staged_files
+from lanecast.io_adapters.files import staged_files
 from lanecast.io_adapters.formats import registry
 from lanecast.io_adapters.logs import conventions as conv
 from lanecast.io_adapters.ownership import GENERATOR, HTML_MARK, MARKDOWN_MARK
+from lanecast.io_adapters.progress import activity, progress
 from lanecast.models.predictor_metrics import predictor_summary
 from lanecast.models.runtime import load_forecaster
 from lanecast.workflows.annotation.log_scores import annotated_logs, per_log_names

@@ -36,7 +36,8 @@ from typing import Any
 
 import lanecast
 from lanecast.io_adapters.errors import InputError
-from lanecast.io_adapters.files import bar, checksum
+from lanecast.io_adapters.files import checksum
+from lanecast.io_adapters.progress import bar
 from lanecast.models.card import provenance, provenance_line, resolve
 from lanecast.workflows.annotation.annotate_log import (
     AnnotateOptions,

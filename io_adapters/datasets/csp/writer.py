@@ -22,7 +22,8 @@ from typing import Any
 
 from lanecast.io_adapters.datasets.csp import inputs, matfile, sets
 from lanecast.io_adapters.errors import InputError, OutputError, UsageError
-from lanecast.io_adapters.files import check_output, progress, staged_files
+from lanecast.io_adapters.files import check_output, staged_files
+from lanecast.io_adapters.progress import progress
 
 MANIFEST = "lanecast-csp.json"
 CONVENTIONS = {

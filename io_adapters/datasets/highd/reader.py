@@ -20,7 +20,7 @@ from lanecast.io_adapters.datasets.highd.convert import concat, convert_tracks
 from lanecast.io_adapters.datasets.highd.meta import Meta, read_recording_meta
 from lanecast.io_adapters.datasets.highd.parse import read_csv
 from lanecast.io_adapters.datasets.highd.sniff import Recording, check_present, recordings, sniff
-from lanecast.io_adapters.files import progress
+from lanecast.io_adapters.progress import progress
 
 __all__ = ["FORMAT", "NEIGHBOURS", "TRACKS_COLUMNS", "Recording", "read", "recordings", "sniff"]
 

@@ -25,7 +25,7 @@ from lanecast.io_adapters.datasets.ngsim.parse import parse_file
 from lanecast.io_adapters.datasets.ngsim.periods import PERIOD_GAP
 from lanecast.io_adapters.datasets.ngsim.sniff import folder_files, sniff
 from lanecast.io_adapters.errors import InputError
-from lanecast.io_adapters.files import progress
+from lanecast.io_adapters.progress import progress
 
 __all__ = ["ARTERIALS", "FORMAT", "FREEWAYS", "PERIOD_GAP", "TXT_COLUMNS", "USED_COLUMNS", "read", "sniff"]
 

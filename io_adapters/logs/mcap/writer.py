@@ -23,9 +23,10 @@ import pyarrow as pa
 
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.errors import InputError
-from lanecast.io_adapters.files import atomic_path, bar
+from lanecast.io_adapters.files import atomic_path
 from lanecast.io_adapters.logs import conventions as conv
 from lanecast.io_adapters.logs import object_columns as to
+from lanecast.io_adapters.progress import bar
 
 LIBRARY = "lanecast"
 ENCODINGS = ("protobuf", "json")

@@ -20,12 +20,13 @@ import pyarrow as pa
 
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.errors import InputError, OutputError
-from lanecast.io_adapters.files import atomic_path, bar
+from lanecast.io_adapters.files import atomic_path
 from lanecast.io_adapters.formats import registry
 from lanecast.io_adapters.logs import conventions as conv
 from lanecast.io_adapters.logs import object_columns as to
 from lanecast.io_adapters.logs.messages import ros_types
 from lanecast.io_adapters.logs.rosbag.copy import compress_bag_storage
+from lanecast.io_adapters.progress import bar
 
 STORAGES = registry.ROS2_STORAGES
 MAX_ROS_TIME_NS = (2**31 - 1) * 1_000_000_000 + 999_999_999  # a header stamp's sec is an int32
