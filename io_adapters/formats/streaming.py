@@ -16,6 +16,7 @@ import functools
 import shutil
 import tempfile
 from collections.abc import Callable, Iterator, Mapping, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -29,10 +30,11 @@ from lanecast.io_adapters.datasets.highd import stream as highd_stream
 from lanecast.io_adapters.datasets.ngsim import stream as ngsim_stream
 from lanecast.io_adapters.datasets.parquet import tables as parquet_format
 from lanecast.io_adapters.errors import InputError
-from lanecast.io_adapters.files import atomic_path, job_progress
+from lanecast.io_adapters.files import atomic_path
 from lanecast.io_adapters.formats import registry
 from lanecast.io_adapters.formats.pieces import MAX_ROWS, Piece, parquet_pieces
 from lanecast.io_adapters.formats.registry import Pieces
+from lanecast.io_adapters.progress import job_progress
 
 LONG = ("whole", "tracks", "context")  # what a recording larger than a piece becomes (plan)
 PARTS = ("part-*.parquet",)  # the files of a dataset directory output (a new one replaces them)
@@ -287,18 +289,42 @@ def write_part(item: tuple[int, Piece], root: str) -> str:
     return str(path)
 
 
+def _write_while_reading(
+    writer: TrackTableWriter, pieces: Sequence[Piece], done: Callable[[int], None]
+) -> None:
+    """Write each piece on a thread while the next one is read: Parquet's encoder runs on one core
+    and releases the GIL, so a dataset of many recordings keeps both cores busy (two pieces in
+    memory at a time). The pieces are written in order; the first error, of a read or a write,
+    is raised once the write before it has ended."""
+    with ThreadPoolExecutor(1, thread_name_prefix="convert: writing") as pool:
+        pending: Future[None] | None = None
+        for piece in pieces:
+            try:
+                table = piece.read()
+            except BaseException:
+                if pending is not None:
+                    pending.result()  # an error of the earlier piece's write comes first
+                raise
+            if pending is not None:
+                pending.result()
+                done(1)
+            pending = pool.submit(writer.write, table, piece.paths[0], continues=piece.continues)
+            del table
+        if pending is not None:
+            pending.result()
+            done(1)
+
+
 def convert(
     pieces: Sequence[Piece], out: str | Path, *, directory: bool, ordered_map: OrderedMap | None = None
 ) -> tuple[int, int]:
-    """Write the pieces as one track table (a Parquet file, or a dataset ``directory``), one piece
-    in memory at a time; with ``ordered_map`` pieces are read by workers that write parts, which
+    """Write the pieces as one track table (a Parquet file, or a dataset ``directory``), a piece
+    read while the one before it is written (two in memory at a time); with ``ordered_map`` pieces are read by workers that write parts, which
     the driver appends in order (the same output as one process). Returns (rows, tracks)."""
     with TrackTableWriter(out, directory=directory) as writer:
         if ordered_map is None:
             with job_progress(desc="convert", total=len(pieces), unit="piece") as shown:
-                for piece in pieces:
-                    writer.write(piece.read(), piece.paths[0], continues=piece.continues)
-                    shown.update(1)
+                _write_while_reading(writer, pieces, shown.update)
         else:
             with SpillDirectory(Path(out), "parts") as parts:
                 task = functools.partial(write_part, root=str(parts.path))
