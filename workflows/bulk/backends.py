@@ -11,18 +11,19 @@ from __future__ import annotations
 import argparse
 import contextlib
 import functools
-import multiprocessing as mp
 import os
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import Future, ProcessPoolExecutor
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from lanecast.io_adapters import cores
 from lanecast.io_adapters.errors import InputError, LanecastError
 from lanecast.workflows.arguments import MAX_WORKERS, integer
 from lanecast.workflows.bulk import ray_backend
+
+if TYPE_CHECKING:
+    from concurrent.futures import Future
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -87,6 +88,9 @@ def ordered_map(
         for item in items:
             yield fn(item)
     else:
+        import multiprocessing as mp  # only for workers: 0.01–0.02 s of every command's start-up
+        from concurrent.futures import ProcessPoolExecutor
+
         with ProcessPoolExecutor(
             max_workers=workers,
             mp_context=mp.get_context("spawn"),

@@ -51,6 +51,7 @@ def read(paths: Sequence[str | Path], *, recording_prefix: str = "highd", **_: A
         meta, meta_table = read_companions(rec)
         tracks = read_csv(rec.path("tracks"), TRACKS_COLUMNS, "tracks")
         columns, metas = convert_tracks(rec, recording_prefix, meta, meta_table, tracks)
+        del tracks  # the parsed text's columns: freed before the table is built (peak memory)
         # two folders of one recording number (two simulations): the later one's names qualified
         read_metas.append(track_table.TableMeta(FORMAT, metas, []))
         labels = [str(r.path("tracks")) for r in recs[: len(read_metas)]]
