@@ -112,7 +112,8 @@ def sort_rows(table: pa.Table) -> pa.Table:
     track, frame = table.column("track_id").to_numpy(), table.column("frame").to_numpy()
     if _in_order(rec, track, frame).all():
         return table
-    order = np.argsort(rec, kind="stable")
+    # a recording's code fits 16 bits in any real table: numpy sorts those by radix, 4x faster
+    order = np.argsort(rec.astype(np.int16) if rec.max() < 1 << 15 else rec, kind="stable")
     if not _in_order(rec[order], track[order], frame[order]).all():
         order = np.lexsort((frame, track, rec))
     return take_rows(table, order)
@@ -428,16 +429,20 @@ NO_STATISTICS = ("object_class",)
 def parquet_options(schema: pa.Schema) -> dict[str, Any]:
     """How every track table is written as Parquet: zstd; page checksums, so that a flipped byte in
     the data is refused on reading instead of read as a value; dictionary encoding for the ids,
-    lanes and names (floats are nearly all distinct: a dictionary of them is built and dropped, a
-    quarter of the write's time, for a larger file); delta encoding for frames and times."""
+    lanes and names; delta encoding for frames and times; the floats' bytes split into streams
+    (``BYTE_STREAM_SPLIT``: a float's sign and exponent bytes compress well apart from its noisy
+    mantissa; a dictionary of nearly distinct floats was built and dropped, a quarter of the
+    write's time)."""
     names = schema.names
+    floats = [f.name for f in schema if pa.types.is_floating(f.type)]
     return {
         "compression": "zstd",
         "write_page_checksum": True,
-        "use_dictionary": [
-            f.name for f in schema if not pa.types.is_floating(f.type) and f.name not in DELTA_COLUMNS
-        ],
-        "column_encoding": {name: "DELTA_BINARY_PACKED" for name in DELTA_COLUMNS if name in names},
+        "use_dictionary": [name for name in names if name not in floats and name not in DELTA_COLUMNS],
+        "column_encoding": {
+            **{name: "DELTA_BINARY_PACKED" for name in DELTA_COLUMNS if name in names},
+            **dict.fromkeys(floats, "BYTE_STREAM_SPLIT"),
+        },
         "write_statistics": [name for name in names if name not in NO_STATISTICS],
     }
 
