@@ -164,7 +164,7 @@ def check_cells(path: Path, table: pa.Table, names: list[str], columns: Mapping[
         message = "empty or NaN cell"
         if column.null_count:
             bad = np.flatnonzero(np.asarray(pc.is_null(column)))
-        elif kind == "float":
+        elif kind == "float" and not _all_finite(column):
             bad = np.flatnonzero(~np.isfinite(column.to_numpy()))
             message = "infinite value"
         if bad.size and (first_bad is None or bad[0] < first_bad[0]):
@@ -173,3 +173,9 @@ def check_cells(path: Path, table: pa.Table, names: list[str], columns: Mapping[
         row, name, message = first_bad
         expected = "a finite number" if columns[name] == "float" else _EXPECTED[columns[name]]
         raise InputError(path, message, line=csv_errors.row_line(path, row), column=name, expected=expected)
+
+
+def _all_finite(column: pa.ChunkedArray) -> bool:
+    """Whether a float column without nulls holds only finite values, looked at chunk by chunk
+    through views (no copy of the whole column)."""
+    return all(bool(np.isfinite(chunk.to_numpy()).all()) for chunk in column.chunks)
