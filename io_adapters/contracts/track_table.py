@@ -36,6 +36,9 @@ from lanecast.io_adapters.contracts.track_schema import (
 )
 from lanecast.io_adapters.contracts.track_schema import FRAME_RATES as FRAME_RATES  # for the readers
 from lanecast.io_adapters.contracts.track_schema import (
+    parquet_options as parquet_options,  # for the writers
+)
+from lanecast.io_adapters.contracts.track_schema import (
     plausible_frame_rate as plausible_frame_rate,  # for the readers
 )
 from lanecast.io_adapters.cores import default_threads
@@ -417,34 +420,6 @@ def concat(tables: Iterable[pa.Table], sources: Sequence[str] | None = None) -> 
     merged = pa.concat_tables(aligned, promote_options="permissive").unify_dictionaries()
     merged = merged.replace_schema_metadata({META_KEY: meta.to_json().encode()})
     return sort_rows(merged)
-
-
-#: columns that step by a constant along each track: delta-encoded they take a few bits a row (a
-#: dictionary of them took 12 times the space and twice the time to write)
-DELTA_COLUMNS = ("frame", "time_ns")
-#: columns whose min/max says nothing a reader can skip by (every row group holds cars and trucks)
-NO_STATISTICS = ("object_class",)
-
-
-def parquet_options(schema: pa.Schema) -> dict[str, Any]:
-    """How every track table is written as Parquet: zstd; page checksums, so that a flipped byte in
-    the data is refused on reading instead of read as a value; dictionary encoding for the ids,
-    lanes and names; delta encoding for frames and times; the floats' bytes split into streams
-    (``BYTE_STREAM_SPLIT``: a float's sign and exponent bytes compress well apart from its noisy
-    mantissa; a dictionary of nearly distinct floats was built and dropped, a quarter of the
-    write's time)."""
-    names = schema.names
-    floats = [f.name for f in schema if pa.types.is_floating(f.type)]
-    return {
-        "compression": "zstd",
-        "write_page_checksum": True,
-        "use_dictionary": [name for name in names if name not in floats and name not in DELTA_COLUMNS],
-        "column_encoding": {
-            **{name: "DELTA_BINARY_PACKED" for name in DELTA_COLUMNS if name in names},
-            **dict.fromkeys(floats, "BYTE_STREAM_SPLIT"),
-        },
-        "write_statistics": [name for name in names if name not in NO_STATISTICS],
-    }
 
 
 def write_parquet(table: pa.Table, path: str | Path) -> Path:
