@@ -129,7 +129,7 @@ def main() -> None:
     bare_p, whole = processes.values()
     print(f"fresh processes, wall seconds, median (min–max) of {args.repeat} interleaved rounds:")
     for name, samples in processes.items():
-        print(f"  {name:<38}{samples.text('.3f', higher_is_better=False)}")
+        print(f"  {name:<40}{samples.text('.3f', higher_is_better=False)}")
     print(f"  ratio {ratio(whole, bare_p)}   (goal: the whole command <= 2x a bare pyarrow process)")
     print(machine_line("after"))
 
