@@ -378,9 +378,8 @@ def test_a_dataset_directory_holding_a_part_twice_is_refused_naming_both_parts(
     assert not (tmp_path / "w").exists() and not (tmp_path / "c.parquet").exists()
 
 
-def test_convert_of_mixed_neighbour_columns_into_one_file_is_refused_clearly(
-    dataset: Path, tmp_path: Path
-) -> None:
+def _without_neighbours(dataset: Path, path: Path) -> Path:
+    """Recording 01 without neighbour columns, its recordings renamed ``x-…``, written to ``path``."""
     table = registry.read_any([dataset / "01_tracks.csv"])
     without = table.drop_columns(list(track_table.NEIGHBOUR_COLUMNS))
     meta = track_table.read_meta(without)
@@ -396,14 +395,37 @@ def test_convert_of_mixed_neighbour_columns_into_one_file_is_refused_clearly(
             .encode()
         }
     )
-    pq.write_table(without, tmp_path / "a.parquet")
+    pq.write_table(without, path)
+    return path
+
+
+def test_convert_of_mixed_neighbour_columns_into_one_file_is_refused_clearly(
+    dataset: Path, tmp_path: Path
+) -> None:
+    first = _without_neighbours(dataset, tmp_path / "a.parquet")
     # neighbour-less first, then with neighbours: the file's schema cannot take them
     with pytest.raises(InputError, match="neighbour columns"):
         streaming.convert(
-            streaming.plan([tmp_path / "a.parquet", dataset / "02_tracks.csv"]),
-            tmp_path / "o.parquet",
-            directory=False,
+            streaming.plan([first, dataset / "02_tracks.csv"]), tmp_path / "o.parquet", directory=False
         )
+    assert not (tmp_path / "o.parquet").exists()
+
+
+def test_a_write_that_fails_is_named_before_a_later_piece_that_does_not_read(
+    dataset: Path, tmp_path: Path
+) -> None:
+    """A piece is written while the next one is read: the earlier piece's error comes first, as
+    when one piece was read and written after the other."""
+    first = _without_neighbours(dataset, tmp_path / "a.parquet")
+    good = registry.read_any([dataset / "03_tracks.csv"])
+    x = good.column("x").to_numpy().copy()
+    x[len(x) // 2] = np.nan  # found when the piece is read, not when it is planned
+    damaged = tmp_path / "damaged.parquet"
+    pq.write_table(good.set_column(good.schema.get_field_index("x"), "x", pa.array(x)), damaged)
+    pieces = [*streaming.plan([first, dataset / "02_tracks.csv"]), *streaming.plan([damaged])]
+    with pytest.raises(InputError, match="neighbour columns") as info:
+        streaming.convert(pieces, tmp_path / "o.parquet", directory=False)
+    assert "damaged.parquet" in str(info.value.__context__)  # the later read failed too, after it
     assert not (tmp_path / "o.parquet").exists()
 
 
