@@ -12,6 +12,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from lanecast.io_adapters.cores import default_threads
 from lanecast.io_adapters.errors import InputError
 from lanecast.models.card import read_card, resolve
 from lanecast.models.onnx_predict import OnnxForecaster, onnx_file
@@ -36,7 +37,9 @@ def load_forecaster(
     threads: int | None = None,
     quiet: bool = False,
 ) -> Forecaster:
-    """A loaded forecaster (``OnnxForecaster`` or ``STCNNForecaster``) for a model (None: the shipped one)."""
+    """A loaded forecaster (``OnnxForecaster`` or ``STCNNForecaster``) for a model (None: the shipped
+    one), predicting on ``threads`` threads (None: the free cores, ``io_adapters.cores``) with
+    ONNX Runtime or torch."""
     if engine not in RUNTIMES:
         raise InputError(None, f"unknown runtime {engine!r}", expected=", ".join(RUNTIMES))
     weights_path, card_path = resolve(model)
@@ -57,11 +60,10 @@ def load_forecaster(
         hint = f" (lanecast export {weights_path.parent} --to onnx)" if "installed" not in why else ""
         if not quiet:
             print(f"lanecast: {card_path}: {why}; predicting with torch{hint}", file=sys.stderr)
+    import torch
+
     from lanecast.models.predict import STCNNForecaster
 
     forecaster = STCNNForecaster.load(weights_path, name)
-    if threads is not None:
-        import torch
-
-        torch.set_num_threads(threads)
+    torch.set_num_threads(threads or default_threads())  # as ONNX Runtime's: the free cores
     return forecaster

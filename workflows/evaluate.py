@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from lanecast.io_adapters.cores import default_threads
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.progress import activity
 from lanecast.models.card import provenance, provenance_line, resolve
@@ -77,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
     check_output_dir(
         args.out, files=("metrics.json", "report.md", "report.html"), force=args.force
     )  # before the work
-    torch.set_num_threads(max(1, min(2, torch.get_num_threads())))
+    torch.set_num_threads(default_threads())  # the free cores, as every command that predicts
     windows = load_windows(args.windows, check_values=True)
     forecasters: list[Forecaster] = [
         STCNNForecaster.load(args.model, "stcnn"),
