@@ -298,29 +298,31 @@ def _write_while_reading(
     is raised once the write before it has ended."""
     with ThreadPoolExecutor(1, thread_name_prefix="convert: writing") as pool:
         pending: Future[None] | None = None
+
+        def written() -> None:  # the write before, ended (its error raised here)
+            if pending is not None:
+                pending.result()
+                done(1)
+
         for piece in pieces:
             try:
                 table = piece.read()
             except BaseException:
-                if pending is not None:
-                    pending.result()  # an error of the earlier piece's write comes first
+                written()  # an error of the earlier piece's write comes first
                 raise
-            if pending is not None:
-                pending.result()
-                done(1)
+            written()
             pending = pool.submit(writer.write, table, piece.paths[0], continues=piece.continues)
             del table
-        if pending is not None:
-            pending.result()
-            done(1)
+        written()
 
 
 def convert(
     pieces: Sequence[Piece], out: str | Path, *, directory: bool, ordered_map: OrderedMap | None = None
 ) -> tuple[int, int]:
     """Write the pieces as one track table (a Parquet file, or a dataset ``directory``), a piece
-    read while the one before it is written (two in memory at a time); with ``ordered_map`` pieces are read by workers that write parts, which
-    the driver appends in order (the same output as one process). Returns (rows, tracks)."""
+    read while the one before it is written (two in memory at a time); with ``ordered_map``
+    pieces are read by workers that write parts, which the driver appends in order (the same
+    output as one process). Returns (rows, tracks)."""
     with TrackTableWriter(out, directory=directory) as writer:
         if ordered_map is None:
             with job_progress(desc="convert", total=len(pieces), unit="piece") as shown:
