@@ -3,14 +3,19 @@
 The cores this process may run on, less those the machine's other work keeps busy (:func:`busy`),
 shared among the worker processes of a bulk run (``--workers N`` sets
 ``LANECAST_WORKERS`` in each), at least one; ``LANECAST_THREADS`` overrides. Used by ONNX Runtime's
-sessions and by the MCAP reader's SceneUpdate decoding. Under load or beside other workers the
+sessions, the MCAP reader's SceneUpdate decoding and column-wise work on large tables (:func:`map_columns`). Under load or beside other workers the
 answer is one thread, as more threads then only contend (BENCHMARKS.md).
 """
 
 from __future__ import annotations
 
 import os
+from collections.abc import Callable, Iterable
 from pathlib import Path
+from typing import TypeVar
+
+_T = TypeVar("_T")
+_R = TypeVar("_R")
 
 #: Environment variable overriding the threads of this process.
 THREADS_ENV = "LANECAST_THREADS"
@@ -49,3 +54,16 @@ def busy(loadavg: str | None = None) -> float:
         return min(float(fields[0]), max(0, int(fields[3].split("/")[0]) - 1))
     except (OSError, IndexError, ValueError):
         return os.getloadavg()[0] if hasattr(os, "getloadavg") else 0.0
+
+
+def map_columns(task: Callable[[_T], _R], columns: Iterable[_T], threads: int | None = None) -> list[_R]:
+    """``[task(c) for c in columns]`` on ``threads`` threads (default :func:`default_threads`), for
+    work on whole columns that releases the GIL (Arrow's take and copies, numpy's ufuncs)."""
+    items = list(columns)
+    threads = min(default_threads() if threads is None else threads, len(items))
+    if threads < 2:
+        return [task(c) for c in items]
+    from concurrent.futures import ThreadPoolExecutor  # only where threads help: not on every start
+
+    with ThreadPoolExecutor(threads) as pool:
+        return list(pool.map(task, items))

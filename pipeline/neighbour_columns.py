@@ -10,8 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.compute as pc
 
+from lanecast.io_adapters.arrow_numpy import filled, valid_mask
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.contracts.track_runs import run_starts
 from lanecast.io_adapters.contracts.windows import ROWS
@@ -99,8 +99,8 @@ def columns(
         ay=f64("ay"),
         length=f64("length"),
         width=f64("width"),
-        lane=np.asarray(lane_col.fill_null(0).to_numpy()).astype(np.int64),
-        lane_known=~np.asarray(pc.is_null(lane_col)),
+        lane=filled(lane_col, 0).astype(np.int64),
+        lane_known=valid_mask(lane_col),
         road_frame=np.array(
             [meta.recordings[str(name)].coordinate_frame == "road" for name in names], dtype=bool
         ),

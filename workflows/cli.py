@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import argparse
 import codecs
-import difflib
 import errno
 import importlib
 import io
@@ -149,6 +148,8 @@ def parse(parser: argparse.ArgumentParser, argv: Sequence[str] | None) -> argpar
     commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices
     first = next((a for a in given if not a.startswith("-")), None)
     if first is not None and first not in commands and given.index(first) == 0:
+        import difflib  # only for a mistyped command: not on every start
+
         close = difflib.get_close_matches(first, list(commands), n=1, cutoff=0.6)
         hint = f"; did you mean {close[0]!r}?" if close else ""
         parser.error(f"unknown command {first!r}{hint} (commands: {', '.join(commands)})")

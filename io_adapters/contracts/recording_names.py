@@ -8,7 +8,6 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import pyarrow as pa
-import pyarrow.compute as pc
 
 from lanecast.io_adapters.contracts.track_schema import META_KEY, TableMeta, read_meta
 from lanecast.io_adapters.errors import TrackTableError
@@ -65,6 +64,8 @@ def rename_recordings(table: pa.Table, renames: Mapping[str, str]) -> pa.Table:
     """``table`` with recordings renamed in its column and metadata (``renames``: old → new)."""
     if not renames:
         return table
+    import pyarrow.compute as pc  # only for a rename: not on every start
+
     column = pc.dictionary_encode(table.column("recording").cast(pa.string())).combine_chunks()
     names = column.dictionary.to_pylist()
     new_names = pa.array([renames.get(str(n), str(n)) for n in names], pa.string())

@@ -7,25 +7,26 @@ from __future__ import annotations
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.compute as pc
 
+from lanecast.io_adapters.arrow_numpy import dictionary_codes
 from lanecast.io_adapters.contracts import track_table
 
 
 def summarise(table: pa.Table) -> list[dict[str, object]]:
     """One dict per recording: tracks, rows, frames, duration (s), frame rate, lane changes, vehicles per class."""
     meta = track_table.read_meta(table)
-    names = table.column("recording").cast(pa.string()).to_numpy(zero_copy_only=False)
+    rec_names, rec_codes = track_table.recording_codes(table)
+    class_names, class_codes = dictionary_codes(table.column("object_class"))
     changes = np.zeros(table.num_rows, dtype=bool)
     changes[track_table.lane_change_rows(table)] = True
-    starts = track_table.track_boundaries(table)
+    starts = track_table.track_boundaries(table)[:-1]
     out = []
     for name in sorted(meta.recordings):
-        rows = names == name
+        code = np.flatnonzero(rec_names == name)
+        rows = rec_codes == (code[0] if code.size else -1)
         rate = meta.recordings[name].frame_rate
         frames = table.column("frame").to_numpy()[rows]
-        first_rows = starts[:-1][rows[starts[:-1]]]
-        classes = pc.value_counts(table.column("object_class").take(pa.array(first_rows)).cast(pa.string()))
+        vehicles = np.bincount(class_codes[starts[rows[starts]]], minlength=class_names.size)
         out.append(
             {
                 "recording": name,
@@ -35,7 +36,7 @@ def summarise(table: pa.Table) -> list[dict[str, object]]:
                 "duration_s": float((frames.max() - frames.min() + 1) / rate) if frames.size else 0.0,
                 "frame_rate": rate,
                 "lane_changes": int(changes[rows].sum()),
-                "classes": {c["values"]: c["counts"] for c in classes.to_pylist()},
+                "classes": {str(c): int(n) for c, n in zip(class_names, vehicles, strict=True) if n},
             }
         )
     return out

@@ -10,14 +10,13 @@ from __future__ import annotations
 
 import base64
 from collections.abc import Iterable, Mapping, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.compute as pc
 
+from lanecast.io_adapters.arrow_numpy import dictionary_codes, filled, take, valid_mask
 from lanecast.io_adapters.contracts import recording_names
 from lanecast.io_adapters.contracts.track_runs import lane_change_starts, run_bounds, run_starts
 from lanecast.io_adapters.contracts.track_schema import (
@@ -41,7 +40,7 @@ from lanecast.io_adapters.contracts.track_schema import (
 from lanecast.io_adapters.contracts.track_schema import (
     plausible_frame_rate as plausible_frame_rate,  # for the readers
 )
-from lanecast.io_adapters.cores import default_threads
+from lanecast.io_adapters.cores import map_columns
 from lanecast.io_adapters.errors import InputError, TrackTableError
 from lanecast.io_adapters.files import atomic_path
 
@@ -79,16 +78,23 @@ def _to_arrow(values: Any, f: pa.Field) -> pa.Array:
     if pa.types.is_dictionary(f.type):
         arr = values if isinstance(values, pa.Array) else pa.array(np.asarray(values).astype(str))
         if not pa.types.is_dictionary(arr.type):
+            import pyarrow.compute as pc  # names given as strings: not on every start
+
             arr = pc.dictionary_encode(arr.cast(pa.string()))
-        return arr.cast(f.type)
+        return _cast(arr, f.type)
     if isinstance(values, pa.Array):
-        return values.cast(f.type)
+        return _cast(values, f.type)
     array = np.asarray(values)
     if f.nullable and array.dtype.kind == "f":
         # Float carriers of nullable integer columns: NaN means null.
         mask = np.isnan(array)
         return pa.array(np.where(mask, 0, array).astype(f.type.to_pandas_dtype()), mask=mask, type=f.type)
     return pa.array(array, type=f.type)
+
+
+def _cast(array: pa.Array, to: pa.DataType) -> pa.Array:
+    """``array`` as type ``to``; as it is where it has that type (``cast`` imports ``pyarrow.compute``)."""
+    return array if array.type == to else array.cast(to)
 
 
 def _in_order(rec: np.ndarray, track: np.ndarray, frame: np.ndarray) -> np.ndarray:
@@ -123,14 +129,10 @@ def sort_rows(table: pa.Table) -> pa.Table:
 
 
 def take_rows(table: pa.Table, order: np.ndarray) -> pa.Table:
-    """``table.take(order)``, its columns gathered on the free cores (Arrow's own take of a table
-    runs on one; a column's take releases the GIL)."""
-    threads = min(default_threads(), table.num_columns)
-    if threads < 2 or table.num_rows < 100_000:
-        return table.take(pa.array(order))
-    indices = pa.array(order)
-    with ThreadPoolExecutor(threads) as pool:
-        columns = list(pool.map(lambda column: column.take(indices), table.columns))
+    """``table.take(order)``, the columns gathered on the free cores (:func:`arrow_numpy.take`)."""
+    columns = map_columns(
+        lambda column: take(column, order), table.columns, None if len(order) >= 100_000 else 1
+    )
     return pa.Table.from_arrays(columns, schema=table.schema)
 
 
@@ -170,6 +172,8 @@ def validate(
     meta = read_meta(table, source)
     rec_codes = None
     if table.column("recording").null_count:  # a null one is reported with its row below
+        import pyarrow.compute as pc  # a broken table: not on every start
+
         recordings = set(pc.unique(table.column("recording").drop_null().cast(pa.string())).to_pylist())
     else:
         rec_names, rec_codes = recording_codes(table)
@@ -185,7 +189,7 @@ def validate(
     for name in REQUIRED_COLUMNS:
         column = table.column(name)
         if name != "lane_id" and column.null_count:
-            row = _first(pc.is_null(column))
+            row = int(np.flatnonzero(~valid_mask(column))[0])
             raise TrackTableError(f"{where}row {at(row)}: column {name!r} is null")
     for name in FINITE_COLUMNS:
         values = table.column(name).to_numpy()
@@ -323,29 +327,16 @@ def file_order(table: pa.Table) -> np.ndarray | None:
     return np.lexsort((np.arange(table.num_rows), frame, track, rec))
 
 
-def _first(mask: pa.ChunkedArray | pa.Array) -> int:
-    return int(np.flatnonzero(np.asarray(mask))[0])
-
-
 def recording_codes(table: pa.Table) -> tuple[np.ndarray, np.ndarray]:
     """(sorted names str [R] of the recordings that have rows, code of each row int64 [n]) via the
-    dictionary encoding, without touching a string per row: one pass over each chunk's indices
-    to find the entries that have rows (a slice keeps its parent's whole dictionary), one to map
-    them. The column has no nulls (validate refuses them)."""
+    dictionary encoding (:func:`arrow_numpy.dictionary_codes`). The column has no nulls (validate
+    refuses them)."""
     col = table.column("recording")
     if not pa.types.is_dictionary(col.type):
+        import pyarrow.compute as pc  # a table built by hand: not on every start
+
         col = pc.dictionary_encode(col)
-    chunks = [c for c in col.chunks if len(c)]
-    entries = [np.asarray(c.dictionary.to_pylist(), dtype=object).astype(str) for c in chunks]
-    indices = [c.indices.to_numpy(zero_copy_only=False) for c in chunks]
-    used = [e[np.bincount(i, minlength=e.size) > 0] for e, i in zip(entries, indices, strict=True)]
-    names = np.unique(np.concatenate(used)) if used else np.zeros(0, dtype=str)
-    codes = np.empty(len(col), dtype=np.int64)
-    lo = 0
-    for e, i in zip(entries, indices, strict=True):  # an unused entry maps anywhere: never read
-        np.take(np.searchsorted(names, e), i, out=codes[lo : lo + i.size], mode="clip")
-        lo += i.size
-    return names.astype(str), codes
+    return dictionary_codes(col)
 
 
 def track_boundaries(table: pa.Table) -> np.ndarray:
@@ -490,6 +481,5 @@ def lane_change_rows(table: pa.Table) -> np.ndarray:
     if table.num_rows < 2:
         return np.zeros(0, dtype=np.int64)
     lane = table.column("lane_id")
-    known = ~np.asarray(pc.is_null(lane))
     new_track = run_starts(recording_codes(table)[1], table.column("track_id").to_numpy())
-    return np.flatnonzero(lane_change_starts(new_track, np.asarray(lane.fill_null(0)), known))
+    return np.flatnonzero(lane_change_starts(new_track, filled(lane, 0), valid_mask(lane)))

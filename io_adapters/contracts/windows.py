@@ -22,7 +22,6 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.compute as pc
 
 from lanecast.io_adapters.errors import InputError
 
@@ -191,6 +190,8 @@ def _repeated_row(index: pa.Table) -> tuple[int, int] | None:
     the earliest such later row; None if every window is there once."""
     if index.num_rows < 2:
         return None
+    import pyarrow.compute as pc  # not on every start
+
     recording = pc.dictionary_encode(index.column("recording")).combine_chunks().indices.to_numpy()
     track, t0 = index.column("track_id").to_numpy(), index.column("t0_ns").to_numpy()
     order = np.lexsort((np.arange(index.num_rows), t0, track, recording))  # stable: first copy first

@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.compute as pc
 
+from lanecast.io_adapters.arrow_numpy import holds_any_byte
 from lanecast.io_adapters.errors import InputError
 
 # What a file that is not a plain text table starts with (its first bytes), and what it is.
@@ -245,7 +245,7 @@ def check_parseable(path: Path, data: bytes) -> None:
 def holds_line_ends(values: pa.Array | pa.ChunkedArray) -> bool:
     """Whether a parsed string value holds a line end: a double quote in the file opened it, and the
     parser read the lines after it as part of that one value."""
-    return pc.any(pc.match_substring_regex(values, r"[\r\n]")).as_py() is True
+    return holds_any_byte(values, b"\r\n")
 
 
 def check_one_line_per_row(path: Path, table: pa.Table) -> None:

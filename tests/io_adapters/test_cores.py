@@ -31,3 +31,21 @@ def test_busy_cores_are_the_load_or_the_threads_running_now_whichever_is_fewer()
     assert busy("3.90 3.80 3.70 5/350 4242") == 3.9  # a loaded machine
     assert busy("2.00 2.00 2.00 2/350 4242") == 1  # one other runs now
     assert 0 <= busy() <= 1e6  # this machine's own, whatever it reads
+
+
+def test_map_columns_keeps_the_order_of_its_items_on_one_thread_or_many() -> None:
+    import threading
+
+    from lanecast.io_adapters.cores import map_columns
+
+    seen: set[int] = set()
+
+    def square(x: int) -> int:
+        seen.add(threading.get_ident())
+        return x * x
+
+    items = list(range(40))
+    assert map_columns(square, items, threads=1) == [x * x for x in items]
+    assert seen == {threading.get_ident()}  # one thread: the caller's own
+    assert map_columns(square, items, threads=4) == [x * x for x in items]
+    assert map_columns(square, [], threads=4) == []

@@ -19,7 +19,8 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.contracts import track_schema, track_table
+from lanecast.io_adapters.cores import map_columns
 from lanecast.io_adapters.datasets.highd import checks, meta_checks
 from lanecast.io_adapters.datasets.highd.columns import (
     DIRECTION_NAMES,
@@ -70,7 +71,9 @@ def convert_tracks(
     and the recordings' metadata, of the parsed ``tracks`` rows: the whole file, or with
     ``all_tracks`` False a block of whole tracks (whose errors name rows of the block)."""
     tracks_path = rec.path("tracks")
-    raw = {name: tracks.column(name).to_numpy() for name in TRACKS_COLUMNS}
+    # each column copied out of the parser's blocks into one array, the columns on the free cores
+    arrays = map_columns(lambda name: tracks.column(name).to_numpy(), TRACKS_COLUMNS)
+    raw = dict(zip(TRACKS_COLUMNS, arrays, strict=True))
     cols, source_row = checks.dedupe(tracks_path, raw)
     checks.report_dropped(tracks_path, tracks.num_rows, source_row, all_tracks)
     checks.check_ranges(tracks_path, cols, source_row, meta.frame_rate)
@@ -158,8 +161,7 @@ def concat(parts: list[dict[str, Any]]) -> dict[str, Any]:
         if name not in skip
     }
     for name in track_table.NEIGHBOUR_COLUMNS:
-        ids = columns[name]
-        columns[name] = pa.array(ids, mask=ids == 0, type=pa.int64())  # highD 0 = no neighbour
+        columns[name] = track_schema.neighbour_ids(columns[name])  # highD 0 = no neighbour
     columns["recording"] = _dictionary(parts, "recording_names", "recording_codes")
     columns["object_class"] = _dictionary(parts, "class_names", "class_codes")
     return columns

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.compute as pc
 
 from lanecast.io_adapters.contracts.track_runs import run_bounds
 from lanecast.io_adapters.datasets.csv_errors import row_line
@@ -166,16 +165,19 @@ def check_speed_units(
 def classes(meta_table: pa.Table, rec: Recording) -> tuple[list[str], np.ndarray]:
     """Lower-cased class names (``Car`` → ``car``) as (dictionary, code int32 [M] per meta row);
     a class of blanks only is refused at its line of tracksMeta."""
-    lowered = pc.utf8_lower(pc.utf8_trim_whitespace(meta_table.column("class").combine_chunks()))
-    blank = np.flatnonzero(np.asarray(pc.equal(lowered, "")))
-    if blank.size:
+    lowered = [
+        ("" if name is None else str(name)).strip().lower() for name in meta_table.column("class").to_pylist()
+    ]
+    blank = [row for row, name in enumerate(lowered) if not name]
+    if blank:
         path = rec.path("tracksMeta")
         raise InputError(
             path,
             "class is blank",
-            line=row_line(path, int(blank[0])),
+            line=row_line(path, blank[0]),
             column="class",
             expected="Car or Truck",
         )
-    encoded = pc.dictionary_encode(lowered)
-    return encoded.dictionary.to_pylist(), encoded.indices.to_numpy().astype(np.int32)
+    names = list(dict.fromkeys(lowered))  # in order of first appearance
+    code = {name: i for i, name in enumerate(names)}
+    return names, np.array([code[name] for name in lowered], dtype=np.int32)

@@ -7,15 +7,14 @@ file, the 1-based line (header = line 1), the column and what was expected.
 
 from __future__ import annotations
 
-import difflib
 from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.compute as pc
 import pyarrow.csv as pacsv
 
+from lanecast.io_adapters.arrow_numpy import valid_mask
 from lanecast.io_adapters.datasets import csv_errors
 from lanecast.io_adapters.datasets.highd.sniff import header_names
 from lanecast.io_adapters.errors import InputError
@@ -64,6 +63,8 @@ def checked_header(path: Path, columns: Mapping[str, str], what: str) -> list[st
         )
     for name in columns:
         if name not in names:
+            import difflib  # only where a header is wrong: not on every start
+
             close = difflib.get_close_matches(name, names, n=1)
             hint = f"; found {close[0]!r}" if close else ""
             raise InputError(
@@ -120,6 +121,8 @@ def _diagnose(path: Path, names: list[str], columns: Mapping[str, str]) -> None:
     except pa.ArrowInvalid:
         csv_errors.check_parseable(path, data)
         return  # not a cell problem: the caller reports pyarrow's own message
+    import pyarrow.compute as pc  # where a cell did not parse: not on every start
+
     first_bad: tuple[int, str] | None = None
     for name in names:
         kind = columns.get(name)
@@ -163,7 +166,7 @@ def check_cells(path: Path, table: pa.Table, names: list[str], columns: Mapping[
         bad = np.zeros(0, dtype=np.int64)
         message = "empty or NaN cell"
         if column.null_count:
-            bad = np.flatnonzero(np.asarray(pc.is_null(column)))
+            bad = np.flatnonzero(~valid_mask(column))
         elif kind == "float" and not _all_finite(column):
             bad = np.flatnonzero(~np.isfinite(column.to_numpy()))
             message = "infinite value"

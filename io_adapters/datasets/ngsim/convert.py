@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.contracts import track_schema, track_table
 from lanecast.io_adapters.datasets.ngsim.columns import CLASSES, FEET, FRAME_NS, FRAME_RATE, USED_COLUMNS
 from lanecast.io_adapters.datasets.ngsim.kinematics import kinematics
 from lanecast.io_adapters.datasets.ngsim.locations import is_freeway
@@ -175,8 +175,8 @@ def to_track_table(
         "width": (cols["v_width"] * FEET).astype(np.float32),
         "lane_id": cols["lane_id"].astype(np.int32),
         "object_class": pa.DictionaryArray.from_arrays(pa.array(cls_code), pa.array(CLASSES)),
-        "preceding_id": pa.array(cols["preceding"], mask=cols["preceding"] == 0, type=pa.int64()),
-        "following_id": pa.array(cols["following"], mask=cols["following"] == 0, type=pa.int64()),
+        "preceding_id": track_schema.neighbour_ids(cols["preceding"]),
+        "following_id": track_schema.neighbour_ids(cols["following"]),
     }
     meta = track_table.TableMeta(FORMAT, metas, files)
     table = track_table.build_table(columns, meta)

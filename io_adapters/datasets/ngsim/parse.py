@@ -14,7 +14,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.compute as pc
 import pyarrow.csv as pacsv
 
 from lanecast.io_adapters import arrow_pandas
@@ -183,6 +182,8 @@ def _parse_csv(path: Path, first: str, location: str | None) -> Parsed:
     if "location" not in by_lower:
         loc, source = (location, "option") if location else location_from_path(path)
         return Parsed(path, columns, np.zeros(n, dtype=np.int64), [loc], source, direction, True)
+    import pyarrow.compute as pc  # only for a CSV export's locations: not on every start
+
     raw = pc.utf8_trim_whitespace(table.column(by_lower["location"])).combine_chunks()
     empty = np.flatnonzero(np.asarray(pc.equal(raw, "")))
     if empty.size:

@@ -21,7 +21,6 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.compute as pc
 import pyarrow.csv as pacsv
 
 from lanecast.io_adapters.datasets import csv_errors
@@ -91,6 +90,8 @@ def _blocks(path: Path, columns: list[str], types: dict[str, pa.DataType]) -> An
 
 def _locations(column: pa.Array) -> tuple[np.ndarray, list[str]]:
     """Per-row location names (normalised as reader.read does) as codes into the returned names."""
+    import pyarrow.compute as pc  # only for a CSV export's locations: not on every start
+
     raw = pc.utf8_trim_whitespace(column)
     if np.asarray(pc.equal(raw, "")).any():
         raise ValueError("empty Location")

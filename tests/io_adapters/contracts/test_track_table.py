@@ -290,3 +290,14 @@ def test_a_column_in_a_type_holding_the_same_values_is_read_in_the_contracts_typ
         pq.write_table(wrong, tmp_path / "w.parquet")
         with pytest.raises(TrackTableError, match=words):
             track_table.read_parquet(tmp_path / "w.parquet")
+
+
+def test_neighbour_ids_are_null_where_the_source_says_no_vehicle() -> None:
+    from lanecast.io_adapters.contracts.track_schema import neighbour_ids
+
+    ids = np.array([0, 5, 0, 2**62 + 1, 7], dtype=np.int64)
+    column = neighbour_ids(ids)
+    assert column.type == pa.int64() and column.null_count == 2
+    assert column.to_pylist() == [None, 5, None, 2**62 + 1, 7]  # 64-bit ids stay exact
+    assert neighbour_ids(np.array([3.0, 0.0])).to_pylist() == [3, None]  # NGSIM's float columns
+    assert neighbour_ids(np.zeros(0, dtype=np.int64)).to_pylist() == []
