@@ -216,4 +216,5 @@ def parquet_options(schema: pa.Schema) -> dict[str, Any]:
             **dict.fromkeys(floats, "BYTE_STREAM_SPLIT"),
         },
         "write_statistics": [name for name in names if name not in NO_STATISTICS],
+        "write_batch_size": 8192,  # values encoded at a time (Arrow: 1024): the same pages, 6 % faster
     }
