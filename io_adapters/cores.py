@@ -3,8 +3,9 @@
 The cores this process may run on, less those the machine's other work keeps busy (:func:`busy`),
 shared among the worker processes of a bulk run (``--workers N`` sets
 ``LANECAST_WORKERS`` in each), at least one; ``LANECAST_THREADS`` overrides. Used by ONNX Runtime's
-sessions, the MCAP reader's SceneUpdate decoding and column-wise work on large tables (:func:`map_columns`). Under load or beside other workers the
-answer is one thread, as more threads then only contend (BENCHMARKS.md).
+sessions and torch's, the MCAP reader's SceneUpdate decoding and column-wise work on large tables
+(:func:`map_columns`). Under load or beside other workers the answer is one thread, as more threads
+then only contend (BENCHMARKS.md).
 """
 
 from __future__ import annotations

@@ -20,17 +20,18 @@ def summarise(table: pa.Table) -> list[dict[str, object]]:
     changes = np.zeros(table.num_rows, dtype=bool)
     changes[track_table.lane_change_rows(table)] = True
     starts = track_table.track_boundaries(table)[:-1]
+    code_of = {name: code for code, name in enumerate(rec_names.tolist())}
+    all_frames, track_ids = table.column("frame").to_numpy(), table.column("track_id").to_numpy()
     out = []
     for name in sorted(meta.recordings):
-        code = np.flatnonzero(rec_names == name)
-        rows = rec_codes == (code[0] if code.size else -1)
+        rows = rec_codes == code_of.get(name, -1)  # a recording without rows: none
         rate = meta.recordings[name].frame_rate
-        frames = table.column("frame").to_numpy()[rows]
+        frames = all_frames[rows]
         vehicles = np.bincount(class_codes[starts[rows[starts]]], minlength=class_names.size)
         out.append(
             {
                 "recording": name,
-                "tracks": int(np.unique(table.column("track_id").to_numpy()[rows]).size),
+                "tracks": int(np.unique(track_ids[rows]).size),
                 "rows": int(rows.sum()),
                 "frames": int(np.unique(frames).size),
                 "duration_s": float((frames.max() - frames.min() + 1) / rate) if frames.size else 0.0,

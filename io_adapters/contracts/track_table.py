@@ -446,7 +446,7 @@ def read_parquet(path: str | Path) -> pa.Table:
     table = widen_types(table)  # another tool's types and row order: the same values, the contract's form
     order = file_order(table)
     if order is not None:
-        table = table.take(pa.array(order))
+        table = take_rows(table, order)
     validate(table, source=path, file_rows=order)
     return table
 

@@ -135,7 +135,7 @@ def _with_meta(
     )
     order = track_table.file_order(table) if sort else None
     if order is not None:
-        table = table.take(pa.array(order))
+        table = track_table.take_rows(table, order)
     track_table.validate(
         table, source=path, first_row=first_row, file_rows=None if order is None else order + first_row
     )

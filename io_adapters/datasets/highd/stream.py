@@ -65,7 +65,7 @@ def _by_recording(table: pa.Table) -> list[tuple[str, pa.Table]]:
     out = []
     for code, name in enumerate(rec_names.tolist()):
         part_meta = track_table.restrict_meta(meta, [name]).to_json().encode()
-        part = table.filter(pa.array(codes == code))
+        part = track_table.take_rows(table, np.flatnonzero(codes == code))
         out.append((name, part.replace_schema_metadata({track_table.META_KEY: part_meta})))
     return out
 
