@@ -191,6 +191,9 @@ def read_meta(table: pa.Table | pa.Schema, source: str | Path | None = None) -> 
         raise TrackTableError(f"{where}bad 'lanecast' schema metadata: {exc}") from exc
 
 
+#: rows per Parquet row group of written track tables (a chunk of a long recording reads the groups
+#: that hold its context: small groups, little decoded in vain)
+ROW_GROUP_ROWS = 1 << 17
 #: columns that step by a constant along each track: delta-encoded they take a few bits a row (a
 #: dictionary of them took 12 times the space and twice the time to write)
 DELTA_COLUMNS = ("frame", "time_ns")

@@ -95,6 +95,17 @@ class Piece:
         # whole recordings: tracks written in another order are put in the contract's order
         return _with_meta(table, pf, path, first, sort=True)  # errors name rows of the file
 
+    def read_parts(self) -> Iterator[tuple[pa.Table, bool]]:
+        """:meth:`read` as parts of whole tracks, each with whether it continues the recording of
+        the part before (the first: :attr:`continues`), where the reader builds them one at a time
+        (``registry.PartsReaderModule``); else the whole piece."""
+        if self.spilled or self.row_groups:
+            yield self.read(), self.continues
+            return
+        parts = registry.reader(self.fmt).read_parts([Path(p) for p in self.paths], dict(self.options))
+        for i, (table, continues) in enumerate(parts):
+            yield table, continues if i else self.continues
+
     def read_with_context(self) -> pa.Table:
         """What windows need of the piece: :meth:`read`, or for a chunk its target tracks with
         the rows of every other track of the recording within the chunk's context times, one row

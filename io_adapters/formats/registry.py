@@ -2,7 +2,8 @@
 and how the streaming path cuts its inputs into pieces; format detection.
 
 A reader module provides ``sniff(path) -> bool`` (a cheap look at the first bytes or the name) and
-``read(paths, **options) -> pa.Table`` (a validated track table); a writer module provides
+``read(paths, **options) -> pa.Table`` (a validated track table), and may provide ``read_parts``
+(the same rows as parts built one at a time, :class:`PartsReaderModule`); a writer module provides
 ``write(table, out, fmt, **options) -> Path``. :class:`ReaderModule` and :class:`WriterModule` say
 so, and mypy checks every registered module against them (the ``TYPE_CHECKING`` block). Modules
 are imported only when first used, so that `lanecast --help` stays fast. An option a format does
@@ -29,6 +30,14 @@ class ReaderModule(Protocol):
     def sniff(self, path: Path) -> bool: ...
 
     def read(self, paths: Sequence[Path], **options: Any) -> pa.Table: ...
+
+
+class PartsReaderModule(ReaderModule, Protocol):
+    """A reader that can also give what ``read`` gives as parts of whole tracks, built one at a
+    time (``(table, continues the previous part's recording)``), so that a writer encodes one
+    while the next is built."""
+
+    def read_parts(self, paths: Sequence[Path], **options: Any) -> Iterator[tuple[pa.Table, bool]]: ...
 
 
 class WriterModule(Protocol):
@@ -78,6 +87,18 @@ class Reader:
         options = dict(options or {})
         _check_options("reader", self.name, options, self.options)
         return self.load().read(list(paths), **options)
+
+    def read_parts(
+        self, paths: Sequence[Path], options: Mapping[str, Any] | None = None
+    ) -> Iterator[tuple[pa.Table, bool]]:
+        """What :meth:`read` gives, in parts (:class:`PartsReaderModule`) where the module can, else whole."""
+        options = dict(options or {})
+        _check_options("reader", self.name, options, self.options)
+        module = self.load()
+        if hasattr(module, "read_parts"):
+            yield from cast(PartsReaderModule, module).read_parts(list(paths), **options)
+        else:
+            yield module.read(list(paths), **options), False
 
 
 @dataclass(frozen=True)
@@ -140,6 +161,7 @@ if TYPE_CHECKING:  # mypy checks each registered module against its protocol; no
     from lanecast.io_adapters.logs.rosbag import writer as _rosbag_writer
 
     _READER_MODULES: tuple[ReaderModule, ...] = (_parquet, _highd, _ngsim, _mcap, _rosbag)
+    _PARTS_MODULES: tuple[PartsReaderModule, ...] = (_highd,)
     _WRITER_MODULES: tuple[WriterModule, ...] = (_parquet, _mcap_writer, _rosbag_writer)
 
 

@@ -25,6 +25,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from lanecast.io_adapters.contracts import recording_names, track_table
+from lanecast.io_adapters.contracts.track_schema import ROW_GROUP_ROWS
 from lanecast.io_adapters.datasets.highd import reader as highd
 from lanecast.io_adapters.datasets.highd import stream as highd_stream
 from lanecast.io_adapters.datasets.ngsim import stream as ngsim_stream
@@ -38,8 +39,6 @@ from lanecast.io_adapters.progress import job_progress
 
 LONG = ("whole", "tracks", "context")  # what a recording larger than a piece becomes (plan)
 PARTS = ("part-*.parquet",)  # the files of a dataset directory output (a new one replaces them)
-ROW_GROUP_ROWS = 1 << 17  # rows per Parquet row group of written track tables (a chunk of a long
-# recording reads the groups that hold its context: small groups, little decoded in vain)
 STREAM_BYTES = 256 << 20  # NGSIM CSV exports from this size on are read incrementally
 HIGHD_STREAM_BYTES = 256 << 20  # highD tracks files likewise (longer than ~30 dense minutes; a
 # real highD recording, 15-20 minutes, is read whole: 10-20 % faster, 0.7 GB)
@@ -289,30 +288,49 @@ def write_part(item: tuple[int, Piece], root: str) -> str:
     return str(path)
 
 
+def _parts(piece: Piece, *, whole: bool) -> Iterator[tuple[pa.Table, bool]]:
+    """``piece`` whole, or as the parts its reader builds (:meth:`Piece.read_parts`)."""
+    if whole:
+        yield piece.read(), piece.continues
+    else:
+        yield from piece.read_parts()
+
+
 def _write_while_reading(
     writer: TrackTableWriter, pieces: Sequence[Piece], done: Callable[[int], None]
 ) -> None:
-    """Write each piece on a thread while the next one is read: Parquet's encoder runs on one core
-    and releases the GIL, so a dataset of many recordings keeps both cores busy (two pieces in
-    memory at a time). The pieces are written in order; the first error, of a read or a write,
-    is raised once the write before it has ended."""
+    """Write each part on a thread while the next one is read: Parquet's encoder runs on one core
+    and releases the GIL, so both cores stay busy (two parts in memory at a time). A part is a
+    piece, or into a file a part of whole tracks of it where its reader builds those one at a time
+    (:meth:`Piece.read_parts`: a highD recording); a directory output keeps a file per piece. The
+    parts are written in order; the first error, of a read or a write, is raised once the write
+    before it has ended. ``done(n)``: n more pieces written."""
     with ThreadPoolExecutor(1, thread_name_prefix="convert: writing") as pool:
         pending: Future[None] | None = None
+        ended = 0  # pieces whose last part is the pending write
 
         def written() -> None:  # the write before, ended (its error raised here)
+            nonlocal ended
             if pending is not None:
                 pending.result()
-                done(1)
+            if ended:
+                done(ended)
+                ended = 0
 
         for piece in pieces:
-            try:
-                table = piece.read()
-            except BaseException:
-                written()  # an error of the earlier piece's write comes first
-                raise
-            written()
-            pending = pool.submit(writer.write, table, piece.paths[0], continues=piece.continues)
-            del table
+            parts = _parts(piece, whole=writer.directory)
+            while True:
+                try:
+                    part = next(parts, None)
+                except BaseException:
+                    written()  # an error of the earlier part's write comes first
+                    raise
+                if part is None:
+                    break
+                written()
+                pending = pool.submit(writer.write, part[0], piece.paths[0], continues=part[1])
+                del part
+            ended += 1
         written()
 
 

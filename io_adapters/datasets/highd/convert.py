@@ -13,6 +13,8 @@ The checks run first (checks.py, meta_checks.py), on the whole file or on a bloc
 
 from __future__ import annotations
 
+import itertools
+from dataclasses import dataclass
 from datetime import datetime
 from typing import Any
 
@@ -58,18 +60,25 @@ def road_lane_markings(raw: list[float], direction: int) -> list[float]:
     return sorted(float(sign * v) for v in raw)
 
 
-def convert_tracks(
-    rec: Recording,
-    name_prefix: str,
-    meta: Meta,
-    meta_table: pa.Table,
-    tracks: pa.Table,
-    *,
-    all_tracks: bool = True,
-) -> tuple[dict[str, Any], dict[str, track_table.RecordingMeta]]:
-    """Checked and converted columns (numpy, ``recording`` and ``object_class`` as names + codes)
-    and the recordings' metadata, of the parsed ``tracks`` rows: the whole file, or with
-    ``all_tracks`` False a block of whole tracks (whose errors name rows of the block)."""
+@dataclass(frozen=True)
+class CheckedTracks:
+    """A recording's tracks (or a block of whole tracks) after every check: the columns of
+    ``TRACKS_COLUMNS`` sorted by (id, frame) [N], each row's tracksMeta row and drivingDirection
+    [N], and the lower-cased class names with each tracksMeta row's code into them."""
+
+    cols: dict[str, np.ndarray]
+    row_meta: np.ndarray
+    direction: np.ndarray
+    class_names: list[str]
+    class_codes: np.ndarray
+    frame_rate: float
+
+
+def check_tracks(
+    rec: Recording, meta: Meta, meta_table: pa.Table, tracks: pa.Table, *, all_tracks: bool = True
+) -> CheckedTracks:
+    """The parsed ``tracks`` rows, checked: the whole file, or with ``all_tracks`` False a block of
+    whole tracks (whose errors name rows of the block)."""
     tracks_path = rec.path("tracks")
     # each column copied out of the parser's blocks into one array, the columns on the free cores
     arrays = map_columns(lambda name: tracks.column(name).to_numpy(), TRACKS_COLUMNS)
@@ -82,20 +91,26 @@ def convert_tracks(
     meta_checks.check_speed_units(rec, cols, source_row, meta.frame_rate)
     checks.check_lanes(tracks_path, meta, cols, source_row)
     class_names, class_codes = meta_checks.classes(meta_table, rec)
+    return CheckedTracks(cols, row_meta, direction, class_names, class_codes, meta.frame_rate)
 
+
+def track_columns(checked: CheckedTracks, rows: np.ndarray | None = None) -> dict[str, Any]:
+    """The track-table columns (numpy; ``recording_codes`` index the names of
+    :func:`recording_metas`, ``class_codes`` ``checked.class_names``) of ``rows`` [M] of
+    ``checked``, in that order, or of all its rows."""
+    cols = checked.cols if rows is None else {name: values[rows] for name, values in checked.cols.items()}
+    direction = checked.direction if rows is None else checked.direction[rows]
+    row_meta = checked.row_meta if rows is None else checked.row_meta[rows]
     length, width = cols["width"], cols["height"]
     x, y = road_frame(direction, cols["x"] + length / 2, cols["y"] + width / 2)
     vx, vy = road_frame(direction, cols["xVelocity"], cols["yVelocity"])
     ax, ay = road_frame(direction, cols["xAcceleration"], cols["yAcceleration"])
-    names = [f"{name_prefix}-{rec.prefix}-{DIRECTION_NAMES[d]}" for d in (UPPER, LOWER)]
     out: dict[str, Any] = {
-        "recording_names": names,
         "recording_codes": (direction == LOWER).astype(np.int32),  # index into names
-        "class_names": class_names,
-        "class_codes": class_codes[row_meta],
+        "class_codes": checked.class_codes[row_meta],
         "track_id": cols["id"],
         "frame": cols["frame"],
-        "time_ns": np.rint(cols["frame"] / meta.frame_rate * 1e9).astype(np.int64),
+        "time_ns": np.rint(cols["frame"] / checked.frame_rate * 1e9).astype(np.int64),
         **{"x": x, "y": y, "heading": heading_from_velocity(vx, vy), "vx": vx, "vy": vy, "ax": ax, "ay": ay},
         "length": length,
         "width": width,
@@ -103,6 +118,14 @@ def convert_tracks(
     }
     for source, target in NEIGHBOURS.items():
         out[target] = cols[source]  # 0 (none) becomes null in concat
+    return out
+
+
+def recording_metas(
+    rec: Recording, name_prefix: str, meta: Meta, direction: np.ndarray
+) -> tuple[list[str], dict[str, track_table.RecordingMeta]]:
+    """The recording names ``[upper, lower]`` and the metadata of those with rows."""
+    names = [f"{name_prefix}-{rec.prefix}-{DIRECTION_NAMES[d]}" for d in (UPPER, LOWER)]
     files = [str(p) for p in rec.paths]
     recs: dict[str, track_table.RecordingMeta] = {}
     for d, name in zip((UPPER, LOWER), names, strict=True):
@@ -126,7 +149,52 @@ def convert_tracks(
                 **_start_fields(meta.start),
             },
         )
-    return out, recs
+    return names, recs
+
+
+def convert_tracks(
+    rec: Recording,
+    name_prefix: str,
+    meta: Meta,
+    meta_table: pa.Table,
+    tracks: pa.Table,
+    *,
+    all_tracks: bool = True,
+) -> tuple[dict[str, Any], dict[str, track_table.RecordingMeta]]:
+    """Checked and converted columns (numpy, ``recording`` and ``object_class`` as names + codes)
+    and the recordings' metadata, of the parsed ``tracks`` rows: the whole file, or with
+    ``all_tracks`` False a block of whole tracks (whose errors name rows of the block)."""
+    checked = check_tracks(rec, meta, meta_table, tracks, all_tracks=all_tracks)
+    names, recs = recording_metas(rec, name_prefix, meta, checked.direction)
+    return {"recording_names": names, "class_names": checked.class_names, **track_columns(checked)}, recs
+
+
+def direction_parts(
+    checked: CheckedTracks, names: list[str], part_rows: int
+) -> list[tuple[int, list[np.ndarray]]]:
+    """The rows of ``checked`` in the track table's order, as ``(code, parts)`` per recording
+    (``code`` indexes ``names``, ``[upper, lower]``; recordings in the order of their names), each
+    recording's rows [M] cut into parts of whole tracks of at most ``part_rows`` rows (a longer
+    track is a part of its own)."""
+    out = []
+    for code in sorted(range(2), key=names.__getitem__):
+        rows = np.flatnonzero(checked.direction == (UPPER, LOWER)[code])
+        if not rows.size:
+            continue
+        ids = checked.cols["id"][rows]
+        starts = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]])
+        cuts = [0]
+        while rows.size - cuts[-1] > part_rows:
+            fitting = int(starts[np.searchsorted(starts, cuts[-1] + part_rows, side="right") - 1])
+            if fitting == cuts[-1]:  # the track there is longer than part_rows: a part of its own
+                later = starts[starts > cuts[-1]]
+                if not later.size:
+                    break
+                fitting = int(later[0])
+            cuts.append(fitting)
+        cuts.append(rows.size)
+        out.append((code, [rows[a:b] for a, b in itertools.pairwise(cuts)]))
+    return out
 
 
 def _start_fields(start: datetime | None) -> dict[str, Any]:

@@ -417,12 +417,15 @@ def test_a_write_that_fails_is_named_before_a_later_piece_that_does_not_read(
     """A piece is written while the next one is read: the earlier piece's error comes first, as
     when one piece was read and written after the other."""
     first = _without_neighbours(dataset, tmp_path / "a.parquet")
+    with_neighbours = track_table.write_parquet(
+        registry.read_any([dataset / "02_tracks.csv"]), tmp_path / "b.parquet"
+    )
     good = registry.read_any([dataset / "03_tracks.csv"])
     x = good.column("x").to_numpy().copy()
     x[len(x) // 2] = np.nan  # found when the piece is read, not when it is planned
     damaged = tmp_path / "damaged.parquet"
     pq.write_table(good.set_column(good.schema.get_field_index("x"), "x", pa.array(x)), damaged)
-    pieces = [*streaming.plan([first, dataset / "02_tracks.csv"]), *streaming.plan([damaged])]
+    pieces = streaming.plan([first, with_neighbours, damaged])
     with pytest.raises(InputError, match="neighbour columns") as info:
         streaming.convert(pieces, tmp_path / "o.parquet", directory=False)
     assert "damaged.parquet" in str(info.value.__context__)  # the later read failed too, after it

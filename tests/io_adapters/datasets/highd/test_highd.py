@@ -186,6 +186,54 @@ def test_one_direction_only(tmp_path: Path) -> None:
     assert t.num_rows == 8
 
 
+def _parts(paths: list[Path], part_rows: int) -> list[tuple[pa.Table, bool]]:
+    return list(highd.read_parts(paths, part_rows=part_rows))
+
+
+@pytest.mark.parametrize("part_rows", [1, 2, 3, 5, 8, 100])
+def test_parts_hold_the_table_read_gives_in_its_order(table: pa.Table, part_rows: int) -> None:
+    """Parts of whole tracks of one recording each, at most part_rows rows but for a longer track,
+    the first of each recording not continuing: put together, read's table, row for row."""
+    parts = _parts([DATA], part_rows)
+    joined = pa.concat_tables([t for t, _ in parts]).combine_chunks()
+    assert joined.equals(table.combine_chunks())
+    recordings = []
+    for part, continues in parts:
+        names = track_table.read_meta(part).recordings
+        assert len(names) == 1 and set(part.column("recording").cast(pa.string()).to_pylist()) == set(names)
+        recordings.append(next(iter(names)))
+        tracks = len(track_table.track_boundaries(part)) - 1
+        assert part.num_rows <= part_rows or tracks == 1
+        assert continues == (len(recordings) > 1 and recordings[-2] == recordings[-1])
+    assert sorted(set(recordings)) == recordings[:1] + recordings[-1:] == ["highd-01-lower", "highd-01-upper"]
+
+
+def test_parts_of_rows_of_one_track_each_and_of_several_recordings(tmp_path: Path) -> None:
+    # 4 tracks of 5, 3, 3 and 3 rows: 3 rows a part gives one track a part
+    assert [t.num_rows for t, _ in _parts([DATA], 3)] == [5, 3, 3, 3]
+    assert [t.num_rows for t, _ in _parts([DATA], 8)] == [8, 6]
+    for prefix in ("01", "02"):
+        for name in FILES:
+            shutil.copy(DATA / name, tmp_path / name.replace("01", prefix))
+    meta = tmp_path / "02_recordingMeta.csv"
+    head, row, *rest = meta.read_text().splitlines(keepends=True)
+    meta.write_text("".join([head, "2" + row[row.index(",") :], *rest]))
+    parts = _parts([tmp_path], 100)
+    assert [next(iter(track_table.read_meta(t).recordings)) for t, _ in parts] == [
+        "highd-01-lower", "highd-01-upper", "highd-02-lower", "highd-02-upper"
+    ]  # fmt: skip
+    assert [c for _, c in parts] == [False] * 4
+
+
+def test_parts_refuse_bad_input_as_read_does(tmp_path: Path) -> None:
+    name, edit, culprit, line, column, words = BAD_INPUTS["numFrames disagrees"]
+    _variant(tmp_path, name, edit)
+    with pytest.raises(InputError) as info:
+        _parts([tmp_path], 3)
+    assert (Path(info.value.path or "").name, info.value.line, info.value.column) == (culprit, line, column)
+    assert words in str(info.value)
+
+
 # ------------------------------------------------------------------ sniff and CLI
 
 
