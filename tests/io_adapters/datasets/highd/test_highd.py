@@ -184,6 +184,8 @@ def test_one_direction_only(tmp_path: Path) -> None:
     t = highd.read([tmp_path])
     assert sorted(track_table.read_meta(t).recordings) == ["highd-01-lower"]
     assert t.num_rows == 8
+    parts = _parts([tmp_path], 100)
+    assert len(parts) == 1 and parts[0][0].equals(t, check_metadata=True)
 
 
 def _parts(paths: list[Path], part_rows: int) -> list[tuple[pa.Table, bool]]:
