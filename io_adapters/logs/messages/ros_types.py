@@ -14,9 +14,10 @@ name, and decoding it with another layout would read garbage.
 
 from __future__ import annotations
 
-from functools import cache
+from collections.abc import Callable
+from functools import cache, partial
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typestore
@@ -127,6 +128,16 @@ def _defaults(store: Any, typename: str) -> dict[str, Any]:
     return {name: _default(store, desc) for name, desc in fields}
 
 
+@cache
+def constructor(store: Any, typename: str, fields: tuple[str, ...]) -> Callable[..., Any]:
+    """What builds ``typename`` of ``store`` from values for exactly ``fields`` (keywords): the
+    message class itself where those are all its fields (no defaults to fill in: a writer's inner
+    loop), else :func:`make`."""
+    if set(fields) == {name for name, _ in store.fielddefs[typename][1]}:
+        return cast(Callable[..., Any], store.types[typename])
+    return partial(make, store, typename)
+
+
 def make(store: Any, typename: str, **values: Any) -> Any:
     """An instance of ``typename`` in ``store``: fields given in ``values``, the rest defaults.
 
@@ -135,5 +146,7 @@ def make(store: Any, typename: str, **values: Any) -> Any:
     a value for a field the type does not have is left out.
     """
     defaults = _defaults(store, typename)
-    args = {name: values[name] if name in values else default for name, default in defaults.items()}
+    args = {**defaults, **values}
+    if len(args) != len(defaults):  # a field of another ROS version's definition
+        args = {name: args[name] for name in defaults}
     return store.types[typename](**args)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -63,6 +64,46 @@ class _Builder:
             ).tolist(),
         }
         self.seq = 0
+        new = partial(ros_types.constructor, self.store)
+        self.point = new("geometry_msgs/msg/Point", ("x", "y", "z"))
+        self.quaternion = new("geometry_msgs/msg/Quaternion", ("x", "y", "z", "w"))
+        self.pose_of = new("geometry_msgs/msg/Pose", ("position", "orientation"))
+        self.vector = new("geometry_msgs/msg/Vector3", ("x", "y", "z"))
+        self.pose_covariance = new("geometry_msgs/msg/PoseWithCovariance", ("pose", "covariance"))
+        self.twist = new("geometry_msgs/msg/Twist", ("linear", "angular"))
+        self.twist_covariance = new("geometry_msgs/msg/TwistWithCovariance", ("twist", "covariance"))
+        self.accel = new("geometry_msgs/msg/Accel", ("linear", "angular"))
+        self.accel_covariance = new("geometry_msgs/msg/AccelWithCovariance", ("accel", "covariance"))
+        self.kinematics = new(
+            "autoware_perception_msgs/msg/TrackedObjectKinematics",
+            (
+                "pose_with_covariance",
+                "twist_with_covariance",
+                "acceleration_with_covariance",
+                "orientation_availability",
+                "is_stationary",
+            ),
+        )
+        self.uuid = new("unique_identifier_msgs/msg/UUID", ("uuid",))
+        self.shape = new("autoware_perception_msgs/msg/Shape", ("type", "dimensions"))
+        self.tracked_object = new(
+            "autoware_perception_msgs/msg/TrackedObject",
+            ("object_id", "existence_probability", "classification", "kinematics", "shape"),
+        )
+        marker_fields = ("header", "ns", "id", "type", "action", "pose", "scale", "color", "text")
+        self.marker = new("visualization_msgs/msg/Marker", marker_fields)
+        # sub-messages every object shares (rosbags' messages are serialized, never changed)
+        self.zero = self.vector(x=0.0, y=0.0, z=0.0)
+        self.covariance = np.zeros(36)
+        self.classes = {
+            cls: self._m(
+                "autoware_perception_msgs/msg/ObjectClassification",
+                label=conv.LABEL_OF_CLASS.get(cls, 0),
+                probability=1.0,
+            )
+            for cls in set(self.rows["cls"])
+        }
+        self.color = self._m("std_msgs/msg/ColorRGBA", r=0.2, g=0.5, b=0.9, a=0.6)
 
     def _m(self, typename: str, **values: Any) -> Any:
         return ros_types.make(self.store, typename, **values)
@@ -75,94 +116,80 @@ class _Builder:
             return self._m("std_msgs/msg/Header", seq=self.seq, stamp=t, frame_id=frame_id)
         return self._m("std_msgs/msg/Header", stamp=t, frame_id=frame_id)
 
-    def pose(self, r: int) -> Any:
-        rows = self.rows
-        return self._m(
-            "geometry_msgs/msg/Pose",
-            position=self._m("geometry_msgs/msg/Point", x=rows["x"][r], y=rows["y"][r], z=0.0),
-            orientation=self._m(
-                "geometry_msgs/msg/Quaternion", x=0.0, y=0.0, z=rows["qz"][r], w=rows["qw"][r]
-            ),
+    def frame_messages(self, rows_idx: list[int], stamp: int, frame_id: str) -> tuple[bytes, bytes]:
+        """The TrackedObjects and the MarkerArray message of one frame's rows (sharing each row's
+        pose and size)."""
+        rows, point, quaternion, pose, vector = (
+            self.rows,
+            self.point,
+            self.quaternion,
+            self.pose_of,
+            self.vector,
+        )
+        x, y, qz, qw, length, width = (rows[k] for k in ("x", "y", "qz", "qw", "length", "width"))
+        poses = [
+            pose(
+                position=point(x=x[r], y=y[r], z=0.0), orientation=quaternion(x=0.0, y=0.0, z=qz[r], w=qw[r])
+            )
+            for r in rows_idx
+        ]
+        sizes = [vector(x=length[r], y=width[r], z=conv.BOX_HEIGHT) for r in rows_idx]
+        return (
+            self.tracked_objects(rows_idx, poses, sizes, stamp, frame_id),
+            self.markers(rows_idx, poses, sizes, stamp, frame_id),
         )
 
-    def vec(self, x: float, y: float, z: float = 0.0) -> Any:
-        return self._m("geometry_msgs/msg/Vector3", x=x, y=y, z=z)
-
-    def tracked_objects(self, rows_idx: list[int], stamp: int, frame_id: str) -> bytes:
-        rows, m = self.rows, self._m
-        cov = np.zeros(36)
+    def tracked_objects(
+        self, rows_idx: list[int], poses: list[Any], sizes: list[Any], stamp: int, frame_id: str
+    ) -> bytes:
+        rows, cov, zero, vector = self.rows, self.covariance, self.zero, self.vector
         objects = []
-        for r in rows_idx:
-            kin = m(
-                "autoware_perception_msgs/msg/TrackedObjectKinematics",
-                pose_with_covariance=m(
-                    "geometry_msgs/msg/PoseWithCovariance", pose=self.pose(r), covariance=cov
-                ),
-                twist_with_covariance=m(
-                    "geometry_msgs/msg/TwistWithCovariance",
-                    twist=m(
-                        "geometry_msgs/msg/Twist",
-                        linear=self.vec(rows["vx"][r], rows["vy"][r]),
-                        angular=self.vec(0, 0),
-                    ),
+        for r, pose, size in zip(rows_idx, poses, sizes, strict=True):
+            kinematics = self.kinematics(
+                pose_with_covariance=self.pose_covariance(pose=pose, covariance=cov),
+                twist_with_covariance=self.twist_covariance(
+                    twist=self.twist(linear=vector(x=rows["vx"][r], y=rows["vy"][r], z=0.0), angular=zero),
                     covariance=cov,
                 ),
-                acceleration_with_covariance=m(
-                    "geometry_msgs/msg/AccelWithCovariance",
-                    accel=m(
-                        "geometry_msgs/msg/Accel",
-                        linear=self.vec(rows["ax"][r], rows["ay"][r]),
-                        angular=self.vec(0, 0),
-                    ),
+                acceleration_with_covariance=self.accel_covariance(
+                    accel=self.accel(linear=vector(x=rows["ax"][r], y=rows["ay"][r], z=0.0), angular=zero),
                     covariance=cov,
                 ),
                 orientation_availability=2,
                 is_stationary=False,
             )
             objects.append(
-                m(
-                    "autoware_perception_msgs/msg/TrackedObject",
-                    object_id=m(
-                        "unique_identifier_msgs/msg/UUID", uuid=to.track_id_to_uuid(rows["track"][r])
-                    ),
+                self.tracked_object(
+                    object_id=self.uuid(uuid=to.track_id_to_uuid(rows["track"][r])),
                     existence_probability=1.0,
-                    classification=[
-                        m(
-                            "autoware_perception_msgs/msg/ObjectClassification",
-                            label=conv.LABEL_OF_CLASS.get(rows["cls"][r], 0),
-                            probability=1.0,
-                        )
-                    ],
-                    kinematics=kin,
-                    shape=m(
-                        "autoware_perception_msgs/msg/Shape",
-                        type=0,
-                        dimensions=self.vec(rows["length"][r], rows["width"][r], conv.BOX_HEIGHT),
-                    ),
+                    classification=[self.classes[rows["cls"][r]]],
+                    kinematics=kinematics,
+                    shape=self.shape(type=0, dimensions=size),
                 )
             )
-        msg = m(ros_types.TRACKED_OBJECTS, header=self.header(stamp, frame_id), objects=objects)
+        msg = self._m(ros_types.TRACKED_OBJECTS, header=self.header(stamp, frame_id), objects=objects)
         return self.serialize(msg, ros_types.TRACKED_OBJECTS)
 
-    def markers(self, rows_idx: list[int], stamp: int, frame_id: str) -> bytes:
-        rows, m = self.rows, self._m
+    def markers(
+        self, rows_idx: list[int], poses: list[Any], sizes: list[Any], stamp: int, frame_id: str
+    ) -> bytes:
+        rows, marker = self.rows, self.marker
         header = self.header(stamp, frame_id)
         markers = [
-            m(
-                "visualization_msgs/msg/Marker",
+            marker(
                 header=header,
                 ns=rows["cls"][r],
                 id=rows["track"][r],
                 type=1,
                 action=0,
-                pose=self.pose(r),
-                scale=self.vec(rows["length"][r], rows["width"][r], conv.BOX_HEIGHT),
-                color=m("std_msgs/msg/ColorRGBA", r=0.2, g=0.5, b=0.9, a=0.6),
+                pose=pose,
+                scale=size,
+                color=self.color,
                 text=rows["lane"][r],
             )
-            for r in rows_idx
+            for r, pose, size in zip(rows_idx, poses, sizes, strict=True)
         ]
-        return self.serialize(m(ros_types.MARKER_ARRAY, markers=markers), ros_types.MARKER_ARRAY)
+        return self.serialize(self._m(ros_types.MARKER_ARRAY, markers=markers), ros_types.MARKER_ARRAY)
 
     def string(self, text: str) -> bytes:
         return self.serialize(self._m(ros_types.STRING, data=text), ros_types.STRING)
@@ -220,10 +247,8 @@ def write(table: pa.Table, out: Path, fmt: str = "ros2", *, storage: str = "mcap
                 g = group_list[rec]
                 rows = g.order[g.starts[gi] : g.starts[gi + 1]].tolist()
                 topic = topics[names[rec]]
-                for name, payload in (
-                    (topic, builder.tracked_objects(rows, stamp, frames[rec])),
-                    (topic + conv.MARKER_SUFFIX, builder.markers(rows, stamp, frames[rec])),
-                ):
+                tracked, markers = builder.frame_messages(rows, stamp, frames[rec])
+                for name, payload in ((topic, tracked), (topic + conv.MARKER_SUFFIX, markers)):
                     writer.write(conns[name], stamp, payload)
                     digest.add(name, stamp, payload)
                 progress.update(1)
