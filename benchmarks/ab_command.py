@@ -36,6 +36,7 @@ from interleave import machine_line, round_orders
 
 def run(tree: Path, command: list[str], out: Path) -> dict[str, float]:
     shutil.rmtree(out, ignore_errors=True)
+    out.unlink(missing_ok=True)  # an output that is one file (a ROS 1 bag)
     env = dict(os.environ, PYTHONPATH=str(tree))
     started = time.perf_counter()
     with tempfile.TemporaryFile() as log:
@@ -64,7 +65,11 @@ def run(tree: Path, command: list[str], out: Path) -> dict[str, float]:
 
 
 def same_outputs(a: Path, b: Path) -> list[str]:
-    """One line per output file of ``a``: identical or DIFFERENT in ``b``."""
+    """One line per output file of ``a`` (the output itself where it is one file): identical or
+    DIFFERENT in ``b``."""
+    if a.is_file():
+        same = b.is_file() and filecmp.cmp(a, b, shallow=False)
+        return [f"  {b.name}: {'identical' if same else 'DIFFERENT'}"]
     lines = []
     for name in sorted(os.listdir(a)):
         if name == "manifest.json":
