@@ -33,6 +33,18 @@ def run_bounds(*keys: np.ndarray) -> np.ndarray:
     return np.concatenate([np.flatnonzero(new), [new.size]]).astype(np.int64)
 
 
+def run_groups(bounds: np.ndarray, max_rows: int) -> np.ndarray:
+    """int64 [G + 1]: consecutive whole runs grouped, at most ``max_rows`` rows a group (a longer
+    run is a group of its own), as indices into the runs of ``bounds`` (:func:`run_bounds`): group
+    g is runs ``groups[g]:groups[g + 1]``, rows ``bounds[groups[g]]:bounds[groups[g + 1]]``."""
+    runs = bounds.size - 1
+    groups = [0]
+    while groups[-1] < runs:
+        last = int(np.searchsorted(bounds, bounds[groups[-1]] + max_rows, side="right")) - 1
+        groups.append(min(max(last, groups[-1] + 1), runs))
+    return np.asarray(groups, dtype=np.int64)
+
+
 def row_extent(new: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(first row, last row) of each row's run, int64 [n] each (inclusive), from ``run_starts``."""
     n = new.size

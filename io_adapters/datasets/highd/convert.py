@@ -22,6 +22,7 @@ import numpy as np
 import pyarrow as pa
 
 from lanecast.io_adapters.contracts import track_schema, track_table
+from lanecast.io_adapters.contracts.track_runs import run_bounds, run_groups
 from lanecast.io_adapters.cores import map_columns
 from lanecast.io_adapters.datasets.highd import checks, meta_checks
 from lanecast.io_adapters.datasets.highd.columns import (
@@ -181,19 +182,9 @@ def direction_parts(
         rows = np.flatnonzero(checked.direction == (UPPER, LOWER)[code])
         if not rows.size:
             continue
-        ids = checked.cols["id"][rows]
-        starts = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]])
-        cuts = [0]
-        while rows.size - cuts[-1] > part_rows:
-            fitting = int(starts[np.searchsorted(starts, cuts[-1] + part_rows, side="right") - 1])
-            if fitting == cuts[-1]:  # the track there is longer than part_rows: a part of its own
-                later = starts[starts > cuts[-1]]
-                if not later.size:
-                    break
-                fitting = int(later[0])
-            cuts.append(fitting)
-        cuts.append(rows.size)
-        out.append((code, [rows[a:b] for a, b in itertools.pairwise(cuts)]))
+        bounds = run_bounds(checked.cols["id"][rows])
+        cuts = bounds[run_groups(bounds, part_rows)].tolist()
+        out.append((code, [rows[lo:hi] for lo, hi in itertools.pairwise(cuts)]))
     return out
 
 

@@ -16,6 +16,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from lanecast.io_adapters.contracts import track_table
+from lanecast.io_adapters.contracts.track_runs import run_groups
 
 CONTEXT_MARGIN_NS = 2_000_000_000  # context beyond the targets' lifetime: the native samples around
 # their first and last 10 Hz frames (resampling interpolates between neighbours' samples)
@@ -77,14 +78,9 @@ def plan_chunks(
     first = np.r_[0, np.flatnonzero(track[1:] != track[:-1]) + 1]  # each track's first row
     last = np.r_[first[1:], track.size] - 1
     t_first, t_last, ids = time_ns[first], time_ns[last], track[first]
-    # consecutive tracks of about max_rows rows each
-    cum = np.r_[first, track.size]
-    bounds = [0]
-    while bounds[-1] < first.size:
-        k = int(np.searchsorted(cum, cum[bounds[-1]] + max_rows, side="right")) - 1
-        bounds.append(min(max(k, bounds[-1] + 1), first.size))
+    groups = run_groups(np.r_[first, track.size], max_rows)  # consecutive tracks, max_rows a group
     out = []
-    for a, b in itertools.pairwise(bounds):
+    for a, b in itertools.pairwise(groups.tolist()):
         t0 = int(t_first[a:b].min()) - CONTEXT_MARGIN_NS
         t1 = int(t_last[a:b].max()) + CONTEXT_MARGIN_NS
         alive = np.flatnonzero((t_last >= t0) & (t_first <= t1))

@@ -10,6 +10,7 @@ from lanecast.io_adapters.contracts.track_runs import (
     lane_change_starts,
     row_extent,
     run_bounds,
+    run_groups,
     run_starts,
 )
 from lanecast.io_adapters.sim import sumo_highway
@@ -51,3 +52,12 @@ def test_lane_change_starts_need_both_lanes_known_and_the_same_track() -> None:
     lane = np.array([1, 2, 0, 3, 3, 4])
     known = np.array([True, True, False, True, True, True])
     assert np.flatnonzero(lane_change_starts(new_track, lane, known)).tolist() == [1, 5]
+
+
+def test_run_groups_hold_whole_runs_of_at_most_max_rows_a_longer_run_alone() -> None:
+    bounds = np.array([0, 5, 8, 11, 14])  # runs of 5, 3, 3 and 3 rows
+    assert run_groups(bounds, 3).tolist() == [0, 1, 2, 3, 4]
+    assert run_groups(bounds, 8).tolist() == [0, 2, 4]
+    assert run_groups(bounds, 6).tolist() == [0, 1, 3, 4]
+    assert run_groups(bounds, 100).tolist() == [0, 4]
+    assert run_groups(np.array([0]), 10).tolist() == [0]  # no rows: no group
