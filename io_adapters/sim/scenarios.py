@@ -13,7 +13,8 @@ Drivers decide every step (0.1 s), so a queue behind a slow zone crawls at the z
 ``waves`` they react after 1 s, which makes the queue unstable: stop-and-go waves run upstream
 through it, as on a congested real freeway (speeds swinging between standing and 10 m/s).
 
-The training mix of the shipped model (``benchmarks/train_shipped.py``) uses every scenario.
+The training mix of the shipped model (``benchmarks/train_shipped.py``) uses every scenario but
+``waves``, which measures how the model meets a regime it never saw (docs/design.md).
 """
 
 from __future__ import annotations
