@@ -22,7 +22,9 @@
 The classifier goes beyond the paper (stated in the card, ``beyond_the_paper``): its NLL is weighted
 by (1/class frequency)**0.5 and its best epoch is chosen by validation macro-F1 (defaults here).
 Simulations and windows are cached in --work (delete it to start from scratch); the same arguments
-give the same recordings and, on the same machine and thread count, the same weights.
+give the same recordings and windows. The weights are not bit-for-bit reproducible across machines
+and sessions: retraining the shipped recipe with seed 0 gave other weights, with figures
+within the spread of three seeds (BENCHMARKS.md, "Zero-shot").
 """
 
 from __future__ import annotations
@@ -315,6 +317,12 @@ def deviations(config: Any, levels: list[float], interpolated_levels: list[float
             "acceleration outlier (acceleration + N(0, 1.5 m/s²), speed + |N(0, 0.2 m/s)|), as real "
             "datasets' differentiated speeds and accelerations flicker"
         )
+    if config.derivative_noise_spread > 0:
+        spread = config.derivative_noise_spread
+        out.append(
+            f"augmentation: each window's speed and acceleration jitter and outlier share scaled by its own "
+            f"factor from U({1 - spread:g}, {1 + spread:g}), so that exact and noisy derivatives can be told apart"
+        )
     if config.decision_offsets:
         out.append(
             "classifier decision: per-class logit offsets, chosen on the validation split for the best "
@@ -378,6 +386,12 @@ def main() -> int:
         type=float,
         default=0.05,
         help="share of input entries with a speed/acceleration outlier (TrainConfig.derivative_outliers)",
+    )
+    ap.add_argument(
+        "--derivative-noise-spread",
+        type=float,
+        default=0.0,
+        help="each window's derivative noise scaled by U(1-s, 1+s) (TrainConfig.derivative_noise_spread)",
     )
     ap.add_argument(
         "--decision-offsets",
@@ -517,6 +531,7 @@ def main() -> int:
         predicted_maneuver_share=args.predicted_maneuver_share,
         neighbour_dropout=args.neighbour_dropout,
         derivative_outliers=args.derivative_outliers,
+        derivative_noise_spread=args.derivative_noise_spread,
         decision_offsets=args.decision_offsets,
     )
     data = {

@@ -30,6 +30,7 @@ class Augmentation:
     acc_noise_mps2: float = 0.0
     neighbour_dropout: float = 0.0
     derivative_outliers: float = 0.0
+    derivative_noise_spread: float = 0.0
 
 
 def augment(inputs: np.ndarray, present: np.ndarray, aug: Augmentation, rng: np.random.Generator) -> None:
@@ -40,6 +41,12 @@ def augment(inputs: np.ndarray, present: np.ndarray, aug: Augmentation, rng: np.
     3. a share ``derivative_outliers`` of the present entries gets an acceleration outlier
        N(0, 1.5 m/s²) and a speed outlier |N(0, 0.2 m/s)|;
     4. speeds kept >= 0 where they were jittered.
+
+    With ``derivative_noise_spread`` s > 0, each window's speed and acceleration jitter and its share
+    of outliers (2, 3) are scaled by its own factor drawn from U(1 − s, 1 + s), drawn after the
+    position jitter: windows as clean as a simulation's beside windows as noisy as a real tracker's,
+    for the network to tell from a window's look whether its derivatives deserve trust (measured in
+    BENCHMARKS.md, "Zero-shot": it did not help the real sample; not the shipped recipe).
     """
     batch = len(inputs)
     if aug.neighbour_dropout > 0:
@@ -50,11 +57,16 @@ def augment(inputs: np.ndarray, present: np.ndarray, aug: Augmentation, rng: np.
     if aug.position_noise_m > 0:
         jitter = rng.normal(0.0, aug.position_noise_m, size=(batch, 2, *present.shape[1:]))
         inputs[:, :2] += jitter.astype(np.float32) * present[:, None]
+    scale = np.ones((batch, 1, 1))
+    if aug.derivative_noise_spread > 0:
+        spread = aug.derivative_noise_spread
+        scale = rng.uniform(1.0 - spread, 1.0 + spread, size=(batch, 1, 1))
     for channel, std in ((2, aug.speed_noise_mps), (3, aug.acc_noise_mps2)):
         if std > 0:
-            inputs[:, channel] += rng.normal(0.0, std, size=present.shape).astype(np.float32) * present
+            noise = rng.normal(0.0, std, size=present.shape) * scale
+            inputs[:, channel] += noise.astype(np.float32) * present
     if aug.derivative_outliers > 0:
-        hit = (rng.random(present.shape) < aug.derivative_outliers) & present
+        hit = (rng.random(present.shape) < aug.derivative_outliers * scale) & present
         inputs[:, 3] += hit * rng.normal(0.0, OUTLIER_ACC_MPS2, present.shape).astype(np.float32)
         inputs[:, 2] += hit * np.abs(rng.normal(0.0, OUTLIER_SPEED_MPS, present.shape)).astype(np.float32)
     if max(aug.speed_noise_mps, aug.acc_noise_mps2) > 0:

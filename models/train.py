@@ -105,6 +105,11 @@ class TrainConfig:
     #: ±1.5 m/s² in one frame, 5 % of its standing rows in the Peachtree sample), which Gaussian
     #: jitter of 0.4 m/s² does not teach a network to ignore. 0 = none.
     derivative_outliers: float = 0.0
+    #: each training window's speed and acceleration jitter and outlier share scaled by its own
+    #: factor from U(1 − spread, 1 + spread) (0 = every window alike): with one noise level for all
+    #: windows a network learns to distrust exact derivatives as much as a real tracker's; with a
+    #: spread it might tell them apart by their look (models/augment.py; measured in BENCHMARKS.md)
+    derivative_noise_spread: float = 0.0
     #: regressor loss weight of horizon h ∝ (r_5s / r_h)**power, r_h the RMS of the training targets
     #: at h (after the reference), normalised to mean 1: 0 = the paper's plain RMSE, where the 1 s
     #: errors (centimetres) count for almost nothing beside the 5 s ones (metres) and a model may
@@ -145,6 +150,8 @@ class TrainConfig:
             )
         if not 0 <= self.derivative_outliers <= 1:
             raise ValueError(f"derivative_outliers must be in [0, 1], not {self.derivative_outliers}")
+        if not 0 <= self.derivative_noise_spread <= 1:
+            raise ValueError(f"derivative_noise_spread must be in [0, 1], not {self.derivative_noise_spread}")
         if not 0 <= self.neighbour_dropout <= 1:
             raise ValueError(f"neighbour_dropout must be in [0, 1], not {self.neighbour_dropout}")
         if not 0 <= self.horizon_weight_power <= 2:
@@ -357,6 +364,7 @@ def train(
         config.acc_noise_mps2,
         config.neighbour_dropout,
         config.derivative_outliers,
+        config.derivative_noise_spread,
     )
     train_seconds = 0.0
     progress = bar(desc="train", total=config.epochs * n_batches, unit="batch")
