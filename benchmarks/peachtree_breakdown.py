@@ -2,9 +2,10 @@
 
 The sample (tests/data/ngsim, never trained on) is an arterial queue at a red light: most targets
 stand, some creep. This splits its windows into standing targets (speed at t0 below 0.1 m/s) and
-moving ones, and prints RMSE per horizon of each model and of CV for both groups, the mean
-along-road forecast of the moving ones against where they went, and the same model with its
-acceleration input zeroed (how much the derivative inputs cost here).
+moving ones, and prints RMSE per horizon of each model and of CV for both groups, each model's ratio
+to CV over all windows (unrounded), the mean along-road forecast of the moving ones against where
+they went, and the same model with its acceleration input zeroed (how much the derivative inputs
+cost here).
 
     .venv/bin/python benchmarks/peachtree_breakdown.py [MODEL_DIR ...]   # default: the shipped model
 """
@@ -57,6 +58,8 @@ def main() -> None:
         model = STCNNForecaster.load(model_dir)
         label = "shipped" if model_dir is None else Path(model_dir).name
         show(label, model.predict(inputs, present).offsets)
+        ratio = rmse(model.predict(inputs, present).offsets, future) / rmse(cv, future)
+        print(f"  {label}: ratio to cv, all, 1-5 s: {' '.join(f'{v:.3f}' for v in ratio)}")
         zeroed = inputs.copy()
         zeroed[:, 3] = 0.0
         show(f"{label}, acc. zeroed", model.predict(zeroed, present).offsets)
