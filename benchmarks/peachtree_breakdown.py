@@ -57,14 +57,14 @@ def main() -> None:
     for model_dir in sys.argv[1:] or [None]:
         model = STCNNForecaster.load(model_dir)
         label = "shipped" if model_dir is None else Path(model_dir).name
-        show(label, model.predict(inputs, present).offsets)
-        ratio = rmse(model.predict(inputs, present).offsets, future) / rmse(cv, future)
+        pred = model.predict(inputs, present).offsets
+        show(label, pred)
+        ratio = rmse(pred, future) / rmse(cv, future)
         print(f"  {label}: ratio to cv, all, 1-5 s: {' '.join(f'{v:.3f}' for v in ratio)}")
         zeroed = inputs.copy()
         zeroed[:, 3] = 0.0
         show(f"{label}, acc. zeroed", model.predict(zeroed, present).offsets)
         moving = ~standing
-        pred = model.predict(inputs, present).offsets
         print(
             f"  moving targets, mean along-road offset 1-5 s: {label} "
             f"{' '.join(f'{v:.2f}' for v in pred[moving, :, 0].mean(0))}, went "

@@ -321,7 +321,7 @@ def deviations(config: Any, levels: list[float], interpolated_levels: list[float
         spread = config.derivative_noise_spread
         out.append(
             f"augmentation: each window's speed and acceleration jitter and outlier share scaled by its own "
-            f"factor from U({1 - spread:g}, {1 + spread:g}), so that exact and noisy derivatives can be told apart"
+            f"factor from U({1 - spread:g}, {1 + spread:g}): windows with exact derivatives beside noisier ones"
         )
     if config.decision_offsets:
         out.append(
