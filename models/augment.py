@@ -57,7 +57,7 @@ def augment(inputs: np.ndarray, present: np.ndarray, aug: Augmentation, rng: np.
     if aug.position_noise_m > 0:
         jitter = rng.normal(0.0, aug.position_noise_m, size=(batch, 2, *present.shape[1:]))
         inputs[:, :2] += jitter.astype(np.float32) * present[:, None]
-    scale = np.ones((batch, 1, 1))
+    scale: float | np.ndarray = 1.0  # per window [B, 1, 1] with a spread
     if aug.derivative_noise_spread > 0:
         spread = aug.derivative_noise_spread
         scale = rng.uniform(1.0 - spread, 1.0 + spread, size=(batch, 1, 1))
