@@ -11,7 +11,11 @@
    (lanecast.io_adapters.sim.tracking_errors), at levels cycling through --tracking-error-levels, so
    that the model meets noisy derivative inputs like real datasets' and learns when to trust them.
 3. Train the ST-CNN (both networks) and the regression-only ablation with the same config, with
-   tracker-like position noise on the training inputs (--position-noise).
+   tracker-like position noise on the training inputs (--position-noise). Then the robust regressor
+   stage (--robust-*, benchmarks/robust_regressor.py): each regressor fine-tuned a few epochs with
+   noisier speed and acceleration inputs and interpolated with the trained one (--robust-alpha of the
+   way), so that it trusts a real tracker's derivatives a little less; --robust-only gives existing
+   weights that stage.
 4. Evaluate on the held-out recordings, overall and per scenario: ST-CNN, constant velocity,
    constant acceleration, regression-only; and on the real NGSIM Peachtree sample in tests/data
    (never trained on). Write the card (training distribution, traffic statistics per scenario,
@@ -41,6 +45,7 @@ from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
 
 # scenario -> (training minutes, training seed, held-out seed); recording ids 1.. (train) and 51.. (test)
 # Twice the minutes of the recipe before (47 min, at most 10,000 windows a recording): on the same held-out
@@ -254,8 +259,11 @@ def direction_agreement(windows: Any) -> float:
     return float(np.mean((d > 0) == (label[sel] == 1))) if sel.any() else float("nan")
 
 
-def deviations(config: Any, levels: list[float], interpolated_levels: list[float]) -> list[str]:
-    """What the shipped training does beyond the paper (for the card)."""
+def deviations(
+    config: Any, levels: list[float], interpolated_levels: list[float], robust: dict[str, Any] | None = None
+) -> list[str]:
+    """What the shipped training does beyond the paper (for the card); ``robust``: the card's
+    ``training.robust_regressor``, if the regressor went through that stage."""
     out = [
         f"optimiser: Adam lr {config.lr:g}, batch {config.batch_size}, {config.epochs} epochs "
         "(the paper: lr 7e-5, 300 epochs)"
@@ -331,6 +339,16 @@ def deviations(config: Any, levels: list[float], interpolated_levels: list[float
         )
     if config.lr_schedule != "constant":
         out.append(f"learning-rate schedule: {config.lr_schedule} decay to 0 over the run, both networks")
+    if robust:
+        rc = robust["config"]
+        out.append(
+            f"robust regressor: after training, the regressor fine-tuned {rc['epochs']} epochs (lr {rc['lr']:g}) "
+            f"on the same windows with noisier derivatives (acceleration jitter {rc['acc_noise_mps2']:g} m/s², "
+            f"{100 * rc['derivative_outliers']:g} % outliers, per-window spread {rc['derivative_noise_spread']:g}), "
+            f"then its weights interpolated with the trained ones, {robust['alpha']:g} of the way "
+            "(weight-space ensembling, Wortsman et al. 2022): the acceleration input trusted a little less, "
+            "as real trackers' deserve"
+        )
     return out
 
 
@@ -399,6 +417,26 @@ def main() -> int:
         default=True,
         help="shift the classifier's decision by logit offsets chosen on validation macro-F1 "
         "(TrainConfig.decision_offsets)",
+    )
+    ap.add_argument(
+        "--robust-epochs",
+        type=int,
+        default=4,
+        help="after training: fine-tune each regressor this many epochs with the --robust-* derivative "
+        'noise and interpolate it with the trained one (0: no such stage; BENCHMARKS.md, "Zero-shot")',
+    )
+    ap.add_argument(
+        "--robust-alpha", type=float, default=0.25, help="share of the fine-tuned regressor's weights"
+    )
+    ap.add_argument("--robust-lr", type=float, default=3e-4)
+    ap.add_argument("--robust-acc-noise", type=float, default=0.7, help="m/s², as --acc-noise")
+    ap.add_argument("--robust-outliers", type=float, default=0.1, help="as --derivative-outliers")
+    ap.add_argument("--robust-spread", type=float, default=1.0, help="as --derivative-noise-spread")
+    ap.add_argument(
+        "--robust-only",
+        action="store_true",
+        help="train nothing from scratch: give the weights in --out and --work/regression-only the robust "
+        "stage, then evaluate them and rewrite the card (as --evaluate-only)",
     )
     ap.add_argument("--max-windows", type=int, default=20000, help="per training recording")
     ap.add_argument(
@@ -573,7 +611,7 @@ def main() -> int:
         "counts": windows.manifest["counts"],
         "label_direction_agreement": direction_agreement(windows),
     }
-    if args.evaluate_only:
+    if args.evaluate_only or args.robust_only:
         from lanecast.models.checkpoint import load_checkpoint
 
         net, trained = load_checkpoint(args.out / f"{SHIPPED_STEM}.json")
@@ -581,6 +619,12 @@ def main() -> int:
         net, trained = load_checkpoint(args.work / "regression-only")
         reg = SimpleNamespace(model=net, card=trained)
         reproduce = result.card["reproduce"]
+        if args.robust_only:
+            if "robust_regressor" in result.card["training"]:
+                raise SystemExit(
+                    f"{args.out} already went through the robust stage; give it the base weights"
+                )
+            reproduce += "; then python benchmarks/train_shipped.py " + " ".join(sys.argv[1:])
     else:
         t0 = time.perf_counter()
         result = train(windows, config, data_card=data)
@@ -594,6 +638,33 @@ def main() -> int:
         print(f"trained regression-only in {time.perf_counter() - t0:.0f} s", flush=True)
         save_checkpoint(reg.model, {**reg.card, "metrics": {}}, args.work / "regression-only")
         reproduce = "python benchmarks/train_shipped.py " + " ".join(sys.argv[1:])
+    if args.robust_epochs > 0 and not args.evaluate_only:
+        from robust_regressor import interpolated, robust_regressor
+
+        for name, trained_model in (("ST-CNN", result), ("regression-only", reg)):
+            tuned, recipe = robust_regressor(
+                trained_model.model,
+                trained_model.card,
+                windows,
+                epochs=args.robust_epochs,
+                lr=args.robust_lr,
+                acc_noise=args.robust_acc_noise,
+                outliers=args.robust_outliers,
+                spread=args.robust_spread,
+                seed=args.seed,
+                threads=args.threads,
+            )
+            trained_model.model = interpolated(trained_model.model, tuned, args.robust_alpha)
+            training = {
+                **trained_model.card["training"],
+                "robust_regressor": {**recipe, "alpha": args.robust_alpha},
+            }
+            trained_model.card = {**trained_model.card, "training": training}
+            print(
+                f"robust stage, {name}: {recipe['train_seconds']:g} s, alpha {args.robust_alpha:g}",
+                flush=True,
+            )
+        save_checkpoint(reg.model, {**reg.card, "metrics": {}}, args.work / "regression-only")
 
     stcnn = STCNNForecaster(result.model, result.card, "stcnn")
     reg_only = STCNNForecaster(reg.model, reg.card, "stcnn_regression_only")
@@ -643,7 +714,9 @@ def main() -> int:
             },
             "real_ngsim_peachtree_sample": real,
         },
-        "beyond_the_paper": deviations(config, levels, ilevels),
+        "beyond_the_paper": deviations(
+            config, levels, ilevels, result.card["training"].get("robust_regressor")
+        ),
         "reproduce": reproduce,
     }
     card_path = save_checkpoint(result.model, card, args.out, SHIPPED_STEM)
