@@ -20,7 +20,6 @@ the base's checksum and this recipe; their ``metrics`` are emptied (they were th
 from __future__ import annotations
 
 import argparse
-import copy
 import dataclasses
 import sys
 import time
@@ -32,18 +31,9 @@ sys.path.insert(0, str(ROOT))
 
 from lanecast.io_adapters.windows_store.dataset import load_windows  # noqa: E402
 from lanecast.models.checkpoint import SHIPPED_STEM, load_checkpoint, save_checkpoint  # noqa: E402
+from lanecast.models.finetune import interpolate_regressor  # noqa: E402
 from lanecast.models.stcnn import STCNN  # noqa: E402
 from lanecast.models.train import TrainConfig, train  # noqa: E402
-
-
-def interpolated(base: STCNN, tuned: STCNN, alpha: float) -> STCNN:
-    """``base`` with its regressor's floating-point tensors moved ``alpha`` of the way to ``tuned``'s."""
-    out = copy.deepcopy(base)
-    b, t = base.regressor.state_dict(), tuned.regressor.state_dict()
-    out.regressor.load_state_dict(
-        {k: (1 - alpha) * b[k] + alpha * t[k] if b[k].is_floating_point() else b[k] for k in b}
-    )
-    return out
 
 
 def robust_regressor(
@@ -139,7 +129,7 @@ def main() -> None:
                 link.symlink_to((args.work / "windows-test").resolve())
             training = {**card["training"], "robust_regressor": {**recipe, "alpha": alpha}}
             save_checkpoint(
-                interpolated(base, tuned, alpha),
+                interpolate_regressor(base, tuned, alpha),
                 {**card, "training": training, "metrics": {}, "reproduce": " ".join(sys.argv)},
                 run / name,
                 stem=stem,

@@ -639,7 +639,9 @@ def main() -> int:
         save_checkpoint(reg.model, {**reg.card, "metrics": {}}, args.work / "regression-only")
         reproduce = "python benchmarks/train_shipped.py " + " ".join(sys.argv[1:])
     if args.robust_epochs > 0 and not args.evaluate_only:
-        from robust_regressor import interpolated, robust_regressor
+        from robust_regressor import robust_regressor
+
+        from lanecast.models.finetune import interpolate_regressor
 
         for name, trained_model in (("ST-CNN", result), ("regression-only", reg)):
             tuned, recipe = robust_regressor(
@@ -654,7 +656,7 @@ def main() -> int:
                 seed=args.seed,
                 threads=args.threads,
             )
-            trained_model.model = interpolated(trained_model.model, tuned, args.robust_alpha)
+            trained_model.model = interpolate_regressor(trained_model.model, tuned, args.robust_alpha)
             training = {
                 **trained_model.card["training"],
                 "robust_regressor": {**recipe, "alpha": args.robust_alpha},

@@ -22,6 +22,7 @@ kept, and an out-of-distribution range that covers the base's training data and 
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import json
 from dataclasses import dataclass
@@ -107,6 +108,24 @@ class L2SP:
         for key, param in network.named_parameters():
             total = total + torch.sum((param - anchor[key].to(param.device)) ** 2)
         return self.weight * total
+
+
+def interpolate_regressor(base: STCNN, tuned: STCNN, share: float) -> STCNN:
+    """A copy of ``base`` whose regressor's floating-point tensors are moved ``share`` of the way to
+    ``tuned``'s (0: the base, 1: the tuned one); the classifier stays the base's.
+
+    Weight-space ensembling of a fine-tune and its start (Wortsman et al., CVPR 2022): fine-tuned
+    from the base, the weights stay in its basin, so their average is a working network between the
+    two (the shipped regressor's robust stage, ``benchmarks/robust_regressor.py``).
+    """
+    if not 0 <= share <= 1:
+        raise ValueError(f"share must be in [0, 1], not {share}")
+    out = copy.deepcopy(base)
+    b, t = base.regressor.state_dict(), tuned.regressor.state_dict()
+    out.regressor.load_state_dict(
+        {k: (1 - share) * b[k] + share * t[k] if b[k].is_floating_point() else b[k] for k in b}
+    )
+    return out
 
 
 def lane_change_windows(windows: Windows, rows: np.ndarray) -> int:

@@ -19,12 +19,14 @@ from lanecast.models.finetune import (
     L2SP,
     FinetuneOptions,
     finetune,
+    interpolate_regressor,
     load_replay,
     merged_distribution,
     mix_replay,
     save_replay,
     summary,
 )
+from lanecast.models.stcnn import STCNN
 from lanecast.models.train import TrainConfig, TrainResult, train
 
 CONFIG = TrainConfig(epochs=1, batch_size=64, lr=3e-3, seed=2, threads=1)
@@ -167,3 +169,21 @@ def test_cli_fine_tune_writes_card_and_summary(tmp_path, base: TrainResult, queu
     assert plain["finetune"]["keep_base"] == "none" and plain["training"]["config"]["lr"] == 1e-3
     assert cli_main(["train", str(tmp_path / "w"), "--keep-base", "none", "--out", str(tmp_path / "x")]) == 2
     assert "--keep-base" in capsys.readouterr().err
+
+
+def test_interpolate_regressor_moves_only_the_regressor_the_share_of_the_way() -> None:
+    torch.manual_seed(0)
+    base, tuned = STCNN(), STCNN()
+    half = interpolate_regressor(base, tuned, 0.5)
+    for k, v in half.regressor.state_dict().items():
+        b, t = base.regressor.state_dict()[k], tuned.regressor.state_dict()[k]
+        assert torch.allclose(v, (b + t) / 2) and not torch.equal(b, t)
+    for k, v in half.classifier.state_dict().items():
+        assert torch.equal(v, base.classifier.state_dict()[k])
+    for share, end in ((0.0, base), (1.0, tuned)):
+        at = interpolate_regressor(base, tuned, share).regressor.state_dict()
+        assert all(torch.equal(v, end.regressor.state_dict()[k]) for k, v in at.items())
+    x = torch.randn(3, 4, 8, 30)
+    assert torch.equal(base(x)[0], half(x)[0])  # the same maneuver logits
+    with pytest.raises(ValueError, match="share"):
+        interpolate_regressor(base, tuned, 1.5)
