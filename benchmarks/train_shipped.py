@@ -636,7 +636,6 @@ def main() -> int:
         t0 = time.perf_counter()
         reg = train(windows, reg_cfg, data_card=data, classifier_from=result.model)  # same classifier
         print(f"trained regression-only in {time.perf_counter() - t0:.0f} s", flush=True)
-        save_checkpoint(reg.model, {**reg.card, "metrics": {}}, args.work / "regression-only")
         reproduce = "python benchmarks/train_shipped.py " + " ".join(sys.argv[1:])
     if args.robust_epochs > 0 and not args.evaluate_only:
         from robust_regressor import robust_regressor
@@ -666,6 +665,7 @@ def main() -> int:
                 f"robust stage, {name}: {recipe['train_seconds']:g} s, alpha {args.robust_alpha:g}",
                 flush=True,
             )
+    if not args.evaluate_only:
         save_checkpoint(reg.model, {**reg.card, "metrics": {}}, args.work / "regression-only")
 
     stcnn = STCNNForecaster(result.model, result.card, "stcnn")
