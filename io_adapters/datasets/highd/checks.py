@@ -15,7 +15,7 @@ import numpy as np
 
 from lanecast.io_adapters.contracts import track_table
 from lanecast.io_adapters.datasets.csv_errors import record_lines, row_line
-from lanecast.io_adapters.datasets.highd.columns import LOWER, TRACKS_COLUMNS, UPPER
+from lanecast.io_adapters.datasets.highd.columns import LOWER, NEIGHBOURS, TRACKS_COLUMNS, UPPER
 from lanecast.io_adapters.datasets.highd.meta import Meta
 from lanecast.io_adapters.errors import InputError
 
@@ -82,7 +82,7 @@ def report_dropped(path: Path, rows: int, kept: np.ndarray, lines_known: bool) -
 
 def check_ranges(path: Path, cols: dict[str, np.ndarray], source_row: np.ndarray, frame_rate: float) -> None:
     """Values that parse but cannot be right, refused at their line: a negative frame, a frame whose
-    time overflows ``time_ns``, a size that is not positive, a laneId outside int32, a value beyond
+    time overflows ``time_ns``, a negative neighbour id, a size that is not positive, a laneId outside int32, a value beyond
     float32 or the track table's bounds. ``cols`` [N] in any order, ``source_row`` [N]."""
     max_frame = MAX_TIME_NS / 1e9 * frame_rate
     frames = f"a frame from 0 to {max_frame:.4g} (frame / frameRate {frame_rate:g} Hz in ns within int64)"
@@ -91,6 +91,7 @@ def check_ranges(path: Path, cols: dict[str, np.ndarray], source_row: np.ndarray
         ("frame", (cols["frame"] < 0) | (cols["frame"] > max_frame), frames),
         # highD numbers vehicles from 1: 0 is "no vehicle" in the neighbour columns (precedingId, …)
         ("id", cols["id"] < 1, "a vehicle id >= 1 (0 means no vehicle in the neighbour columns)"),
+        *((n, cols[n] < 0, "a vehicle id >= 0 (0 means no vehicle)") for n in NEIGHBOURS),
         ("width", ~((cols["width"] > 0) & (cols["width"] <= MAX_SIZE_M)), f"a length {size}"),
         ("height", ~((cols["height"] > 0) & (cols["height"] <= MAX_SIZE_M)), f"a width {size}"),
         ("laneId", (cols["laneId"] < -INT32_MAX) | (cols["laneId"] > INT32_MAX), "a lane id within int32"),

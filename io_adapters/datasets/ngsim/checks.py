@@ -90,7 +90,7 @@ def checked_ranges(
 ) -> dict[str, np.ndarray]:
     """The columns with the integer ones as int64, after refusing values that parse but cannot be
     right: integers read through float64 beyond 2^53, a Frame_ID whose time overflows, a
-    Global_Time beyond 2^53 ms, a size that is not positive, a negative speed, a Lane_ID that is
+    Global_Time beyond 2^53 ms, a negative neighbour id, a size that is not positive, a negative speed, a Lane_ID that is
     negative or outside int32, a value beyond float32 or the track table's bounds, lengths in metres."""
     out = dict(columns)
     bad_rows: list[tuple[int, str, str]] = []
@@ -111,6 +111,8 @@ def checked_ranges(
         for name in INTEGER_COLUMNS:
             out[name] = out[name].astype(np.int64)
         flag("vehicle_id", out["vehicle_id"] < 0, "a vehicle id >= 0")  # NGSIM numbers from 1
+        for name in ("preceding", "following"):
+            flag(name, out[name] < 0, "a vehicle id >= 0 (0 means no vehicle)")
         flag("frame_id", (out["frame_id"] < 0) | (out["frame_id"] > MAX_FRAME_ID), f"0 to {MAX_FRAME_ID}")
         flag(
             "global_time", (out["global_time"] < 0) | (out["global_time"] >= EXACT_FLOAT_INT), "0 to 2^53 ms"

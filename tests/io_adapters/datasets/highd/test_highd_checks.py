@@ -204,6 +204,8 @@ def test_an_implausible_frame_rate_is_refused_at_its_cell(
         ("frame", "-3", "a frame from 0"),
         ("frame", str(2**62), "a frame from 0"),
         ("id", str(2**63), "within int64"),
+        ("precedingId", "-3", "a vehicle id >= 0"),  # 0 is "none"; a negative id reached the table
+        ("rightAlongsideId", "-1", "a vehicle id >= 0"),
     ],
 )
 def test_highd_values_out_of_range(tmp_path: Path, column: str, value: str, expected: str) -> None:

@@ -209,6 +209,8 @@ def test_ngsim_ids_beyond_2_53_stay_distinct(tmp_path: Path) -> None:
         (13, str(2**33), "Lane_ID", "within int32"),
         (0, "9.3e18", "Vehicle_ID", "below 2^53"),
         (0, "-2", "Vehicle_ID", "a vehicle id >= 0"),  # was a phantom one-row track -2
+        (14, "-5", "Preceding", "a vehicle id >= 0"),  # 0 is "none"; a negative id reached the table
+        (15, "-1", "Following", "a vehicle id >= 0"),
     ],
 )
 def test_ngsim_values_out_of_range(
