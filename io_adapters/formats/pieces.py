@@ -188,6 +188,8 @@ def parquet_pieces(path: Path, max_rows: int = MAX_ROWS, *, long: str = "whole")
     reading only the row groups that hold its rows."""
     with _readable(path, "Parquet track table", (KeyError,)):
         pf = _open(path)
+        if "recording" not in pf.schema_arrow.names:  # as validate names it, before it is looked up
+            raise TrackTableError(f"{path}: missing column 'recording'")
         names, first, end = recording_runs(path)
     again = [k for k, name in enumerate(names) if name in names[:k]]
     if again and pf.metadata.num_rows <= max_rows:  # recordings interleaved: read whole, put in order

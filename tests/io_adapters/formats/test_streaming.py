@@ -549,3 +549,13 @@ def test_recordings_read_in_pieces_come_in_the_whole_reads_order(
     assert whole.column("recording").to_pylist()[0] == "ngsim-i-80-export"
     assert pieces.column("recording").to_pylist() == whole.column("recording").to_pylist()
     np.testing.assert_array_equal(pieces.column("x").to_numpy(), whole.column("x").to_numpy())
+
+
+def test_a_parquet_table_without_its_recording_column_is_named_as_validate_names_it(
+    dataset: Path, tmp_path: Path
+) -> None:
+    """Pieces look the column up before the table is validated: Arrow's KeyError text reached the user."""
+    path = tmp_path / "norec.parquet"
+    pq.write_table(registry.read_any([dataset]).drop_columns(["recording"]), path)
+    with pytest.raises(TrackTableError, match=r"norec\.parquet: missing column 'recording'$"):
+        streaming.parquet_pieces(path)
