@@ -141,6 +141,10 @@ def run(args: argparse.Namespace) -> int:
     freed_memory.keep_freed_memory()  # pieces reuse what the previous one freed
     if fmt != "parquet":  # drive logs are written from the whole table
         table = registry.read_any(args.inputs, fmt=args.format, **options)
+        if table.num_rows == 0:  # a log without objects, which no reader (lanecast's either) would take
+            raise InputError(
+                ", ".join(map(str, args.inputs)), "no rows", expected="at least one row to convert"
+            )
         path = registry.write_any(
             table, args.out, fmt, **({"storage": args.storage} if fmt == "ros2" else {})
         )

@@ -33,16 +33,19 @@ def test_error_is_the_last_line_after_progress(tmp_path: Path, capsys: pytest.Ca
     convert_refused(folder, tmp_path, capsys, "trajectories-b.txt, line 15", "truncated")
 
 
-@pytest.mark.parametrize("partition", [False, True])
+@pytest.mark.parametrize(
+    "out_args", [["out.parquet"], ["out", "--partition"], ["out.mcap"], ["out.bag"], ["out", "--to", "ros2"]]
+)
 def test_a_table_without_rows_leaves_no_output(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str], partition: bool
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], out_args: list[str]
 ) -> None:
     """A track table of zero rows: 'no rows to write', but the empty temporary output was renamed
-    into place anyway (the writer's own refusal did not reach the atomic write)."""
+    into place anyway (the writer's own refusal did not reach the atomic write); as a drive log it
+    was written, a log without objects that lanecast's own reader then refused."""
     path = track_table_copy(tmp_path, lambda t: t.slice(0, 0))
-    out = tmp_path / ("out" if partition else "out.parquet")
+    out = tmp_path / out_args[0]
     refused(
-        ["convert", str(path), "--out", str(out), *(["--partition"] if partition else [])],
+        ["convert", str(path), "--out", str(out), *out_args[1:]],
         capsys,
         f"error: {path}: no rows",  # the input that has none, not the output never written
     )
