@@ -224,6 +224,17 @@ def detect(path: str | Path) -> str:
                 offset=0,
                 expected=f"{magic[0]}, which starts with {magic[1]!r}",
             )
+        if path.suffix.lower() == ".txt":  # an NGSIM .txt but for its layout: say where and how
+            from lanecast.io_adapters.datasets.ngsim.sniff import txt_near_miss
+
+            miss = txt_near_miss(head)
+            if miss is not None:
+                raise FormatNotRecognisedError(
+                    path,
+                    f"format not recognised: {miss[1]}",
+                    line=miss[0],
+                    expected="an NGSIM .txt: 18 whitespace-separated numbers a line, no header",
+                )
     if path.suffix in (".safetensors", ".onnx") or (path.is_dir() and any(path.glob("*.safetensors"))):
         raise FormatNotRecognisedError(
             path,

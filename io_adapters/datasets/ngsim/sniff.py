@@ -49,6 +49,24 @@ def sniff(path: Path) -> bool:
     return sum(_is_number(t) for t in tokens) >= len(TXT_COLUMNS) - 2
 
 
+def txt_near_miss(head: bytes) -> tuple[int, str] | None:
+    """(line, what is wrong) for the start ``head`` of a .txt that reads as NGSIM's but for its
+    layout: a first row of numbers that are not 18, or a header line of NGSIM's names (its .txt
+    files have none); None for anything else, which is no NGSIM file at all."""
+    lines = head.decode("utf-8", errors="replace").lstrip("\ufeff").splitlines()
+    line = next((i for i, text in enumerate(lines) if text.strip()), None)
+    if line is None:
+        return None
+    tokens = lines[line].replace(",", " ").split()
+    names = {t.strip('"').lower() for t in tokens}
+    if set(KEY_COLUMNS) <= names:
+        return line + 1, "a header line of NGSIM's column names; an NGSIM .txt starts with its first row"
+    if len(tokens) >= 4 and sum(_is_number(t) for t in tokens) >= len(tokens) - 2:
+        sep = "comma-separated" if "," in lines[line] else "whitespace-separated"
+        return line + 1, f"{len(tokens)} {sep} fields in the first row"
+    return None
+
+
 def _is_number(token: str) -> bool:
     try:
         float(token)

@@ -29,6 +29,7 @@ from conftest import (
 )
 
 from lanecast.io_adapters.datasets.ngsim import reader as ngsim
+from lanecast.io_adapters.datasets.ngsim.columns import TXT_COLUMNS
 from lanecast.io_adapters.errors import InputError
 from lanecast.io_adapters.formats import registry
 from lanecast.workflows.cli import main
@@ -335,3 +336,23 @@ def test_an_entry_of_an_input_folder_that_is_no_file_is_named(tmp_path: Path, fo
     assert err.value.path == str(planted)
     words = "a symbolic link to a missing file" if entry == "dangling link" else "not a regular file"
     assert words in str(err.value)
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (lambda rows: [r + "  0" for r in rows], "19 whitespace-separated fields in the first row"),
+        (lambda rows: [" ".join(r.split()[:17]) for r in rows], "17 whitespace-separated fields"),
+        (lambda rows: [",".join(r.split()) for r in rows], "18 comma-separated fields"),
+        (lambda rows: [" ".join(TXT_COLUMNS), *rows], "a header line of NGSIM's column names"),
+    ],
+)
+def test_a_txt_that_is_ngsim_but_for_its_layout_is_named_with_its_line(
+    tmp_path: Path, edit: Callable[[list[str]], list[str]], message: str
+) -> None:
+    """Such files were refused as 'format not recognised' with no line and nothing about NGSIM."""
+    path = tmp_path / "trajectories-0750am-0805am.txt"
+    path.write_text("\n".join(edit([r for r in US101.read_text().splitlines() if r.strip()])) + "\n")
+    with pytest.raises(InputError, match=message) as err:
+        registry.read_any([path])
+    assert err.value.line == 1 and "18 whitespace-separated numbers" in (err.value.expected or "")
