@@ -29,7 +29,8 @@ def register(sub: argparse._SubParsersAction) -> None:
             "stay ROS 2 (foxglove_msgs/msg/SceneUpdate in CDR); ROS 1 bags become MCAP. OUT_DIR/manifest.jsonl "
             "records what made every output (options, model checksum, input checksum); a rerun skips what is done "
             "and unchanged and redoes the rest. Outputs mirror the input tree under OUT_DIR; a file there that "
-            "lanecast did not write is never overwritten."
+            "lanecast did not write is never overwritten. A log that fails is named in the manifest and on "
+            "stderr, and the others are annotated: exit status 1 (2 when none is)."
         ),
         epilog=(
             "examples:\n"

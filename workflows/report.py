@@ -20,7 +20,8 @@ def register(sub: argparse._SubParsersAction) -> None:
             "Score the forecasts in annotated logs (the output of lanecast annotate: files, directories or a "
             "bulk run's OUT_DIR with its manifest) against the tracks' recorded futures, beside the "
             "constant-velocity and constant-acceleration baselines. Writes metrics.json, report.md and "
-            "report.html into --out, overall and per log (logs/<name>/)."
+            "report.html into --out, overall and per log (logs/<name>/). A log that cannot be scored is "
+            "named in the report and on stderr, and the others are reported: exit status 1 (2 when none is)."
         ),
         epilog="example:\n  lanecast annotate logs/ --out annotated/\n  lanecast report annotated/ --out report/\n"
         "  lanecast report annotated/ --out report-predictors/ --predictions",

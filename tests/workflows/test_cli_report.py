@@ -143,3 +143,23 @@ def test_report_on_a_truncated_log_names_the_damage(
     out = tmp_path / "rep"
     refused(["report", str(log), "--out", str(out)], capsys, f"{log}, offset ", "truncated")
     no_output(out)
+
+
+def test_a_log_of_a_folder_that_cannot_be_scored_is_named_in_the_report_and_on_stderr(
+    annotated: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """It was named on stdout only ('skipped …'), and the report said nothing of it."""
+    _, folder = annotated
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    good = next(folder.glob("*.mcap"))
+    (logs / "a.mcap").write_bytes(good.read_bytes())
+    cut = logs / "b.mcap"
+    cut.write_bytes(good.read_bytes()[: good.stat().st_size // 2])
+    out = tmp_path / "rep"
+    assert main(["report", str(logs), "--out", str(out)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err.startswith(f"lanecast report: error: not scored: {cut}: {cut}, offset ")
+    meta = json.loads((out / "metrics.json").read_text())["meta"]
+    assert meta["logs"] == 1 and [line.split(":")[0] for line in meta["logs_not_scored"]] == [str(cut)]
+    assert str(cut) in (out / "report.md").read_text() and str(cut) in (out / "report.html").read_text()

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -450,6 +451,7 @@ def _write_reports(paths: list[Path], out: Path, topic: str | None, examples: in
     models = {json.dumps(p["model"], sort_keys=True) for p in parts if p["model"]}
     meta = {
         "logs": len(parts),
+        "logs_not_scored": failed or None,  # named in the report, not only on the terminal
         **(json.loads(models.pop()) if len(models) == 1 else {}),
         "forecasts_scored": int(sum(len(p["future"]) for p in parts)),
         "forecasts_in_logs": int(sum(p["n_forecasts"] for p in parts)),
@@ -474,4 +476,7 @@ def _write_reports(paths: list[Path], out: Path, topic: str | None, examples: in
     band_note = speed_band_note(metrics)
     if band_note is not None:
         print(f"  by target speed, the forecasts: {band_note}")
+    if failed:  # last, on stderr, as every command reports an error (the report names them all)
+        more = f"{len(failed)} logs not scored, the first: " if len(failed) > 1 else "not scored: "
+        print(f"lanecast report: error: {more}{failed[0]}", file=sys.stderr)
     return 1 if failed else 0, html

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import html
 import json
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -157,6 +158,8 @@ def write_documents(directory: Path, report: dict[str, Any], title: str) -> Path
     (directory / "metrics.json").write_text(json.dumps(doc, indent=2, allow_nan=False) + "\n")
     lines = [report[t]["headline"] for t in report["predictor_topics"]]
     tables = [s for t in report["predictor_topics"] for s in sections(t, report[t])]
+    if report.get("logs_not_scored"):
+        tables.append(("logs not scored", ["log and why"], [[line] for line in report["logs_not_scored"]]))
     md = [MARKDOWN_MARK, f"# {title}", "", *(f"**{line}**" for line in lines), ""]
     page = [f"<h1>{html.escape(title)}</h1>", *(f"<p><b>{html.escape(line)}</b></p>" for line in lines)]
     for name, header, rows in tables:
@@ -244,8 +247,12 @@ def report_predictors(
             raise InputError(paths[0], "no log could be scored", expected="logs with recorded predictions")
         # one log: its own report is the overall one (the bootstrap is the costly part: not twice)
         report = last if scored_logs == 1 else _report(pooled_parts, [str(p) for p in logs], boots)
+        report = {**report, "logs_not_scored": failed}
         page = write_documents(stage, report, "recorded predictors against the future in the logs")
     for t in report["predictor_topics"]:
         print(report[t]["headline"])
     print(f"report: {out / page.relative_to(stage)}")
+    if failed:  # last, on stderr, as every command reports an error (the report names them all)
+        more = f"{len(failed)} logs not scored, the first: " if len(failed) > 1 else "not scored: "
+        print(f"lanecast report: error: {more}{failed[0]}", file=sys.stderr)
     return 1 if failed else 0

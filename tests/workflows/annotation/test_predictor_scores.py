@@ -237,3 +237,25 @@ def test_lanecasts_own_forecasts_of_both_directions_are_all_matched(
     no_window = add_lanecast(scored, tracks, [])
     assert no_window == 0
     np.testing.assert_allclose(scored.lanecast["cv"]["true"], scored.true)  # same rows, same truth
+
+
+def test_a_log_of_a_folder_that_cannot_be_scored_is_named_in_the_report_and_on_stderr(
+    tmp_path: Path, mcap_report: dict[str, Any], capsys: pytest.CaptureFixture[str]
+) -> None:
+    """It was named on stdout only ('skipped …'), and the report said nothing of it."""
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    write_mcap(logs / "a.mcap")
+    cut = write_mcap(logs / "b.mcap")
+    cut.write_bytes(cut.read_bytes()[: cut.stat().st_size // 2])
+    out = tmp_path / "report"
+    assert main(["report", str(logs), "--out", str(out), "--predictions"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err.startswith(f"lanecast report: error: not scored: {cut}: {cut}, offset ")
+    page = json.loads((out / "metrics.json").read_text())
+    assert [line.split(":")[0] for line in page["logs_not_scored"]] == [str(cut)]
+    assert page[PREDICTIONS_TOPIC]["scored"] == mcap_report[PREDICTIONS_TOPIC]["scored"]  # a.mcap's alone
+    assert (
+        "## logs not scored" in (out / "report.md").read_text()
+        and str(cut) in (out / "report.html").read_text()
+    )
