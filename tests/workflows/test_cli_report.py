@@ -163,3 +163,22 @@ def test_a_log_of_a_folder_that_cannot_be_scored_is_named_in_the_report_and_on_s
     meta = json.loads((out / "metrics.json").read_text())["meta"]
     assert meta["logs"] == 1 and [line.split(":")[0] for line in meta["logs_not_scored"]] == [str(cut)]
     assert str(cut) in (out / "report.md").read_text() and str(cut) in (out / "report.html").read_text()
+
+
+@pytest.mark.parametrize("manifest", ["{not json\n", "", "[1, 2, 3]\n"])
+def test_a_damaged_manifest_is_named_and_the_logs_beside_it_are_reported(
+    annotated: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str], manifest: str
+) -> None:
+    """'no drive logs found' was the answer, naming neither the manifest nor the log beside it."""
+    _, folder = annotated
+    copy = tmp_path / "annotated"
+    copy.mkdir()
+    for log in folder.glob("*.mcap"):
+        (copy / log.name).write_bytes(log.read_bytes())
+    (copy / "manifest.jsonl").write_text(manifest)
+    assert main(["report", str(copy), "--out", str(tmp_path / "rep")]) == 0
+    assert (
+        f"{copy / 'manifest.jsonl'}: lists no annotated log; reading the logs in {copy}"
+        in capsys.readouterr().err
+    )
+    assert json.loads((tmp_path / "rep" / "metrics.json").read_text())["meta"]["logs"] == 1

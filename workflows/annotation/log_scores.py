@@ -68,9 +68,14 @@ def annotated_logs(paths: list[Path]) -> list[Path]:
         if path.is_dir() and (path / MANIFEST).is_file():
             manifest = Manifest(path)
             done = [e for e in manifest.finished().values() if e.get("status") == "done" and e.get("output")]
-            found += [manifest.output_path(e) for e in done]
-        else:
-            found += discover([path], exclude=None)
+            if done:
+                found += [manifest.output_path(e) for e in done]
+                continue
+            print(  # a manifest damaged or edited by hand: the logs beside it are still there
+                f"lanecast: {manifest.path}: lists no annotated log; reading the logs in {path}",
+                file=sys.stderr,
+            )
+        found += discover([path], exclude=None)
     missing = [p for p in found if not p.exists()]
     if missing:
         raise InputError(missing[0], "an annotated log named by the manifest is missing")
