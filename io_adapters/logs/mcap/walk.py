@@ -87,11 +87,14 @@ class ReadStats:
         )
 
     def summary(self) -> str:
-        lost = "an unknown number of" if self.messages_lost is None else f"{self.messages_lost:,}"
+        if self.messages_lost is None:  # cut short or unresynchronisable: what followed is not known
+            least = f", at least {self.chunks_lost:,} of them" if self.chunks_lost else ""
+            lost = f"an unknown number of chunks and messages{least}"
+        else:
+            lost = f"{self.chunks_lost:,} chunks with {self.messages_lost:,} messages"
         return (
             f"salvaged {self.messages:,} messages from {self.chunks - self.chunks_lost:,} intact chunks; "
-            f"lost {self.chunks_lost:,} chunks with {lost} messages"
-            + (f" ({'; '.join(self.damage)})" if self.damage else "")
+            f"lost {lost}" + (f" ({'; '.join(self.damage)})" if self.damage else "")
         )
 
 

@@ -237,6 +237,12 @@ def test_salvage_truncated_log_keeps_complete_chunks(
     assert (stats.chunks, stats.chunks_lost, stats.messages, stats.messages_lost) == (6, 1, len(kept), None)
     err = capsys.readouterr().err
     assert "salvaged" in err and "truncated" in err and str(path) in err
+    # what followed the cut is not known: never "lost 0 chunks" where most of a log is gone
+    assert "lost an unknown number of chunks and messages, at least 1 of them" in err
+    cut_between = tmp_path / "cut-between.mcap"
+    cut_between.write_bytes(data[:offset])  # just before the sixth chunk: nothing says what followed
+    mcap_reader.read_log(cut_between, salvage=True)
+    assert "; lost an unknown number of chunks and messages (" in capsys.readouterr().err
 
 
 def test_flipped_byte_in_chunk(
