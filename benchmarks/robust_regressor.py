@@ -1,5 +1,6 @@
 """Fine-tune a trained model's regressor towards noisy derivatives, then interpolate its weights with
-the base's: an experiment towards real trackers' noise, not the shipped recipe.
+the base's: the shipped recipe's robust regressor stage (``train_shipped.py --robust-*``, α 0.25),
+here for any base and several α at once, to measure the trade-off.
 
 Recipes trained from scratch with a distrusted acceleration input win the real Peachtree sample's
 creeping cars back and lose 3-4 % on clean simulation (BENCHMARKS.md, "Zero-shot"). Here the base

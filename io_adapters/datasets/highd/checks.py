@@ -82,8 +82,9 @@ def report_dropped(path: Path, rows: int, kept: np.ndarray, lines_known: bool) -
 
 def check_ranges(path: Path, cols: dict[str, np.ndarray], source_row: np.ndarray, frame_rate: float) -> None:
     """Values that parse but cannot be right, refused at their line: a negative frame, a frame whose
-    time overflows ``time_ns``, a negative neighbour id, a size that is not positive, a laneId outside int32, a value beyond
-    float32 or the track table's bounds. ``cols`` [N] in any order, ``source_row`` [N]."""
+    time overflows ``time_ns``, a negative neighbour id, a size that is not positive, a laneId
+    outside int32, a value beyond float32 or the track table's bounds. ``cols`` [N] in any order,
+    ``source_row`` [N]."""
     max_frame = MAX_TIME_NS / 1e9 * frame_rate
     frames = f"a frame from 0 to {max_frame:.4g} (frame / frameRate {frame_rate:g} Hz in ns within int64)"
     size = f"> 0 and <= {MAX_SIZE_M:g} m"

@@ -90,8 +90,9 @@ def checked_ranges(
 ) -> dict[str, np.ndarray]:
     """The columns with the integer ones as int64, after refusing values that parse but cannot be
     right: integers read through float64 beyond 2^53, a Frame_ID whose time overflows, a
-    Global_Time beyond 2^53 ms, a negative neighbour id, a size that is not positive, a negative speed, a Lane_ID that is
-    negative or outside int32, a value beyond float32 or the track table's bounds, lengths in metres."""
+    Global_Time beyond 2^53 ms, a negative neighbour id, a size that is not positive, a negative
+    speed, a Lane_ID that is negative or outside int32, a value beyond float32 or the track table's
+    bounds, lengths in metres."""
     out = dict(columns)
     bad_rows: list[tuple[int, str, str]] = []
 
