@@ -61,6 +61,14 @@ class LogForecasts:
     alt_probs: np.ndarray  # float64 [M, K]
 
 
+def report_not_scored(failed: list[str]) -> None:
+    """Name the logs a report could not score ("log: why"), last, on stderr, as every command
+    reports an error (the report itself lists them all)."""
+    if failed:
+        more = f"{len(failed)} logs not scored, the first: " if len(failed) > 1 else "not scored: "
+        print(f"lanecast report: error: {more}{failed[0]}", file=sys.stderr)
+
+
 def annotated_logs(paths: list[Path]) -> list[Path]:
     """The annotated logs named by ``paths``: files, directories, or a bulk run's output directory."""
     found: list[Path] = []
@@ -481,7 +489,5 @@ def _write_reports(paths: list[Path], out: Path, topic: str | None, examples: in
     band_note = speed_band_note(metrics)
     if band_note is not None:
         print(f"  by target speed, the forecasts: {band_note}")
-    if failed:  # last, on stderr, as every command reports an error (the report names them all)
-        more = f"{len(failed)} logs not scored, the first: " if len(failed) > 1 else "not scored: "
-        print(f"lanecast report: error: {more}{failed[0]}", file=sys.stderr)
+    report_not_scored(failed)
     return 1 if failed else 0, html

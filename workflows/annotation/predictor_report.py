@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import html
 import json
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -25,7 +24,7 @@ from lanecast.io_adapters.ownership import GENERATOR, HTML_MARK, MARKDOWN_MARK
 from lanecast.io_adapters.progress import activity, progress
 from lanecast.models.predictor_metrics import predictor_summary
 from lanecast.models.runtime import load_forecaster
-from lanecast.workflows.annotation.log_scores import annotated_logs, per_log_names
+from lanecast.workflows.annotation.log_scores import annotated_logs, per_log_names, report_not_scored
 from lanecast.workflows.annotation.predictor_scores import (
     NO_WINDOW,
     Scored,
@@ -252,7 +251,5 @@ def report_predictors(
     for t in report["predictor_topics"]:
         print(report[t]["headline"])
     print(f"report: {out / page.relative_to(stage)}")
-    if failed:  # last, on stderr, as every command reports an error (the report names them all)
-        more = f"{len(failed)} logs not scored, the first: " if len(failed) > 1 else "not scored: "
-        print(f"lanecast report: error: {more}{failed[0]}", file=sys.stderr)
+    report_not_scored(failed)
     return 1 if failed else 0
